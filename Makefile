@@ -1,0 +1,20 @@
+# Two commands for a newcomer: `make experiment` and `make test`. Each sets up
+# .venv on first use (CPU build of torch first, so nothing pulls CUDA packages).
+PYTHON ?= python3
+VENV := .venv
+STAMP := $(VENV)/.installed
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(VENV)/bin/pip install --quiet torch==2.13.0
+	$(VENV)/bin/pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+.PHONY: setup test experiment
+setup: $(STAMP)
+
+test: $(STAMP)
+	$(VENV)/bin/python -m pytest -q
+
+experiment: $(STAMP)
+	$(VENV)/bin/rhi experiment --out results

@@ -1,0 +1,76 @@
+"""The ``rhi`` command line. Each subcommand lives in its own function; errors of
+the user's making print one line on stderr and exit with status 2."""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from components.component import ComponentError
+from master.errors import ConfigError, SimulationError
+
+USER_ERRORS = (ConfigError, ComponentError)
+
+
+def not_yet(issue: int):
+    def command(args):
+        raise ConfigError(f"'rhi {args.command}' is not implemented yet (see issue {issue})")
+    return command
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="rhi", description="A deep active inference model of the rubber-hand illusion, as a co-simulation.")
+    parser.add_argument("--debug", action="store_true", help="show full tracebacks on errors")
+    commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+    train = commands.add_parser("train", help="train a visual decoder")
+    train.add_argument("--decoder", choices=("conv", "vae"), required=True)
+    train.add_argument("--config", metavar="FILE")
+    train.add_argument("--out", metavar="CKPT", required=True)
+    train.set_defaults(run=not_yet(4))
+
+    experiment = commands.add_parser("experiment", help="run the paper's rubber-hand protocol")
+    experiment.add_argument("--config", metavar="FILE")
+    experiment.add_argument("--body", metavar="FMU")
+    experiment.add_argument("--quick", action="store_true")
+    experiment.add_argument("--out", metavar="DIR", required=True)
+    experiment.set_defaults(run=not_yet(6))
+
+    export = commands.add_parser("export-body", help="export the body plant as an FMI 2.0 FMU")
+    export.add_argument("--variant", metavar="NAME")
+    export.add_argument("--out", metavar="FILE.fmu", required=True)
+    export.set_defaults(run=not_yet(7))
+
+    sweep = commands.add_parser("sweep", help="run a parameter sweep, locally or on a Dask cluster")
+    sweep.add_argument("--config", metavar="FILE", required=True)
+    sweep.add_argument("--scheduler", metavar="ADDRESS")
+    sweep.add_argument("--out", metavar="DIR", required=True)
+    sweep.set_defaults(run=not_yet(9))
+
+    bench = commands.add_parser("bench", help="measure speed")
+    bench.add_argument("--json", action="store_true")
+    bench.set_defaults(run=not_yet(8))
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.run(args) or 0
+    except USER_ERRORS as error:
+        if args.debug:
+            raise
+        print(f"rhi {args.command}: error: {error}", file=sys.stderr)
+        return 2
+    except SimulationError as error:
+        if args.debug:
+            raise
+        print(f"rhi {args.command}: error: {error}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"rhi {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,19 @@
+"""The two kinds of failure the master reports.
+
+ConfigError: the user asked for something that cannot be run (bad system, bad
+step size, bad option). The command line prints it as one line, exit status 2.
+SimulationError: a run started and a component failed a step; it names the
+component, the time and the reason.
+"""
+
+
+class ConfigError(ValueError):
+    """Bad input: a system, option or file that cannot be run."""
+
+
+class SimulationError(RuntimeError):
+    """A component failed a step (status discard, error or fatal)."""
+
+    def __init__(self, component: str, time: float, reason: str, status: str = "error"):
+        super().__init__(f"{component} failed the step at t = {time:.6g} s ({status}): {reason}")
+        self.component, self.time, self.reason, self.status = component, time, reason, status
