@@ -2,7 +2,7 @@
 
 Scalar variables become ``ScalarVariable`` elements with value references in
 declaration order; ``Array`` ports, which FMI 2.0 cannot carry, are listed under
-``VendorAnnotations/Tool[@name='rhi']``. Output dependencies go into
+``VendorAnnotations/Tool[@name='rhi']/Arrays``. Output dependencies go into
 ``ModelStructure`` as FMI defines them. fmpy's ``read_model_description``
 validates the result against the FMI 2.0 schema (see the tests).
 """
@@ -27,9 +27,14 @@ VARIABILITY = {"parameter": "fixed", "input": "continuous", "output": "continuou
 
 
 def _format(value) -> str:
+    """A start value as XML Schema writes it (true/false, INF, -INF, NaN)."""
     if isinstance(value, bool):
         return "true" if value else "false"
-    return repr(float(value)) if isinstance(value, float) else str(value)
+    if isinstance(value, float):
+        if math.isnan(value):
+            return "NaN"
+        return {math.inf: "INF", -math.inf: "-INF"}.get(value, repr(value))
+    return str(value)
 
 
 def to_xml(component) -> str:
@@ -64,8 +69,9 @@ def to_xml(component) -> str:
                 ET.SubElement(element, "BaseUnit", attributes)
     if arrays:
         tool = ET.SubElement(ET.SubElement(root, "VendorAnnotations"), "Tool", {"name": "rhi"})
+        holder = ET.SubElement(tool, "Arrays")  # the schema allows one element inside a Tool
         for v in arrays:
-            ET.SubElement(tool, "Array", {
+            ET.SubElement(holder, "Array", {
                 "name": v.name, "causality": v.causality, "shape": " ".join(map(str, v.shape)),
                 "element": v.element, "unit": v.unit, "description": v.description,
                 **({"dependsOn": " ".join(v.depends_on)} if v.depends_on is not None else {})})

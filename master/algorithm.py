@@ -75,8 +75,9 @@ def simulate(system: System, stop_time: float, step_size: float = 0.02, start_ti
 
     def set_inputs(component, outputs=None):
         for target_var, source, source_var in links[component.name]:
-            value = outputs[(source.name, source_var)] if outputs is not None else source.values[source_var]
-            component.set(target_var, value)
+            value = outputs[(source.name, source_var)] if outputs is not None else source.values.get(source_var)
+            if value is not None:  # at initialization a later source may have no output yet: keep the start
+                component.set(target_var, value)
 
     try:
         for component in components:
@@ -89,6 +90,11 @@ def simulate(system: System, stop_time: float, step_size: float = 0.02, start_ti
             component.enter_initialization_mode()
         for component in components:  # in order, so initial outputs flow forward
             set_inputs(component)
+            missing = [f"{component.name}.{v.name}" for v in component.variables.values()
+                       if v.causality == "input" and v.name not in component.values]
+            if missing:
+                raise ConfigError(f"input {missing[0]} has no value at initialization: its source comes later "
+                                  "in the order and it has no start value (reorder the components)")
             component.exit_initialization_mode()
             if component.last_reason:
                 raise SimulationError(component.name, start_time, component.last_reason, "initialization")

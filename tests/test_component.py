@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from fmpy import read_model_description
 
-from components.component import ComponentError, Status
+from components.component import Component, ComponentError, Status
 from components.variables import Variable
 from tests.toys import FailsAt, FirstOrder, Gain, ImageSink
 
@@ -88,6 +88,22 @@ def test_model_description_is_valid_fmi2(tmp_path):
     assert output.variable.name == "x" and output.dependencies == []  # state: no direct feedthrough
     units = {u.name: u for u in description.unitDefinitions}
     assert units["1/s"].baseUnit.s == -1
+
+
+class Boundaries(Gain):
+    def __init__(self):
+        Component.__init__(self, "edges", [
+            Variable("u", "input", start=float("nan"), description="not yet known"),
+            Variable("t", "input", start=-float("inf"), unit="s", description="no event yet"),
+            Variable("y", "output", description="out"),
+        ])
+
+
+def test_model_description_writes_nan_and_infinity_as_xml_schema_does(tmp_path):
+    path = tmp_path / "modelDescription.xml"
+    path.write_text(Boundaries().model_description())
+    starts = {v.name: v.start for v in read_model_description(str(path)).modelVariables}
+    assert starts == {"u": "NaN", "t": "-INF", "y": None}
 
 
 def test_model_description_feedthrough_and_arrays(tmp_path):

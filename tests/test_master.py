@@ -174,3 +174,17 @@ def test_save_refuses_images_and_writes_nothing(tmp_path):
     with pytest.raises(ConfigError, match=r"cannot write camera\.image to CSV"):
         save(result, tmp_path / "out", configuration={})
     assert not any((tmp_path / "out").iterdir())
+
+
+def test_initialization_keeps_start_value_until_a_later_source_has_output():
+    """The gain comes first, so at initialization it sees its start value (0), then the integrator's x."""
+    system = System([Gain(), Constant(), FirstOrder("integrator")],
+                    [("integrator.x", "gain.u"), ("source.y", "integrator.u")])
+    result = simulate(system, 0.2, 0.1, record=["gain.y"], parameters={"integrator.x0": 1.0})
+    np.testing.assert_allclose(result.values["gain.y"][:, 0], [0.0, 2.0, 2.2], atol=1e-12)
+
+
+def test_input_without_start_whose_source_comes_later_is_named():
+    system = System([ImageSink(), Image()], [("camera.image", "decoder.image")])
+    with pytest.raises(ConfigError, match=r"input decoder\.image has no value at initialization"):
+        simulate(system, 0.2, 0.1)

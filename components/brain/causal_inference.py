@@ -1,0 +1,73 @@
+"""Causal inference of gamma: does the seen (rubber) hand cause the felt touch? (paper eqs. 8-9).
+
+gamma = p(c1 | t_v, t_t) is the belief that the visual and the tactile event share one
+source, the seen hand. It weights the visual drive of the belief (paper eq. 6).
+
+Equation numbers are those of the compiled paper: eq. 8 is Bayes' rule (source label
+``eq:8``), eq. 9 the update rule (source label ``eq:11``; DESIGN.md's "eqs. 10-11").
+
+Choices the paper leaves open (DESIGN.md wins where it speaks):
+- The decay measures time from the last *tactile* event t_t (DESIGN.md and the released
+  agent), not from max(t_v, t_t) as the paper's eq. 9 prints.
+- Before any tactile event has been observed there is no time since touch to measure: the
+  decay is skipped and gamma holds. Gamma is then still at its start and floor gamma0 (only
+  Bayes' rule raises it, and that needs a touch), so this matches the released agent's
+  sentinel t_t = -60 s while avoiding inf arithmetic (and inf * 0 when r_decay = 0).
+- When p1 * gamma + p2 * (1 - gamma) underflows to 0 (gamma = 1 and a delay so large
+  that p1 = 0), the posterior is taken equal to the prior instead of 0/0.
+
+All functions are vectorised over the batch: arguments are arrays of shape (B,).
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.stats import norm
+
+
+def synchrony_likelihood(visual_time, tactile_time, sync_sd):
+    """p(t_v, t_t | c1): zero-mean normal density of the delay t_v - t_t, sd ``sync_sd`` (1/s).
+
+    The likelihood under a common cause in paper eq. 8; scipy's density, not a hand-written one.
+    """
+    return norm.pdf(np.asarray(visual_time) - np.asarray(tactile_time), loc=0.0, scale=sync_sd)
+
+
+def posterior_common_cause(gamma, visual_time, tactile_time, sync_sd, async_density):
+    """Paper eq. 8 (and the first case of eq. 9): Bayes' rule with prior gamma.
+
+    gamma' = p1 gamma / (p1 gamma + p2 (1 - gamma)), p1 = synchrony_likelihood(...),
+    p2 = async_density, the uniform density of the delay under two separate causes.
+    """
+    p1 = synchrony_likelihood(visual_time, tactile_time, sync_sd)
+    numerator = p1 * gamma
+    evidence = numerator + async_density * (1.0 - gamma)
+    safe = np.where(evidence > 0, evidence, 1.0)
+    return np.where(evidence > 0, numerator / safe, gamma)
+
+
+def decayed(gamma, time, tactile_time, step, decay_rate):
+    """Paper eq. 9, second case: gamma * exp(-((t - t_t)^2 / (1/dt)) * r_decay).
+
+    t_t is the last observed tactile event; where none has been observed yet (t_t = -inf)
+    gamma is returned unchanged (see the module notes).
+    """
+    touched = np.isfinite(tactile_time)
+    since = np.where(touched, time - np.where(touched, tactile_time, 0.0), 0.0)
+    return np.where(touched, gamma * np.exp(-(since ** 2 / (1.0 / step)) * decay_rate), gamma)
+
+
+def update_gamma(gamma, new_pair, visual_time, tactile_time, time, step, gamma0,
+                 sync_sd=0.2, async_density=0.5, decay_rate=1.0 / 80.0):
+    """One step of paper eq. 9 for each trial, then the clamp to [gamma0, 1].
+
+    new_pair: (B,) bool, a new visual and a new tactile event have both been observed since
+        the last Bayes update of that trial; Bayes' rule there, the decay elsewhere.
+    visual_time, tactile_time: the last observed event times, s (-inf before any).
+    time: the time the inputs describe, s; step: the communication step dt, s.
+    """
+    # Event times may be -inf where no pair is due; keep them out of the density (no inf - inf).
+    visual = np.where(new_pair, visual_time, 0.0)
+    tactile = np.where(new_pair, tactile_time, 0.0)
+    bayes = posterior_common_cause(gamma, visual, tactile, sync_sd, async_density)
+    decay = decayed(gamma, time, tactile_time, step, decay_rate)
+    return np.clip(np.where(new_pair, bayes, decay), gamma0, 1.0)

@@ -1,0 +1,217 @@
+"""The brain: the free-energy integrator of belief mu and action a (paper eqs. 6-7).
+
+Each step, for each of the B trials, in the released agent's order (DESIGN.md, "Brain"):
+
+1. gamma from the events (eqs. 8-9, :mod:`components.brain.causal_inference`);
+2. mu_dot = (s_p - mu)/Sigma_p + gamma * visual_drive;  mu <- mu + dt * mu_dot;
+3. a_dot = -(s_p - mu)/Sigma_p with the UPDATED mu;  a <- clip(a + dt * a_dot, -limit, limit).
+
+Step 3 uses mu after step 2, as the released agent does (it updates ``self.mu`` and then
+computes ``a_dot`` from it): the action already pursues the new belief.
+
+visual_drive = J^T (s_v - g(mu)) / Sigma_v comes from the decoder component, evaluated on
+this brain's mu at the start of the step (Gauss-Seidel: decoder, then brain); the brain never
+imports the decoder. Gradient flow units: the paper's mu_dot = -dF/dmu has an implicit unit
+rate (1 deg^2/s per unit of F), so 1/Sigma_p reads as a rate in 1/s.
+
+Free energy per step (output ``free_energy``, dimensionless):
+    F = sum_j (s_p - mu)_j^2 / (2 Sigma_p) + gamma * visual_error,
+with mu the belief the step started from (the one the decoder evaluated), gamma this step's
+value, and visual_error the decoder's precision-weighted squared error (1/2 e^T e / Sigma_v,
+so that -dF/dmu is the mu_dot above). It is NaN at initialization (row 0 of a recording):
+s_p may not have arrived yet, since the body steps after the brain.
+
+Time of the events: under Gauss-Seidel the stimulus has already advanced to t + h when the
+brain steps from t, so the decay of eq. 9 measures t + h minus the last tactile event time.
+
+Guards (the step fails, the master stops the run): explicit Euler of eq. 6 is stable only
+while dt * (1/Sigma_p + gamma * visual_stiffness) < 2, visual_stiffness being the largest
+eigenvalue of J^T J / Sigma_v; and every input and result must be finite (event times may be
+-inf: no event yet).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from components.brain.causal_inference import update_gamma
+from components.component import Component, ComponentError, StepFailure
+from components.variables import Variable
+
+STABILITY_LIMIT = 2.0  # explicit Euler on a linear decay of rate k is stable iff dt * k < 2
+
+
+def belief_rate(s_p, mu, gamma, visual_drive, proprioceptive_variance):
+    """Paper eq. 6: mu_dot = (s_p - mu)/Sigma_p + gamma * J^T (s_v - g(mu))/Sigma_v.
+
+    The visual term arrives as ``visual_drive`` from the decoder. s_p, mu, visual_drive:
+    (B, 2) deg and deg/s; gamma, proprioceptive_variance: (B,). Returns (B, 2) deg/s.
+    """
+    return (s_p - mu) / proprioceptive_variance[:, None] + gamma[:, None] * visual_drive
+
+
+def action_rate(s_p, mu, proprioceptive_variance):
+    """Paper eq. 7 as DESIGN.md and the released agent write it: a_dot = -(s_p - mu)/Sigma_p.
+
+    The paper's extra factor dt (from ds/da = dt) is left out, as in the released agent.
+    """
+    return -(s_p - mu) / proprioceptive_variance[:, None]
+
+
+def free_energy(s_p, mu, gamma, visual_error, proprioceptive_variance):
+    """F = sum_j (s_p - mu)_j^2 / (2 Sigma_p) + gamma * visual_error, per trial (B,)."""
+    return ((s_p - mu) ** 2).sum(axis=1) / (2.0 * proprioceptive_variance) + gamma * visual_error
+
+
+def stability_number(step, proprioceptive_variance, gamma, visual_stiffness):
+    """dt * (1/Sigma_p + gamma * visual_stiffness): explicit Euler of eq. 6 is stable below 2."""
+    return step * (1.0 / proprioceptive_variance + gamma * visual_stiffness)
+
+
+def _trials(mask) -> str:
+    indices = np.flatnonzero(mask)
+    shown = ", ".join(map(str, indices[:5])) + (", ..." if len(indices) > 5 else "")
+    return f"trial{'s' if len(indices) > 1 else ''} {shown}"
+
+
+def _require_finite(name, value, allow_minus_inf=False):
+    """StepFailure naming the variable, the first bad value and the trials, if any value is bad."""
+    value = np.asarray(value)
+    bad = np.isnan(value) | (value == np.inf) if allow_minus_inf else ~np.isfinite(value)
+    per_trial = bad.reshape(len(value), -1).any(axis=1)
+    if per_trial.any():
+        raise StepFailure(f"{name} is not finite ({value[bad].flat[0]}) in {_trials(per_trial)}")
+
+
+class Brain(Component):
+    """Free-energy integrator: belief mu, action a, gamma and free energy for B trials."""
+
+    def __init__(self, name="brain"):
+        joint = dict(type="Array", shape=(2,))
+        state = dict(causality="output", depends_on=())
+        super().__init__(name, [
+            Variable("proprioceptive_variance", "parameter", start=1.0, unit="deg2", min=0.0,
+                     description="Sigma_p, proprioceptive variance (1/Sigma_p is the belief's relaxation rate, 1/s)"),
+            Variable("gamma0", "parameter", start=0.01, unit="1", min=0.0, max=1.0,
+                     description="initial gamma and its floor (the prior of a common cause)"),
+            Variable("mu0", "parameter", start=(0.0, 0.0), unit="deg", **joint,
+                     description="initial belief (shoulder, elbow); the master sets the rest pose"),
+            Variable("sync_sd", "parameter", start=0.2, unit="s", min=0.0,
+                     description="sd of the visuo-tactile delay under a common cause"),
+            Variable("async_density", "parameter", start=0.5, unit="1/s", min=0.0,
+                     description="uniform density of the delay under separate causes (p2)"),
+            Variable("decay_rate", "parameter", start=1.0 / 80.0, unit="1/s3", min=0.0,
+                     description="r_decay; gamma *= exp(-(t - t_t)^2 * dt * r_decay) between events"),
+            Variable("action_limit", "parameter", start=1.0, unit="deg/s", min=0.0,
+                     description="the action is clipped to [-action_limit, action_limit]"),
+            Variable("q_shoulder", "input", start=np.nan, unit="deg",
+                     description="s_p: sensed shoulder angle (NaN until the body feeds it)"),
+            Variable("q_elbow", "input", start=np.nan, unit="deg",
+                     description="s_p: sensed elbow angle (NaN until the body feeds it)"),
+            Variable("visual_drive", "input", start=(0.0, 0.0), unit="deg/s", **joint,
+                     description="J^T (s_v - g(mu)) / Sigma_v from the decoder, at this step's mu"),
+            Variable("visual_error", "input", start=0.0, unit="1", min=0.0,
+                     description="decoder's precision-weighted squared error, 1/2 e^T e / Sigma_v"),
+            Variable("visual_stiffness", "input", start=0.0, unit="1/s", min=0.0,
+                     description="largest eigenvalue of J^T J / Sigma_v, for the stability guard"),
+            Variable("visual_time", "input", start=-np.inf, unit="s",
+                     description="time of the last observed visual touch event (-inf: none yet)"),
+            Variable("tactile_time", "input", start=-np.inf, unit="s",
+                     description="time of the last observed tactile event (-inf: none yet)"),
+            Variable("mu", unit="deg", **joint, **state, description="belief of the joint angles (shoulder, elbow)"),
+            Variable("u_shoulder", unit="deg/s", **state, description="action a: commanded shoulder velocity"),
+            Variable("u_elbow", unit="deg/s", **state, description="action a: commanded elbow velocity"),
+            Variable("action_rate", unit="deg/s2", **joint, **state, description="a_dot (shoulder, elbow)"),
+            Variable("gamma", unit="1", min=0.0, max=1.0, **state,
+                     description="belief that seen and felt touch share a cause; weights vision"),
+            Variable("free_energy", unit="1", **state,
+                     description="sum (s_p - mu)^2 / (2 Sigma_p) + gamma * visual_error, at the step's start mu"),
+        ])
+
+    # -- initial state: outputs follow the parameters from instantiation on, so a component
+    # stepping before the brain (the decoder) reads mu0 during initialization.
+    def instantiate(self, batch_size: int = 1) -> None:
+        super().instantiate(batch_size)
+        self._reset_state()
+
+    def set(self, name: str, value) -> None:
+        super().set(name, value)
+        if name in ("mu0", "gamma0"):
+            self._reset_state()
+
+    def _reset_state(self):
+        batch = self.batch_size
+        self.values["mu"] = self.values["mu0"].copy()
+        self.values["gamma"] = self.values["gamma0"].copy()
+        self.values["u_shoulder"], self.values["u_elbow"] = np.zeros(batch), np.zeros(batch)
+        self.values["action_rate"] = np.zeros((batch, 2))
+        self.values["free_energy"] = np.full(batch, np.nan)
+        # Event bookkeeping: last seen times, and events seen since the last Bayes update.
+        self._seen_visual, self._seen_tactile = np.full(batch, -np.inf), np.full(batch, -np.inf)
+        self._pending_visual, self._pending_tactile = np.zeros(batch, bool), np.zeros(batch, bool)
+
+    def _check_parameters(self):
+        for name in ("proprioceptive_variance", "sync_sd", "async_density", "action_limit"):
+            bad = self.values[name][~((self.values[name] > 0) & np.isfinite(self.values[name]))]
+            if bad.size:
+                raise ComponentError(f"{self.name}.{name} must be positive and finite, got {float(bad[0])!r}")
+        if not np.all(np.isfinite(self.values["mu0"])):
+            raise ComponentError(f"{self.name}.mu0 must be finite, got {self.values['mu0'].tolist()!r}")
+
+    def _sensed(self, proprioception=True):
+        """s_p as (B, 2) after checking the inputs; StepFailure names the bad one."""
+        names = ("visual_drive", "visual_error", "visual_stiffness")
+        for name in ("q_shoulder", "q_elbow") + names if proprioception else names:
+            _require_finite(name, self.values[name])
+        for name in ("visual_time", "tactile_time"):
+            _require_finite(name, self.values[name], allow_minus_inf=True)
+        return np.stack([self.values["q_shoulder"], self.values["q_elbow"]], axis=1)
+
+    def initialize(self):
+        """mu = mu0, a = a_dot = 0, gamma = gamma0, free energy NaN.
+
+        F is the free energy each step descends, so it exists from the first step on: at
+        initialization s_p may not have arrived (the body comes after the brain in the agreed
+        order, and the brain would see its start value), so row 0 of a recorded F is NaN.
+        """
+        self._check_parameters()
+        self._reset_state()
+        self._sensed(proprioception=False)
+        self.values["free_energy"] = np.full(self.batch_size, np.nan)
+
+    def step(self, t, h):
+        v = self.values
+        s_p, mu, variance = self._sensed(), v["mu"], v["proprioceptive_variance"]
+        visual_time, tactile_time = v["visual_time"], v["tactile_time"]
+
+        # 1. gamma: Bayes once a new visual and a new tactile event have both been seen.
+        pending_visual = self._pending_visual | ((visual_time != self._seen_visual) & np.isfinite(visual_time))
+        pending_tactile = self._pending_tactile | ((tactile_time != self._seen_tactile) & np.isfinite(tactile_time))
+        pair = pending_visual & pending_tactile
+        gamma = update_gamma(v["gamma"], pair, visual_time, tactile_time, t + h, h, v["gamma0"],
+                             v["sync_sd"], v["async_density"], v["decay_rate"])
+
+        unstable = ~(stability_number(h, variance, gamma, v["visual_stiffness"]) < STABILITY_LIMIT)
+        if unstable.any():
+            i = np.flatnonzero(unstable)[0]
+            raise StepFailure(
+                f"step too large for stable explicit Euler in {_trials(unstable)}: dt * (1/Sigma_p + gamma * "
+                f"visual_stiffness) = {stability_number(h, variance, gamma, v['visual_stiffness'])[i]:.4g} >= 2 "
+                f"(dt = {h:g} s, Sigma_p = {variance[i]:g}, gamma = {gamma[i]:.4g}, visual_stiffness = "
+                f"{v['visual_stiffness'][i]:.4g} 1/s); use a smaller step or a larger visual_variance")
+
+        # 2. belief, 3. action from the updated belief (released agent's order).
+        with np.errstate(over="ignore", invalid="ignore"):  # overflow is caught just below, by name
+            new_mu = mu + h * belief_rate(s_p, mu, gamma, v["visual_drive"], variance)
+            a_dot = action_rate(s_p, new_mu, variance)
+            limit = v["action_limit"][:, None]
+            action = np.stack([v["u_shoulder"], v["u_elbow"]], axis=1)
+            action = np.clip(action + h * a_dot, -limit, limit)
+            energy = free_energy(s_p, mu, gamma, v["visual_error"], variance)
+        for name, value in (("mu", new_mu), ("action_rate", a_dot), ("free_energy", energy)):
+            _require_finite(name, value)
+
+        # Commit only after every check passed: a failed step leaves the state as it was.
+        self._seen_visual, self._seen_tactile = visual_time.copy(), tactile_time.copy()
+        self._pending_visual, self._pending_tactile = pending_visual & ~pair, pending_tactile & ~pair
+        v["mu"], v["gamma"], v["action_rate"], v["free_energy"] = new_mu, gamma, a_dot, energy
+        v["u_shoulder"], v["u_elbow"] = action[:, 0].copy(), action[:, 1].copy()

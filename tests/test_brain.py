@@ -1,0 +1,308 @@
+"""The brain: exact discrete relaxation, step order, causal inference of gamma by hand, the closed-form
+fixed point with a linear decoder under the master, batch = single runs, guards and bad input."""
+import math
+
+import numpy as np
+import pytest
+
+from components.brain import Brain
+from components.brain.causal_inference import decayed, posterior_common_cause, update_gamma
+from components.component import ComponentError, Status
+from master import SimulationError, System, simulate
+from tests.linear_decoder import LinearDecoder
+from tests.toys import Constant
+
+H = 0.02
+
+
+def started(batch=1, inputs=None, **parameters):
+    """A brain past initialization, parameters and inputs set by hand (no master)."""
+    brain = Brain()
+    brain.instantiate(batch)
+    for name, value in parameters.items():
+        brain.set(name, value)
+    brain.setup_experiment(0.0)
+    brain.enter_initialization_mode()
+    for name, value in {"q_shoulder": 0.0, "q_elbow": 0.0, **(inputs or {})}.items():
+        brain.set(name, value)
+    brain.exit_initialization_mode()
+    assert brain.last_reason == ""
+    return brain
+
+
+def advance(brain, t, h=H, **inputs):
+    for name, value in inputs.items():
+        brain.set(name, value)
+    status = brain.do_step(t, h)
+    assert status == Status.OK, brain.last_reason
+    return brain
+
+
+def normal_pdf(x, sd=0.2):
+    return math.exp(-0.5 * (x / sd) ** 2) / (sd * math.sqrt(2 * math.pi))
+
+
+# -- integration -------------------------------------------------------------------------------
+
+def test_gamma_zero_relaxes_at_the_exact_discrete_rate():
+    s_p, offset, variance = np.array([147.7, -91.2]), np.array([0.3, -0.2]), 0.8
+    brain = started(gamma0=0.0, proprioceptive_variance=variance, mu0=s_p + offset,
+                    inputs={"q_shoulder": s_p[0], "q_elbow": s_p[1], "visual_drive": [[50.0, -30.0]],
+                            "visual_error": 5.0})  # a drive and an error that gamma = 0 must shut out
+    mus, actions, energies = [], [], []
+    for n in range(100):
+        advance(brain, n * H)
+        mus.append(brain.get("mu")[0])
+        actions.append([brain.get("u_shoulder")[0], brain.get("u_elbow")[0]])
+        energies.append(brain.get("free_energy")[0])
+    factor = 1 - H / variance  # per step
+    n = np.arange(1, 101)[:, None]
+    expected_mu = s_p + offset * factor ** n
+    np.testing.assert_allclose(np.array(mus) - s_p, expected_mu - s_p, rtol=1e-9, atol=1e-12)
+    # a_dot = -(s_p - mu)/Sigma_p with the belief after each update; a is its running sum times dt
+    np.testing.assert_allclose(actions, np.cumsum(H * offset * factor ** n / variance, axis=0), rtol=1e-9)
+    # F_n is the proprioceptive term at the belief step n started from; the visual term is gated off
+    previous = offset * factor ** (n - 1)
+    np.testing.assert_allclose(energies, (previous ** 2).sum(axis=1) / (2 * variance), rtol=1e-9)
+
+
+def test_action_uses_the_belief_after_its_update():
+    mu0, s_p, drive, variance, h = np.array([10.0, 20.0]), np.array([10.5, 19.0]), np.array([3.0, -4.0]), 2.0, 0.1
+    brain = started(gamma0=1.0, proprioceptive_variance=variance, mu0=mu0,
+                    inputs={"q_shoulder": s_p[0], "q_elbow": s_p[1], "visual_drive": [drive], "visual_error": 0.7})
+    advance(brain, 0.0, h)
+    mu1 = mu0 + h * ((s_p - mu0) / variance + drive)  # gamma = 1
+    np.testing.assert_allclose(brain.get("mu")[0], mu1, rtol=1e-15)
+    a_dot = -(s_p - mu1) / variance
+    a_dot_before = -(s_p - mu0) / variance
+    assert np.abs(a_dot - a_dot_before).min() > 0.1  # the two orders are told apart
+    np.testing.assert_allclose(brain.get("action_rate")[0], a_dot, rtol=1e-14)
+    np.testing.assert_allclose([brain.get("u_shoulder")[0], brain.get("u_elbow")[0]], h * a_dot, rtol=1e-14)
+    assert brain.get("free_energy")[0] == pytest.approx(((s_p - mu0) ** 2).sum() / (2 * variance) + 0.7, rel=1e-14)
+
+
+@pytest.mark.parametrize("limit", [1.0, 0.25])
+def test_action_is_clipped_to_its_limit(limit):
+    brain = started(mu0=[50.0, -50.0], action_limit=limit, gamma0=0.0)
+    for n in range(3):
+        advance(brain, n * H)
+    # mu above s_p pushes the shoulder up, mu below s_p the elbow down, both past the limit
+    assert (brain.get("u_shoulder")[0], brain.get("u_elbow")[0]) == (limit, -limit)
+
+
+# -- causal inference of gamma ------------------------------------------------------------------
+
+def test_gamma_follows_bayes_and_decay_by_hand():
+    brain = started(gamma0=0.01)
+    gamma = 0.01
+
+    def bayes(g, delay):
+        p1 = normal_pdf(delay)
+        return max(0.01, min(1.0, p1 * g / (p1 * g + 0.5 * (1 - g))))
+
+    def decay(g, now, tactile):
+        return max(0.01, g * math.exp(-((now - tactile) ** 2 / (1 / H)) * (1 / 80)))
+
+    # visual event alone, no touch yet: gamma holds
+    advance(brain, 0.98, visual_time=1.0)
+    assert brain.get("gamma")[0] == 0.01
+    # its tactile partner 10 ms later: Bayes' rule; F weighs the visual error with this new gamma
+    advance(brain, 1.0, tactile_time=1.01, visual_error=2.0)
+    gamma = bayes(gamma, 1.0 - 1.01)
+    assert gamma > 0.035 and brain.get("gamma")[0] == pytest.approx(gamma, rel=1e-13)
+    assert brain.get("free_energy")[0] == pytest.approx(2.0 * gamma, rel=1e-13)  # s_p = mu = 0
+    # no new pair: the decay, timed from the last touch to the end of the step
+    for t in (1.02, 1.04, 1.5):
+        advance(brain, t)
+        gamma = decay(gamma, t + H, 1.01)
+        assert brain.get("gamma")[0] == pytest.approx(gamma, rel=1e-13)
+    # a second synchronous pair, both events seen on the same step
+    advance(brain, 2.98, visual_time=3.0, tactile_time=3.0)
+    gamma = bayes(gamma, 0.0)
+    assert brain.get("gamma")[0] == pytest.approx(gamma, rel=1e-13)
+    before = gamma
+    # an asynchronous pair (350 ms) lowers it, exactly by Bayes' rule
+    advance(brain, 4.98, visual_time=5.0)
+    gamma = decay(gamma, 5.0, 3.0)  # the visual event alone decays
+    advance(brain, 5.34, tactile_time=5.35)
+    gamma = bayes(gamma, -0.35)
+    assert gamma < before and brain.get("gamma")[0] == pytest.approx(gamma, rel=1e-13)
+    # a very late touch (900 ms) would push it below gamma0: the clamp holds it there
+    advance(brain, 6.98, visual_time=7.0)
+    advance(brain, 7.88, tactile_time=7.9)
+    assert bayes(decay(gamma, 7.0, 5.35), -0.9) == 0.01 and brain.get("gamma")[0] == 0.01
+
+
+def test_many_synchronous_pairs_multiply_the_odds_and_stay_below_one():
+    brain = started(gamma0=0.01)
+    odds_ratio = normal_pdf(0.0) / 0.5  # per zero-delay pair, decay aside (both events on one step)
+    for k in range(1, 31):
+        advance(brain, 2.0 * k - H, visual_time=2.0 * k, tactile_time=2.0 * k)
+        gamma = brain.get("gamma")[0]
+        if k == 3:
+            assert gamma / (1 - gamma) == pytest.approx(0.01 / 0.99 * odds_ratio ** 3, rel=1e-12)
+        assert 0.01 <= gamma <= 1.0
+    assert gamma > 1 - 1e-12
+
+
+def test_decay_to_the_floor_and_the_clamp_of_the_update():
+    brain = started(gamma0=0.2, decay_rate=100.0)
+    advance(brain, 0.0, visual_time=0.01, tactile_time=0.01)
+    raised = brain.get("gamma")[0]
+    assert raised == pytest.approx(normal_pdf(0) * 0.2 / (normal_pdf(0) * 0.2 + 0.5 * 0.8), rel=1e-13)
+    advance(brain, 0.02)
+    assert brain.get("gamma")[0] == pytest.approx(raised * math.exp(-(0.03 ** 2) * H * 100), rel=1e-13)
+    for n in range(2, 40):
+        advance(brain, n * H)
+    assert brain.get("gamma")[0] == 0.2  # decayed to the floor gamma0, never below
+    clamped = update_gamma(np.array([1.5, 0.5, 0.0]), np.array([False, True, False]), np.zeros(3), np.zeros(3),
+                           0.0, H, np.full(3, 0.1))
+    assert clamped[0] == 1.0 and clamped[2] == 0.1  # out-of-range values are clamped to [gamma0, 1]
+    assert decayed(np.array([0.5]), 3.0, np.array([-np.inf]), H, 0.0)[0] == 0.5  # no touch yet: no decay
+    # a certain prior meets a density that underflows to 0: the posterior stays certain, not 0/0
+    assert posterior_common_cause(np.array([1.0, 0.5]), np.zeros(2), np.array([10.0, 0.0]), 0.2, 0.5)[0] == 1.0
+
+
+# -- the master, a linear decoder and the closed-form fixed point ----------------------------------
+
+def test_fixed_point_is_the_precision_weighted_compromise():
+    A = np.array([[0.8, 0.1], [-0.3, 0.6], [0.2, -0.5], [0.4, 0.4]])
+    b, seen = np.array([0.1, -0.2, 0.3, 0.0]), np.array([10.0, -5.0, 7.0, 2.0])
+    s_p = np.array([[30.0, -20.0], [30.0, -20.0]])
+    gammas, variance, visual_variance = np.array([1.0, 0.3]), 0.5, 0.1
+    system = System([Constant("shoulder", unit="deg"), Constant("elbow", unit="deg"), LinearDecoder(A, b, seen),
+                     Brain()],
+                    [("shoulder.y", "brain.q_shoulder"), ("elbow.y", "brain.q_elbow"), ("brain.mu", "decoder.mu"),
+                     ("decoder.visual_drive", "brain.visual_drive"), ("decoder.visual_error", "brain.visual_error"),
+                     ("decoder.visual_stiffness", "brain.visual_stiffness")])
+    result = simulate(system, stop_time=10.0, step_size=0.05, batch_size=2,
+                      parameters={"shoulder.value": s_p[:, 0], "elbow.value": s_p[:, 1], "brain.mu0": [25.0, -10.0],
+                                  "brain.gamma0": gammas, "brain.proprioceptive_variance": variance,
+                                  "decoder.visual_variance": visual_variance},
+                      record=["brain.mu", "brain.gamma", "brain.free_energy", "decoder.prediction"])
+    np.testing.assert_array_equal(result.values["brain.gamma"][-1], gammas)  # held: no events, floor gamma0
+    # the decoder, before the brain in the order, saw mu0 already at initialization
+    mu0 = np.array([25.0, -10.0])
+    np.testing.assert_allclose(result.values["decoder.prediction"][0], np.tile(A @ mu0 + b, (2, 1)), rtol=1e-15)
+    # F: NaN before any step, then evaluated at the belief each step starts from
+    initial = ((s_p - mu0) ** 2).sum(axis=1) / (2 * variance) + gammas * (
+        (seen - A @ mu0 - b) ** 2).sum() / (2 * visual_variance)
+    assert np.isnan(result.values["brain.free_energy"][0]).all()
+    np.testing.assert_allclose(result.values["brain.free_energy"][1], initial, rtol=1e-13)
+    for trial, gamma in enumerate(gammas):
+        precision = np.eye(2) / variance + gamma * A.T @ A / visual_variance
+        target = np.linalg.solve(precision, s_p[trial] / variance + gamma * A.T @ (seen - b) / visual_variance)
+        np.testing.assert_allclose(result.values["brain.mu"][-1, trial], target, rtol=0, atol=1e-10)
+        minimum = (((s_p[trial] - target) ** 2).sum() / (2 * variance)
+                   + gamma * ((seen - A @ target - b) ** 2).sum() / (2 * visual_variance))
+        assert result.values["brain.free_energy"][-1, trial] == pytest.approx(minimum, rel=1e-10)
+        assert np.all(np.diff(result.values["brain.free_energy"][1:, trial]) <= 1e-12)  # F descends
+
+
+# -- batches ---------------------------------------------------------------------------------------
+
+def scripted_inputs(trial, steps, rng):
+    """Per-trial inputs: drifting s_p, a random drive, events every 1 s with a trial-specific delay."""
+    delay = (0.03, 0.3, 0.7)[trial]
+    times = (np.arange(steps) + 1) * H
+    visual = np.where(times >= 1.0, np.floor(times + 1e-9), -np.inf)
+    tactile = np.where(times >= 1.0 + delay, np.floor(times - delay + 1e-9) + delay, -np.inf)
+    return {"q_shoulder": 140 + np.cumsum(rng.normal(0, 0.1, steps)), "q_elbow": -90 + rng.normal(0, 0.5, steps),
+            "visual_drive": rng.normal(0, 5, (steps, 2)), "visual_error": rng.uniform(0, 3, steps),
+            "visual_stiffness": rng.uniform(0, 20, steps), "visual_time": visual, "tactile_time": tactile}
+
+
+def test_a_batch_gives_the_numbers_of_single_runs():
+    steps, rng = 250, np.random.default_rng(7)
+    scripts = [scripted_inputs(trial, steps, rng) for trial in range(3)]
+    parameters = {"proprioceptive_variance": [1.0, 0.7, 2.0], "gamma0": [0.01, 0.05, 0.3],
+                  "mu0": [[140.0, -90.0], [141.0, -92.0], [139.0, -89.0]], "sync_sd": [0.2, 0.1, 0.3]}
+    outputs = ("mu", "u_shoulder", "u_elbow", "action_rate", "gamma", "free_energy")
+
+    def run(trials):
+        brain = started(len(trials), inputs={k: np.array([scripts[i][k][0] for i in trials]) for k in scripts[0]},
+                        **{k: np.array(v)[trials] for k, v in parameters.items()})
+        history = []
+        for n in range(steps):
+            advance(brain, n * H, **{k: np.array([scripts[i][k][n] for i in trials]) for k in scripts[0]})
+            history.append({k: brain.get(k).copy() for k in outputs})
+        return history
+
+    batch = run([0, 1, 2])
+    final = batch[-1]["gamma"]
+    assert final[0] > 0.5 and (final[1], final[2]) == (0.05, 0.3)  # sync rises, async sits at its floor
+    for trial in range(3):
+        single = run([trial])
+        for n in range(steps):
+            for k in outputs:
+                np.testing.assert_allclose(batch[n][k][trial], single[n][k][0], rtol=1e-12, atol=1e-12)
+
+
+# -- guards and bad input ----------------------------------------------------------------------------
+
+def test_stability_guard_fails_the_step_and_keeps_the_state():
+    brain = started(gamma0=1.0, mu0=[1.0, 2.0], inputs={"visual_stiffness": 120.0})  # 0.02 * (1 + 120) = 2.42
+    assert brain.do_step(0.0, H) == Status.ERROR
+    assert brain.last_reason.startswith("step too large for stable explicit Euler in trial 0: dt * (1/Sigma_p + "
+                                        "gamma * visual_stiffness) = 2.42 >= 2")
+    np.testing.assert_array_equal(brain.get("mu"), [[1.0, 2.0]])
+    advance(brain, 0.0, visual_stiffness=90.0)  # 1.82 < 2 passes
+    quiet = started(gamma0=0.01, inputs={"visual_stiffness": 120.0})  # gamma scales the visual stiffness
+    advance(quiet, 0.0)
+
+
+def test_stability_guard_through_the_master():
+    A, seen = np.array([[10.0, 0.0], [0.0, 1.0]]), np.zeros(2)
+    system = System([Constant("shoulder", unit="deg"), Constant("elbow", unit="deg"),
+                     LinearDecoder(A, np.zeros(2), seen), Brain()],
+                    [("shoulder.y", "brain.q_shoulder"), ("elbow.y", "brain.q_elbow"), ("brain.mu", "decoder.mu"),
+                     ("decoder.visual_drive", "brain.visual_drive"),
+                     ("decoder.visual_stiffness", "brain.visual_stiffness")])
+    with pytest.raises(SimulationError, match=r"brain failed the step at t = 0 s \(error\): step too large .* "
+                                              r"= 2\.02 >= 2 .*visual_stiffness = 100 1/s"):
+        simulate(system, 1.0, H, parameters={"brain.gamma0": 1.0})
+
+
+@pytest.mark.parametrize("name, value", [("q_shoulder", np.nan), ("q_elbow", np.inf), ("visual_error", np.nan),
+                                         ("visual_stiffness", np.nan), ("visual_time", np.nan),
+                                         ("tactile_time", np.inf)])
+def test_non_finite_input_names_the_variable_and_trial(name, value):
+    brain = started(batch=3)
+    values = np.zeros(3)
+    values[1] = value
+    brain.set(name, values)
+    assert brain.do_step(0.0, H) == Status.ERROR
+    assert brain.last_reason == f"{name} is not finite ({value}) in trial 1"
+
+
+def test_non_finite_drive_and_belief_are_named():
+    brain = started(batch=2)
+    brain.set("visual_drive", [[0.0, 0.0], [0.0, np.nan]])
+    assert brain.do_step(0.0, H) == Status.ERROR and brain.last_reason == "visual_drive is not finite (nan) in trial 1"
+    big = started(gamma0=1.0, mu0=[1.79e308, 0.0], inputs={"q_shoulder": 1.79e308, "visual_drive": [[1e308, 0.0]]})
+    assert big.do_step(0.0, H) == Status.ERROR and big.last_reason == "mu is not finite (inf) in trial 0"
+
+
+@pytest.mark.parametrize("name, value, message", [
+    ("proprioceptive_variance", 0.0, r"brain\.proprioceptive_variance must be positive and finite, got 0\.0"),
+    ("sync_sd", 0.0, r"brain\.sync_sd must be positive and finite, got 0\.0"),
+    ("async_density", np.inf, r"brain\.async_density must be positive and finite, got inf"),
+    ("action_limit", 0.0, r"brain\.action_limit must be positive and finite, got 0\.0")])
+def test_bad_parameter_is_named_at_initialization(name, value, message):
+    with pytest.raises(ComponentError, match=message):
+        started(**{name: value})
+
+
+def test_parameter_range_and_unconnected_proprioception_are_named():
+    with pytest.raises(ComponentError, match=r"brain\.gamma0 = 1\.5 is outside its range \[0\.0, 1\.0\]"):
+        started(gamma0=1.5)
+    # s_p starts as NaN; sources later in the order feed it from the first step on
+    late = System([Brain(), Constant("shoulder", unit="deg"), Constant("elbow", unit="deg")],
+                  [("shoulder.y", "brain.q_shoulder"), ("elbow.y", "brain.q_elbow")])
+    energy = simulate(late, 2 * H, H, parameters={"shoulder.value": 3.0, "elbow.value": 4.0},
+                      record=["brain.free_energy"]).values["brain.free_energy"][:, 0]
+    assert np.isnan(energy[0]) and energy[1] == pytest.approx((3.0 ** 2 + 4.0 ** 2) / 2, rel=1e-15)
+    # never fed: the first step names it
+    with pytest.raises(SimulationError, match=r"brain failed the step at t = 0 s \(error\): q_elbow is not "
+                                              r"finite \(nan\) in trial 0"):
+        simulate(System([Brain(), Constant("shoulder", unit="deg")], [("shoulder.y", "brain.q_shoulder")]), 0.1, H)
