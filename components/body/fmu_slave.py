@@ -1,0 +1,139 @@
+"""The pythonfmu slave: a native component (the arm plant) behind the FMI 2.0 co-simulation API.
+
+This file is the FMU's main script. ``master/export_command.py`` bundles it with
+a copy of the ``components`` package and a one-line resource file,
+``rhi_component.txt``, that names the model and the component class to wrap
+(``ArmBody components.body.plant:ArmPlant``): one slave class serves every body
+variant. Each FMU instance is one trial (batch size 1); every scalar variable of
+the component becomes an FMI variable with its unit, range and description, and
+value references follow the declaration order. pythonfmu finds the class by the
+literal line ``class ...(Fmi2Slave):``, so keep that line as it is.
+"""
+from __future__ import annotations
+
+import importlib
+import os
+import traceback
+
+import numpy as np
+from pythonfmu import Boolean, Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real
+from pythonfmu.enums import Fmi2Status
+
+COMPONENT_FILE = "rhi_component.txt"  # "<model name> <module>:<class>", in the FMU's resources
+# SI exponents of the units the plant uses beyond components.model_description.BASE_UNITS.
+EXTRA_UNITS = {
+    "kg": ({"kg": 1}, 1.0), "N.m": ({"kg": 1, "m": 2, "s": -2}, 1.0), "N/m": ({"kg": 1, "s": -2}, 1.0),
+    "N.s/m": ({"kg": 1, "s": -1}, 1.0), "N.m.s/rad": ({"kg": 1, "m": 2, "s": -1, "rad": -1}, 1.0),
+}
+FMI_TYPES = {"Real": Real, "Integer": Integer, "Boolean": Boolean}
+PYTHON_TYPES = {"Real": float, "Integer": int, "Boolean": bool}
+
+
+def load_component(spec: str):
+    """``module:Class`` -> a new instance of that component with its default name."""
+    module, _, name = spec.partition(":")
+    return getattr(importlib.import_module(module), name)()
+
+
+class ComponentSlave(Fmi2Slave):
+    """One trial of a native component, driven through FMI 2.0 co-simulation calls."""
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        with open(os.path.join(self.resources, COMPONENT_FILE)) as file:
+            self.modelName, spec = file.read().split()
+        self.component = load_component(spec)
+        doc = (type(self.component).__doc__ or "").strip()
+        self.description = doc.splitlines()[0] if doc else spec
+        self.component.instantiate(1)
+        self.scalars = [v for v in self.component.variables.values() if v.type != "Array"]
+        for variable in self.scalars:
+            self._register(variable)
+
+    def _register(self, variable) -> None:
+        name, cast = variable.name, PYTHON_TYPES[variable.type]
+        values = self.component.values
+        causality = getattr(Fmi2Causality, variable.causality)
+        if variable.causality == "parameter":
+            variability = Fmi2Variability.fixed
+        else:
+            variability = Fmi2Variability.continuous if variable.type == "Real" else Fmi2Variability.discrete
+        if variable.causality == "parameter":
+            setter = lambda value: self.component.set(name, np.array([cast(value)]))  # range-checked
+        elif variable.causality == "input":
+            setter = lambda value: values.__setitem__(name, np.array([cast(value)]))  # the fast path
+        else:
+            setter = None
+        self.register_variable(FMI_TYPES[variable.type](
+            name, causality=causality, variability=variability, description=variable.description,
+            getter=lambda: cast(values[name][0]) if name in values else float("nan"), setter=setter))
+
+    # -- FMI 2.0 lifecycle ------------------------------------------------------------------
+    def setup_experiment(self, start_time, stop_time=None, tolerance=None):
+        self.component.setup_experiment(start_time, stop_time)
+
+    def enter_initialization_mode(self):
+        self.component.enter_initialization_mode()
+
+    def exit_initialization_mode(self):
+        self.component.exit_initialization_mode()
+        if self.component.last_reason:
+            raise RuntimeError(self.component.last_reason)
+
+    def do_step(self, current_time, step_size):
+        try:
+            status = self.component.do_step(current_time, step_size)
+        except Exception:  # pythonfmu would only say "unknown error": log the cause, fail the step
+            self.log(traceback.format_exc(limit=3), Fmi2Status.error)
+            return False
+        if status >= 2:  # discard, error or fatal
+            self.log(self.component.last_reason or f"status {status}", Fmi2Status.error)
+            return False
+        return True
+
+    def terminate(self):
+        self.component.terminate()
+
+    # -- model description ----------------------------------------------------------------
+    def to_xml(self, model_options=None):
+        """pythonfmu's description plus what it leaves out: units, ranges, exact start values,
+        output dependencies and initial unknowns (so masters see the outputs are state)."""
+        from components.model_description import BASE_UNITS
+        root = super().to_xml(model_options or {})
+        index = {v.name: i + 1 for i, v in enumerate(self.scalars)}  # = value reference + 1
+        for element, variable in zip(root.iterfind("ModelVariables/ScalarVariable"), self.scalars):
+            typed = element[0]
+            if variable.type == "Real" and typed.get("start") is not None:
+                typed.set("start", repr(float(self.component.values[variable.name][0])))  # 17 digits
+            if variable.type == "Real" and variable.unit:
+                typed.set("unit", variable.unit)
+            for bound in ("min", "max"):
+                if getattr(variable, bound) is not None and variable.type != "Boolean":
+                    typed.set(bound, repr(PYTHON_TYPES[variable.type](getattr(variable, bound))))
+        units = sorted({v.unit for v in self.scalars if v.type == "Real" and v.unit})
+        if units:
+            definitions = root.makeelement("UnitDefinitions", {})
+            for unit in units:
+                element = definitions.makeelement("Unit", {"name": unit})
+                known = BASE_UNITS.get(unit) or EXTRA_UNITS.get(unit)
+                if known:  # an unknown unit is declared by name only
+                    base = {key: str(exponent) for key, exponent in known[0].items()}
+                    if known[1] != 1.0:
+                        base["factor"] = repr(known[1])
+                    element.append(element.makeelement("BaseUnit", base))
+                definitions.append(element)
+            root.insert(list(root).index(root.find("CoSimulation")) + 1, definitions)
+        structure = root.find("ModelStructure")
+        for child in list(structure):
+            structure.remove(child)
+        outputs = [v for v in self.scalars if v.causality == "output"]
+        inputs = [v.name for v in self.scalars if v.causality == "input"]
+        if outputs:
+            section, initial = structure.makeelement("Outputs", {}), structure.makeelement("InitialUnknowns", {})
+            for v in outputs:
+                sources = inputs if v.depends_on is None else [n for n in v.depends_on if n in index]
+                section.append(section.makeelement("Unknown", {
+                    "index": str(index[v.name]), "dependencies": " ".join(str(index[n]) for n in sources)}))
+                initial.append(initial.makeelement("Unknown", {"index": str(index[v.name])}))
+            structure.extend([section, initial])
+        return root

@@ -1,0 +1,188 @@
+"""The body plant: a 2-link planar arm simulated in pymunk, driven by a joint-velocity servo.
+
+The upper arm hangs on a shoulder pivot on the static torso, the forearm on an elbow
+pivot; the table is horizontal, so there is no gravity. The brain's action (commanded
+joint velocities, deg/s) drives a velocity servo with finite gain and a torque limit:
+
+    tau_shoulder = clip(K (a_shoulder - w_shoulder), +-limit)   on the upper arm, against the torso
+    tau_elbow    = clip(K (a_elbow - w_elbow), +-limit)         on the forearm, against the upper arm
+
+Two modes, per trial (the ``held`` parameter):
+- free: the arm moves under the servo;
+- held: the hand is clamped to the table at its initial position by a stiff two-axis
+  load cell (two pymunk DampedSprings, one along x, one along y). The reported force is
+  the load cell's reading: the springs' constraint impulses summed over the sub-steps,
+  divided by the step, with the sign flipped to give the force the ARM exerts at the
+  hand (+x = to the right). The hand moves only by force / stiffness (0.1 mm at 2 N).
+
+Servo gain: held still, the servo torque is K * a, and the hand force is J^-T K a
+(J = hand Jacobian). At the rest pose that is about 0.03-0.07 N per (deg/s) per unit K,
+so K = 20 N.m.s/rad gives 0.5-1.3 N for a = 1 deg/s, the brain's largest action.
+
+The servo is explicit, so a sub-step dt must satisfy dt * K / m_min <= 1, m_min the
+smallest eigenvalue of the arm's joint-space inertia at the current elbow angle (checked
+every step). At 0.02 s with the defaults that needs 8 sub-steps at rest, 17 at the
+straightest elbow of the decoder training range (rest + 50 deg) and 27 with the arm
+straight; the default is 20. Too few fail the step with a message naming ``substeps``.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pymunk
+
+from components.body.kinematics import FOREARM, REST_HAND, REST_POSE, SHOULDER, UPPER_ARM, forward
+from components.component import Component, ComponentError, StepFailure
+from components.variables import Variable
+
+CELL_ARM = 1.0  # m, length of each load-cell spring (long, so a sideways deflection barely loads it)
+
+
+def state_output(name, unit, description, start):
+    return Variable(name, "output", start=start, unit=unit, description=description, depends_on=())
+
+
+def smallest_inertia(upper_mass, forearm_mass, elbow_deg):
+    """Smallest eigenvalue (kg m^2) of the joint-space inertia M of two uniform rods at ``elbow_deg``.
+
+    M = [[a + 2b cos e, c + b cos e], [c + b cos e, c]] in (shoulder, elbow) coordinates;
+    vectorised over trials. It is smallest with the arm straight or folded (cos^2 e = 1).
+    """
+    upper_mass, forearm_mass, cos_e = np.broadcast_arrays(upper_mass, forearm_mass, np.cos(np.radians(elbow_deg)))
+    c = forearm_mass * FOREARM**2 / 3
+    a = upper_mass * UPPER_ARM**2 / 3 + forearm_mass * UPPER_ARM**2 + c
+    b = forearm_mass * UPPER_ARM * FOREARM / 2
+    top, off, bottom = a + 2 * b * cos_e, c + b * cos_e, np.broadcast_to(c, cos_e.shape)
+    inertia = np.stack([np.stack([top, off], -1), np.stack([off, bottom], -1)], -2)
+    return np.linalg.eigvalsh(inertia)[..., 0]
+
+
+class ArmPlant(Component):
+    """The arm (body FMU contract of DESIGN.md): joint-velocity command in, angles, hand and force out."""
+
+    def __init__(self, name: str = "body"):
+        super().__init__(name, [
+            Variable("u_shoulder", "input", start=0.0, unit="deg/s", description="commanded shoulder velocity a"),
+            Variable("u_elbow", "input", start=0.0, unit="deg/s", description="commanded elbow velocity a"),
+            state_output("q_shoulder", "deg", "shoulder angle: upper arm from +x (proprioception s_p)", REST_POSE[0]),
+            state_output("q_elbow", "deg", "elbow angle: forearm relative to upper arm (s_p)", REST_POSE[1]),
+            state_output("hand_x", "m", "hand position x (right of the body midline)", REST_HAND[0]),
+            state_output("hand_y", "m", "hand position y (forward of the shoulder line)", REST_HAND[1]),
+            state_output("force_x", "N", "force the held arm exerts at the hand along +x (0 when free)", 0.0),
+            state_output("force_y", "N", "force the held arm exerts at the hand along +y (0 when free)", 0.0),
+            Variable("held", "parameter", "Boolean", start=True,
+                     description="true: hand clamped on the table (illusion); false: the arm moves freely"),
+            Variable("q0_shoulder", "parameter", start=REST_POSE[0], unit="deg", description="initial shoulder angle"),
+            Variable("q0_elbow", "parameter", start=REST_POSE[1], unit="deg", min=-180.0, max=0.0,
+                     description="initial elbow angle (elbow-outward branch)"),
+            Variable("substeps", "parameter", "Integer", start=20, min=1, max=10000, unit="1",
+                     description="pymunk steps per communication step"),
+            Variable("servo_gain", "parameter", start=20.0, min=0.0, unit="N.m.s/rad",
+                     description="velocity servo gain K: torque per joint-velocity error"),
+            Variable("torque_limit", "parameter", start=10.0, min=0.0, unit="N.m",
+                     description="largest servo torque at each joint"),
+            Variable("upper_arm_mass", "parameter", start=2.0, min=1e-3, unit="kg",
+                     description="upper arm mass (uniform rod)"),
+            Variable("forearm_mass", "parameter", start=1.5, min=1e-3, unit="kg",
+                     description="forearm and hand mass (uniform rod)"),
+            Variable("clamp_stiffness", "parameter", start=2.0e4, min=1.0, unit="N/m",
+                     description="stiffness of the load cell holding the hand, per axis"),
+            Variable("clamp_damping", "parameter", start=300.0, min=0.0, unit="N.s/m",
+                     description="damping of the load cell, per axis"),
+        ])
+        self.space: pymunk.Space | None = None
+        self._arms: list[tuple[pymunk.Body, pymunk.Body]] = []
+        self._cells: list[tuple[pymunk.DampedSpring, pymunk.DampedSpring] | None] = []
+
+    # -- set-up ------------------------------------------------------------------------------
+    def enter_initialization_mode(self):
+        """Publish the initial pose as soon as the parameters are in (the brain reads it first)."""
+        super().enter_initialization_mode()
+        q0 = self.values["q0_shoulder"], self.values["q0_elbow"]
+        hand_x, hand_y = forward(*q0)
+        self.values.update(q_shoulder=q0[0].copy(), q_elbow=q0[1].copy(), hand_x=hand_x, hand_y=hand_y)
+
+    def initialize(self):
+        v = self.values
+        if np.any(v["substeps"] != v["substeps"][0]):
+            raise ComponentError(f"{self.name}.substeps = {v['substeps'].tolist()} must be the same for every "
+                                 f"trial (the trials share one pymunk space)")
+        self.space = pymunk.Space()
+        self.space.gravity = (0.0, 0.0)  # a horizontal table
+        self._arms, self._cells = [], []
+        for trial in range(self.batch_size):
+            upper, forearm = self._build_arm(trial)
+            cell = None
+            if v["held"][trial]:
+                hand = forearm.local_to_world((FOREARM / 2, 0.0))
+                stiffness, damping = float(v["clamp_stiffness"][trial]), float(v["clamp_damping"][trial])
+                cell = tuple(pymunk.DampedSpring(self.space.static_body, forearm, (hand.x - dx, hand.y - dy),
+                                                 (FOREARM / 2, 0.0), CELL_ARM, stiffness, damping)
+                             for dx, dy in ((CELL_ARM, 0.0), (0.0, CELL_ARM)))
+                self.space.add(*cell)
+            self._arms.append((upper, forearm))
+            self._cells.append(cell)
+        self._publish(np.zeros((self.batch_size, 2)))
+
+    def _build_arm(self, trial):
+        v = self.values
+        shoulder_angle = math.radians(v["q0_shoulder"][trial])
+        forearm_angle = shoulder_angle + math.radians(v["q0_elbow"][trial])
+        bodies = []
+        start = pymunk.Vec2d(*SHOULDER)
+        for length, mass, angle in ((UPPER_ARM, v["upper_arm_mass"][trial], shoulder_angle),
+                                    (FOREARM, v["forearm_mass"][trial], forearm_angle)):
+            body = pymunk.Body(float(mass), float(mass) * length**2 / 12)  # uniform rod about its centre
+            direction = pymunk.Vec2d(math.cos(angle), math.sin(angle))
+            body.position, body.angle = start + direction * (length / 2), angle
+            bodies.append(body)
+            start = start + direction * length
+        upper, forearm = bodies
+        shoulder_pin = pymunk.PivotJoint(self.space.static_body, upper, SHOULDER)
+        elbow_pin = pymunk.PivotJoint(upper, forearm, upper.local_to_world((UPPER_ARM / 2, 0.0)))
+        self.space.add(upper, forearm, shoulder_pin, elbow_pin)
+        return upper, forearm
+
+    # -- stepping ------------------------------------------------------------------------------
+    def step(self, t, h):
+        v = self.values
+        command = np.radians(np.stack([v["u_shoulder"], v["u_elbow"]], axis=1))
+        if not np.all(np.isfinite(command)):
+            raise StepFailure(f"{self.name}: commanded velocity is not finite: {np.degrees(command).tolist()}")
+        substeps = int(v["substeps"][0])
+        dt = h / substeps
+        rate = v["servo_gain"] / smallest_inertia(v["upper_arm_mass"], v["forearm_mass"], v["q_elbow"])
+        if np.any(dt * rate > 1.0):
+            raise StepFailure(f"{self.name}.substeps = {substeps} is too few for servo_gain: a sub-step of "
+                              f"{dt:.3g} s exceeds the servo time constant {1 / rate.max():.3g} s; "
+                              f"use substeps >= {math.ceil(h * rate.max())}")
+        # Plain Python floats in the hot loop (numpy scalars are several times slower here).
+        servos = list(zip(self._arms, command.tolist(), v["servo_gain"].tolist(), v["torque_limit"].tolist()))
+        impulses = np.zeros((self.batch_size, 2))
+        for _ in range(substeps):
+            for (upper, forearm), (want_shoulder, want_elbow), k, cap in servos:
+                shoulder_speed = upper.angular_velocity
+                elbow_speed = forearm.angular_velocity - shoulder_speed
+                tau_shoulder = min(max(k * (want_shoulder - shoulder_speed), -cap), cap)
+                tau_elbow = min(max(k * (want_elbow - elbow_speed), -cap), cap)
+                upper.torque = tau_shoulder - tau_elbow  # the elbow motor pushes back on the upper arm
+                forearm.torque = tau_elbow
+            self.space.step(dt)
+            for trial, cell in enumerate(self._cells):
+                if cell is not None:
+                    impulses[trial] += (cell[0].impulse, cell[1].impulse)
+        # The springs' impulse is what the clamp does to the arm; the arm exerts the opposite.
+        self._publish(-impulses / h)
+
+    def _publish(self, force):
+        """Replace every output array from the bodies' current state (never mutate in place)."""
+        angles = np.array([(upper.angle, forearm.angle - upper.angle) for upper, forearm in self._arms])
+        hands = np.array([tuple(forearm.local_to_world((FOREARM / 2, 0.0))) for _, forearm in self._arms])
+        self.values.update(q_shoulder=np.degrees(angles[:, 0]), q_elbow=np.degrees(angles[:, 1]),
+                           hand_x=hands[:, 0], hand_y=hands[:, 1], force_x=force[:, 0], force_y=force[:, 1])
+
+    def terminate_hook(self):
+        self._arms, self._cells = [], []
+        self.space = None
+

@@ -1,0 +1,50 @@
+"""The rubber (virtual) arm: a kinematic arm on the real shoulder, posed by inverse kinematics.
+
+Its hand sits at REST_HAND + (offset_x, offset_y): Left offset_x = -0.15 m, Center 0,
+Right +0.15 m (DESIGN.md); any other offset is allowed for distance studies. It does not
+move within a trial, so its outputs are computed once, at initialization.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from components.body.kinematics import REST_HAND, REST_POSE, inverse
+from components.component import Component, ComponentError
+from components.variables import Variable
+
+CONDITION_OFFSETS = {"left": -0.15, "center": 0.0, "right": 0.15}  # m, offset_x of each condition
+
+
+class RubberArm(Component):
+    """Parameters offset_x, offset_y (m, per trial); outputs pose (deg) and hand (m)."""
+
+    def __init__(self, name: str = "rubber_arm"):
+        super().__init__(name, [
+            Variable("offset_x", "parameter", start=0.0, unit="m",
+                     description="rubber hand x minus resting real hand x (left -0.15, right +0.15)"),
+            Variable("offset_y", "parameter", start=0.0, unit="m",
+                     description="rubber hand y minus resting real hand y"),
+            Variable("pose", "output", "Array", shape=(2,), start=REST_POSE, unit="deg", depends_on=(),
+                     description="rubber arm joint angles: shoulder (from +x), elbow (relative)"),
+            Variable("hand", "output", "Array", shape=(2,), start=REST_HAND, unit="m", depends_on=(),
+                     description="rubber hand position (x, y), where the ball touches"),
+        ])
+
+    def enter_initialization_mode(self):
+        """Pose the arm as soon as the parameters are in: components earlier in the step order read it."""
+        super().enter_initialization_mode()
+        self.initialize()
+
+    def initialize(self):
+        hand = np.stack([REST_HAND[0] + self.values["offset_x"], REST_HAND[1] + self.values["offset_y"]], axis=1)
+        try:
+            shoulder, elbow = inverse(hand[:, 0], hand[:, 1])
+        except ComponentError as error:
+            raise ComponentError(f"{self.name}.offset_x/offset_y = ({self.values['offset_x'].tolist()}, "
+                                 f"{self.values['offset_y'].tolist()}) put the rubber hand out of reach: "
+                                 f"{error}") from None
+        self.values["pose"] = np.stack([shoulder, elbow], axis=1)
+        self.values["hand"] = hand
+
+    def step(self, t, h):
+        """The rubber arm does not move: its output arrays stay as they are (never mutated)."""

@@ -1,0 +1,161 @@
+"""The Pillow camera: determinism, smoothness under small pose changes, field of view, pictures."""
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from components.body import camera
+from components.body.camera import Camera, render
+from components.body.kinematics import REST_HAND, REST_POSE, elbow_position, forward, inverse
+from components.component import ComponentError
+
+PICTURES = Path(__file__).parent / "pictures"
+OFFSETS = {"left": -0.15, "center": 0.0, "right": 0.15}
+
+
+def pixel_of(x, y, resolution):
+    """(row, column) of the output pixel holding world point (x, y), computed from the field of view."""
+    column = (x - camera.FIELD_X[0]) / (camera.FIELD_X[1] - camera.FIELD_X[0]) * resolution
+    row = (camera.FIELD_Y[1] - y) / (camera.FIELD_Y[1] - camera.FIELD_Y[0]) * resolution
+    return int(row), int(column)
+
+
+def test_same_inputs_give_identical_bytes():
+    poses = np.array([REST_POSE, (150.0, -80.0)])
+    balls = np.array([[-0.3, 0.6], [np.nan, np.nan]])
+    first, second = render(poses, 64, balls), render(poses.copy(), 64, balls.copy())
+    assert first.dtype == np.float32 and first.shape == (2, 64, 64)
+    assert first.tobytes() == second.tobytes()
+    assert 0.0 <= first.min() and first.max() <= 1.0
+
+
+@pytest.mark.parametrize("joint", [0, 1])
+def test_a_tenth_of_a_degree_changes_the_image_less_than_a_degree(joint):
+    step = np.zeros(2)
+    step[joint] = 1.0
+    rest = np.array([REST_POSE])
+    base = render(rest, 64)
+    small = np.abs(render(rest + 0.1 * step, 64) - base).mean()
+    large = np.abs(render(rest + 1.0 * step, 64) - base).mean()
+    assert 0 < small < large
+    # Smooth, not a jump: a 0.1 degree change moves edges by about a tenth of what 1 degree does.
+    assert small < 0.3 * large
+
+
+def test_each_condition_is_drawn_where_the_kinematics_put_it_and_saved_as_a_picture():
+    resolution = 256
+    PICTURES.mkdir(exist_ok=True)
+    for condition, offset in OFFSETS.items():
+        hand = (REST_HAND[0] + offset, REST_HAND[1])
+        ball = (hand[0], hand[1] + 0.12)  # the ball on its way down to the rubber hand
+        image = render(np.array([inverse(*hand)]), resolution, np.array([ball]))[0]
+        Image.fromarray(np.round(image * 255).astype(np.uint8)).save(PICTURES / f"camera_{condition}.png")
+        # Brightest pixel = the hand blob, at the hand's pixel; the ball is the distinct gray.
+        brightest = np.unravel_index(np.argmax(image), image.shape)
+        assert np.abs(np.subtract(brightest, pixel_of(*hand, resolution))).max() <= 2, condition
+        assert image[pixel_of(*ball, resolution)] == pytest.approx(camera.BALL_LEVEL, abs=0.05)
+    real = render(np.array([REST_POSE]), resolution, None)[0]
+    Image.fromarray(np.round(real * 255).astype(np.uint8)).save(PICTURES / "camera_real_arm.png")
+    # The middle of the forearm is limb-bright (not the hand's 1.0), the shoulder is inside the limb.
+    mid_forearm = np.add(elbow_position(REST_POSE[0]), forward(*REST_POSE)) / 2
+    assert real[pixel_of(*mid_forearm, resolution)] == pytest.approx(camera.LIMB_LEVEL, abs=0.05)
+    assert real[pixel_of(-0.3, 0.62, resolution)] == 0  # no ball, and black background
+
+
+def test_field_of_view_holds_every_condition_and_the_training_range_with_margin():
+    corners = [(REST_POSE[0] + ds, REST_POSE[1] + de) for ds in (-40, 40) for de in (-50, 50)]
+    rubber = [inverse(REST_HAND[0] + offset, REST_HAND[1]) for offset in OFFSETS.values()]
+    images = render(np.array(corners + rubber), 64)
+    border = np.concatenate([images[:, :2].ravel(), images[:, -2:].ravel(),
+                             images[:, :, :2].ravel(), images[:, :, -2:].ravel()])
+    assert border.max() < 1e-3
+    assert (images.reshape(len(images), -1).max(axis=1) > 0.9).all()  # every hand is in view
+
+
+def test_256_works_and_64_renders_thousands_per_minute():
+    assert render(np.array([REST_POSE]), 256).shape == (1, 256, 256)
+    poses = np.array(REST_POSE) + np.random.default_rng(0).uniform(-20, 20, (60, 2))
+    started = time.perf_counter()
+    render(poses, 64)
+    per_minute = 60 * len(poses) / (time.perf_counter() - started)
+    assert per_minute > 2000, per_minute
+
+
+def run_camera(poses_per_step, balls_per_step, resolution=32):
+    component = Camera(resolution=resolution)
+    component.instantiate(len(poses_per_step[0]))
+    component.enter_initialization_mode()
+    component.set("arm_pose", poses_per_step[0])
+    component.set("ball", balls_per_step[0])
+    component.exit_initialization_mode()
+    images = [component.get("image")]
+    for step, (poses, balls) in enumerate(zip(poses_per_step[1:], balls_per_step[1:])):
+        component.set("arm_pose", poses)
+        component.set("ball", balls)
+        component.do_step(0.02 * step, 0.02)
+        images.append(component.get("image"))
+    return images
+
+
+def test_component_with_its_cache_gives_the_same_bytes_as_render():
+    fixed = np.array([inverse(-0.45, 0.5), REST_POSE])
+    moved = fixed + [[0.0, 0.0], [0.5, -0.5]]  # trial 1 moves: its cached layer must be redrawn
+    poses = [fixed, fixed, moved, moved]
+    balls = [np.array([[-0.45, 0.7 - 0.05 * k], [np.nan, np.nan]]) for k in range(4)]
+    images = run_camera(poses, balls)
+    assert all(image.shape == (2, 32, 32) and image.dtype == np.float32 for image in images)
+    for step in range(4):
+        assert images[step].tobytes() == render(poses[step], 32, balls[step]).tobytes()
+    assert images[1] is not images[0]  # a new array each step, never mutated in place
+    assert not np.array_equal(images[1][0], images[0][0])  # the ball moved
+
+
+@pytest.mark.parametrize("resolution", [-64, 0, 4, 64.0, True])
+def test_bad_resolution_is_one_clear_error(resolution):
+    with pytest.raises(ComponentError, match="resolution"):
+        render(np.array([REST_POSE]), resolution)
+    with pytest.raises(ComponentError, match="resolution"):
+        Camera(resolution=resolution)
+
+
+def test_bad_poses_and_balls_name_the_argument():
+    with pytest.raises(ComponentError, match="poses_deg"):
+        render(np.array([[np.nan, 0.0]]), 64)
+    with pytest.raises(ComponentError, match="balls"):
+        render(np.array([REST_POSE]), 64, np.zeros((2, 2)))
+
+
+def test_stimulus_rubber_arm_and_camera_run_together_under_the_master():
+    from components.body.rubber_arm import RubberArm
+    from components.stimulus import Stimulus
+    from master import System, simulate
+    system = System([Stimulus(), RubberArm(), Camera(resolution=32)],
+                    [("rubber_arm.hand", "stimulus.target"), ("rubber_arm.pose", "camera.arm_pose"),
+                     ("stimulus.ball", "camera.ball")])
+    result = simulate(system, 2.0, 0.02, batch_size=2, parameters={"rubber_arm.offset_x": [-0.15, 0.15]},
+                      record=["camera.image", "stimulus.ball", "rubber_arm.pose"])
+    balls, poses, images = (result.values[k] for k in ("stimulus.ball", "rubber_arm.pose", "camera.image"))
+    assert np.allclose(balls[-1], [[-0.45, 0.5], [-0.15, 0.5]])  # on the rubber hands at t = 2 s
+    assert np.allclose(balls[0], [[-0.45, 0.75], [-0.15, 0.75]])  # the initial ball already follows the offset
+    for tick in (0, 37, 100):
+        assert images[tick].tobytes() == render(poses[tick], 32, balls[tick]).tobytes()
+
+
+@pytest.mark.parametrize("ball", [(-0.3, 0.6), (camera.FIELD_X[0] + 0.01, 0.5), (0.1, camera.FIELD_Y[1] - 0.02)])
+def test_the_ball_window_equals_drawing_and_blurring_the_whole_frame(ball):
+    """The per-step shortcut (rasterise and blur only around the ball) against the plain full-frame way."""
+    from PIL import ImageDraw
+    resolution = 64
+    factor = camera.supersampling(resolution)
+    scale = resolution * factor
+    canvas = Image.new("L", (scale, scale), 0)
+    cx, cy = camera._to_canvas(ball[0], ball[1], scale)
+    radius = camera.BALL_RADIUS / (camera.FIELD_X[1] - camera.FIELD_X[0]) * scale
+    ImageDraw.Draw(canvas).ellipse([cx - radius, cy - radius, cx + radius, cy + radius], fill=255)
+    full = camera._blur(camera._reduce(canvas, factor), resolution)
+    rows, columns, patch = camera.ball_alpha(ball, resolution)
+    windowed = np.zeros_like(full)
+    windowed[rows, columns] = patch
+    assert full.sum() > 1 and np.abs(windowed - full).max() < 1e-6
