@@ -1,0 +1,124 @@
+"""Configuration: shipped TOML defaults, a user's TOML file over them, command-line overrides last.
+
+Every key a user may set exists in ``defaults.toml``; a key that does not is an
+error naming it and suggesting the closest one. Values are type-checked against
+the default's type.
+"""
+from __future__ import annotations
+
+import copy
+import difflib
+import tomllib
+from importlib import resources
+from pathlib import Path
+
+from master.errors import ConfigError
+
+OPEN_TABLES = ("conditions", "stimulations", "train")  # users may add entries here (a new condition, say)
+
+
+def defaults() -> dict:
+    with resources.files("master").joinpath("defaults.toml").open("rb") as file:
+        return tomllib.load(file)
+
+
+def read_toml(path: str | Path) -> dict:
+    try:
+        with open(path, "rb") as file:
+            return tomllib.load(file)
+    except FileNotFoundError:
+        raise ConfigError(f"config file {path} does not exist") from None
+    except (OSError, tomllib.TOMLDecodeError) as error:
+        raise ConfigError(f"config file {path} cannot be read: {error}") from None
+
+
+def merge(base: dict, overrides: dict, where: str = "") -> dict:
+    """``base`` updated by ``overrides``; unknown keys and wrong types are ConfigErrors naming the key."""
+    merged = copy.deepcopy(base)
+    for key, value in overrides.items():
+        path = f"{where}{key}"
+        if key not in base:
+            if where.split(".")[0] in OPEN_TABLES and where:
+                merged[key] = copy.deepcopy(value)
+                continue
+            close = difflib.get_close_matches(key, list(base), n=1)
+            hint = f" (did you mean {where}{close[0]}?)" if close else ""
+            raise ConfigError(f"unknown config key {path}{hint}")
+        default = base[key]
+        if isinstance(default, dict):
+            if not isinstance(value, dict):
+                raise ConfigError(f"config key {path} must be a table")
+            merged[key] = merge(default, value, f"{path}.")
+        else:
+            merged[key] = check_type(path, value, default)
+    return merged
+
+
+def check_type(path: str, value, default):
+    if isinstance(default, bool):
+        ok = isinstance(value, bool)
+    elif isinstance(default, float):
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+        value = float(value) if ok else value
+    elif isinstance(default, int):
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif isinstance(default, list):
+        ok = isinstance(value, list)
+    else:
+        ok = isinstance(value, type(default))
+    if not ok:
+        raise ConfigError(f"config key {path} = {value!r} must be a {type(default).__name__}")
+    return value
+
+
+def load(path: str | Path | None = None, overrides: dict | None = None, quick: bool = False) -> dict:
+    """The effective configuration: defaults, then ``[quick]`` if asked, then the file, then overrides.
+
+    overrides: ``{"experiment.trials": 3, ...}`` from the command line.
+    """
+    config = defaults()
+    quick_values = config.pop("quick")
+    if quick:
+        config["experiment"].update(quick_values)
+    if path is not None:
+        config = merge(config, read_toml(path))
+    for dotted, value in (overrides or {}).items():
+        table, _, key = dotted.rpartition(".")
+        nested = {}
+        cursor = nested
+        for part in table.split("."):
+            cursor = cursor.setdefault(part, {})
+        cursor[key] = value
+        config = merge(config, nested)
+    validate(config)
+    return config
+
+
+def validate(config: dict) -> None:
+    """Ranges and cross-references; every message names the key."""
+    experiment = config["experiment"]
+    for key in ("trials", "steps", "resolution"):
+        if experiment[key] < 1:
+            raise ConfigError(f"experiment.{key} must be at least 1, got {experiment[key]}")
+    if experiment["resolution"] < 8:
+        raise ConfigError(f"experiment.resolution must be at least 8 pixels, got {experiment['resolution']}")
+    if not experiment["step_size"] > 0:
+        raise ConfigError(f"experiment.step_size must be positive, got {experiment['step_size']}")
+    for decoder in experiment["decoders"]:
+        if decoder not in ("conv", "vae"):
+            raise ConfigError(f"experiment.decoders: unknown decoder {decoder!r} (conv or vae)")
+    for table, names in (("conditions", experiment["conditions"]), ("stimulations", experiment["stimulations"])):
+        for name in names:
+            if name not in config[table]:
+                raise ConfigError(f"experiment.{table}: {name!r} is not defined in [{table}]")
+    for name, stimulation in config["stimulations"].items():
+        low, high = stimulation.get("delay_min"), stimulation.get("delay_max")
+        if not isinstance(low, (int, float)) or not isinstance(high, (int, float)) or not 0 <= low <= high:
+            raise ConfigError(f"stimulations.{name}: need 0 <= delay_min <= delay_max, got {low!r}, {high!r}")
+    brain = config["brain"]
+    if brain["proprioceptive_variance"] <= 0:
+        raise ConfigError(f"brain.proprioceptive_variance must be positive, got {brain['proprioceptive_variance']}")
+    if not 0 < brain["gamma0"] <= 1:
+        raise ConfigError(f"brain.gamma0 must be in (0, 1], got {brain['gamma0']}")
+    if config["decoder"]["visual_variance"] <= 0:
+        raise ConfigError(f"decoder.visual_variance must be positive, got {config['decoder']['visual_variance']}")

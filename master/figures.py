@@ -1,0 +1,118 @@
+"""The paper's Figure 3, panel by panel, plus an animation of one trial.
+
+(a) final drift per condition, (b, c) drift over time (sync, async), (d, e, f) the
+same for the force, (g) gamma over time, (h) the decoders' Jacobian images.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+COLOURS = {"left": "tab:blue", "center": "tab:gray", "right": "tab:red"}
+STYLES = {"conv": "-", "vae": "--"}
+METADATA = {"Software": None}  # no version string in the file: same data, same bytes
+
+
+def groups(trials):
+    """(decoder, condition, stimulation) -> list of batch positions, in first-seen order."""
+    found: dict[tuple, list[int]] = {}
+    for position, trial in enumerate(trials):
+        found.setdefault((trial.decoder, trial.condition, trial.stimulation), []).append(position)
+    return found
+
+
+def final_bars(trials, values, ylabel, path):
+    """Mean +/- sd of the end-of-trial value per decoder, condition and stimulation."""
+    found = groups(trials)
+    decoders = list(dict.fromkeys(k[0] for k in found))
+    conditions = list(dict.fromkeys(k[1] for k in found))
+    stimulations = list(dict.fromkeys(k[2] for k in found))
+    figure, axes = plt.subplots(1, len(stimulations), figsize=(4.5 * len(stimulations), 3.6), sharey=True,
+                                squeeze=False)
+    width = 0.8 / len(decoders)
+    for axis, stimulation in zip(axes[0], stimulations):
+        for d, decoder in enumerate(decoders):
+            means, sds = [], []
+            for condition in conditions:
+                final = values[-1, found[(decoder, condition, stimulation)]]
+                means.append(final.mean())
+                sds.append(final.std(ddof=1) if len(final) > 1 else 0.0)
+            axis.bar(np.arange(len(conditions)) + (d - (len(decoders) - 1) / 2) * width, means, width,
+                     yerr=sds, capsize=3, label=decoder, color=[COLOURS.get(c, "k") for c in conditions],
+                     alpha=0.9 if d == 0 else 0.5, edgecolor="k")
+        axis.axhline(0, color="k", lw=0.8)
+        axis.set_xticks(range(len(conditions)), conditions)
+        axis.set_title(stimulation)
+    axes[0, 0].set_ylabel(ylabel)
+    axes[0, -1].legend(title="decoder (solid, faded)")
+    save(figure, path)
+
+
+def over_time(trials, times, values, stimulation, ylabel, path):
+    """Mean over trials (line) +/- sd (band) per decoder and condition, one stimulation."""
+    figure, axis = plt.subplots(figsize=(5.5, 3.6))
+    for (decoder, condition, stim), members in groups(trials).items():
+        if stim != stimulation:
+            continue
+        mean, sd = values[:, members].mean(axis=1), values[:, members].std(axis=1)
+        axis.plot(times, mean, STYLES.get(decoder, ":"), color=COLOURS.get(condition, "k"),
+                  label=f"{decoder} {condition}")
+        axis.fill_between(times, mean - sd, mean + sd, color=COLOURS.get(condition, "k"), alpha=0.12)
+    axis.axhline(0, color="k", lw=0.8)
+    axis.set_xlabel("time (s)")
+    axis.set_ylabel(ylabel)
+    axis.set_title(stimulation)
+    axis.legend(fontsize=7, ncol=2)
+    save(figure, path)
+
+
+def jacobian_images(images: dict[str, np.ndarray], path):
+    """``images[decoder]`` has shape (2, H, W): d image / d shoulder and d image / d elbow (1/deg)."""
+    figure, axes = plt.subplots(len(images), 2, figsize=(6, 3 * len(images)), squeeze=False)
+    for row, (decoder, pair) in enumerate(images.items()):
+        for column, joint in enumerate(("shoulder", "elbow")):
+            limit = float(np.abs(pair[column]).max()) or 1.0
+            shown = axes[row, column].imshow(pair[column], cmap="RdBu_r", vmin=-limit, vmax=limit)
+            axes[row, column].set_title(f"{decoder}: d g / d {joint}")
+            axes[row, column].axis("off")
+            figure.colorbar(shown, ax=axes[row, column], fraction=0.046)
+    save(figure, path)
+
+
+def save(figure, path):
+    figure.tight_layout()
+    figure.savefig(path, dpi=110, metadata=METADATA)
+    plt.close(figure)
+
+
+def write_all(folder: Path, trials, times, per_step: dict[str, np.ndarray], jacobians: dict | None) -> list[str]:
+    """Write every panel into ``folder``; returns the file names."""
+    folder.mkdir(parents=True, exist_ok=True)
+    stimulations = list(dict.fromkeys(t.stimulation for t in trials))
+    final_bars(trials, per_step["drift_cm"], "final drift (cm)", folder / "a_drift_final.png")
+    final_bars(trials, per_step["force_x_n"], "final horizontal force (N)", folder / "d_force_final.png")
+    for letter_drift, letter_force, stimulation in zip("bc", "ef", stimulations):
+        over_time(trials, times, per_step["drift_cm"], stimulation, "drift (cm)",
+                  folder / f"{letter_drift}_drift_{stimulation}.png")
+        over_time(trials, times, per_step["force_x_n"], stimulation, "horizontal force (N)",
+                  folder / f"{letter_force}_force_{stimulation}.png")
+    figure, axes = plt.subplots(1, len(stimulations), figsize=(5 * len(stimulations), 3.4), squeeze=False)
+    for axis, stimulation in zip(axes[0], stimulations):
+        for (decoder, condition, stim), members in groups(trials).items():
+            if stim == stimulation:
+                axis.plot(times, per_step["gamma"][:, members].mean(axis=1), STYLES.get(decoder, ":"),
+                          color=COLOURS.get(condition, "k"), label=f"{decoder} {condition}")
+        axis.set_ylim(0, 1.05)
+        axis.set_xlabel("time (s)")
+        axis.set_title(f"gamma, {stimulation}")
+    axes[0, 0].set_ylabel("gamma")
+    axes[0, -1].legend(fontsize=7, ncol=2)
+    save(figure, folder / "g_gamma.png")
+    if jacobians:
+        jacobian_images(jacobians, folder / "h_jacobians.png")
+    return sorted(p.name for p in folder.iterdir())

@@ -1,0 +1,59 @@
+"""Experiment outputs: summary statistics by hand, the staging folder, refusal of foreign content."""
+import numpy as np
+import pytest
+
+from master import outputs
+from master.errors import ConfigError
+from master.experiment import Trial, plan, trial_seed
+from master.config import load
+
+
+def test_plan_covers_the_protocol_with_stable_seeds():
+    trials = plan(load())
+    assert len(trials) == 2 * 3 * 2 * 5
+    assert len({(t.decoder, t.condition, t.stimulation, t.index) for t in trials}) == 60
+    # Both decoders see the same delays: the seed does not depend on the decoder.
+    conv = [t.seed for t in trials if t.decoder == "conv"]
+    vae = [t.seed for t in trials if t.decoder == "vae"]
+    assert conv == vae and len(set(conv)) == 30
+    assert trial_seed(0, "left", "sync", 0) == trial_seed(0, "left", "sync", 0) != trial_seed(1, "left", "sync", 0)
+
+
+def test_summary_by_hand():
+    trials = [Trial("conv", "left", "sync", i, i, -0.15, 0.0, 0.1) for i in range(3)] + \
+             [Trial("conv", "right", "sync", 0, 9, 0.15, 0.0, 0.1)]
+    final = {"drift_cm": np.array([-1.0, -2.0, -3.0, 4.0]), "force_x_n": np.array([-0.1, -0.2, -0.6, 0.5]),
+             "gamma": np.array([0.9, 1.0, 0.95, 1.0])}
+    rows = outputs.summary(trials, final)
+    assert rows[0] == ["conv", "left", "sync", 3, "-2", "1", "-0.3", "0.264575", "0.95"]  # sd with ddof = 1
+    assert rows[1] == ["conv", "right", "sync", 1, "4", "0", "0.5", "0", "1"]
+
+
+def test_trials_csv_is_tidy():
+    trials = [Trial("vae", "center", "async", 0, 5, 0.0, 0.0, 1.0), Trial("vae", "center", "async", 1, 6, 0.0, 0.0, 1.0)]
+    text = outputs.trials_csv(trials, np.array([0.0, 0.02]), {"drift_cm": np.array([[0.0, 0.0], [0.1, -0.1]])})
+    assert text.splitlines() == ["decoder,condition,stimulation,trial,seed,step,time_s,drift_cm",
+                                 "vae,center,async,0,5,0,0,0", "vae,center,async,0,5,1,0.02,0.1",
+                                 "vae,center,async,1,6,0,0,0", "vae,center,async,1,6,1,0.02,-0.1"]
+
+
+def test_staging_refuses_foreign_content_and_publishes_whole(tmp_path):
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    with pytest.raises(ConfigError, match=r"exists and is not empty \(use --force"):
+        outputs.staging_folder(out, force=False)
+    staging = outputs.staging_folder(out, force=True)
+    (staging / "summary.csv").write_text("x\n")
+    assert (out / "notes.txt").exists()  # untouched until the run is complete
+    outputs.publish(staging, out)
+    assert [p.name for p in out.iterdir()] == ["summary.csv"]
+    assert [p.name for p in tmp_path.iterdir()] == ["run"]
+
+
+def test_staging_needs_an_existing_parent(tmp_path):
+    with pytest.raises(ConfigError, match="does not exist"):
+        outputs.staging_folder(tmp_path / "no" / "such", force=False)
+    (tmp_path / "file").write_text("")
+    with pytest.raises(ConfigError, match="is not a folder"):
+        outputs.staging_folder(tmp_path / "file", force=False)
