@@ -6,6 +6,7 @@ import argparse
 import sys
 
 from components.component import ComponentError
+from master import experiment_command
 from master.errors import ConfigError, SimulationError
 
 USER_ERRORS = (ConfigError, ComponentError)
@@ -27,19 +28,16 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--decoder", choices=("conv", "vae"), required=True)
     train.add_argument("--config", metavar="FILE")
     train.add_argument("--out", metavar="CKPT", required=True)
-    train.set_defaults(run=not_yet(4))
+    train.set_defaults(run=lambda args: __import__("master.train_command").train_command.run_train(args))
 
     experiment = commands.add_parser("experiment", help="run the paper's rubber-hand protocol")
-    experiment.add_argument("--config", metavar="FILE")
-    experiment.add_argument("--body", metavar="FMU")
-    experiment.add_argument("--quick", action="store_true")
-    experiment.add_argument("--out", metavar="DIR", required=True)
-    experiment.set_defaults(run=not_yet(6))
+    experiment_command.add_arguments(experiment)
+    experiment.set_defaults(run=experiment_command.run_experiment)
 
     export = commands.add_parser("export-body", help="export the body plant as an FMI 2.0 FMU")
-    export.add_argument("--variant", metavar="NAME")
+    export.add_argument("--variant", metavar="NAME", help="native (default: the pymunk plant) or kinematic")
     export.add_argument("--out", metavar="FILE.fmu", required=True)
-    export.set_defaults(run=not_yet(7))
+    export.set_defaults(run=lambda args: __import__("master.export_command").export_command.run_export(args))
 
     sweep = commands.add_parser("sweep", help="run a parameter sweep, locally or on a Dask cluster")
     sweep.add_argument("--config", metavar="FILE", required=True)

@@ -79,7 +79,7 @@ def load(path: str | Path | None = None, overrides: dict | None = None, quick: b
     config = defaults()
     quick_values = config.pop("quick")
     if quick:
-        config["experiment"].update(quick_values)
+        config = merge(config, quick_values)
     if path is not None:
         config = merge(config, read_toml(path))
     for dotted, value in (overrides or {}).items():

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import importlib
 import os
+import sys
 import traceback
 
 import numpy as np
@@ -29,10 +30,36 @@ FMI_TYPES = {"Real": Real, "Integer": Integer, "Boolean": Boolean}
 PYTHON_TYPES = {"Real": float, "Integer": int, "Boolean": bool}
 
 
-def load_component(spec: str):
-    """``module:Class`` -> a new instance of that component with its default name."""
-    module, _, name = spec.partition(":")
-    return getattr(importlib.import_module(module), name)()
+_BUNDLES: dict[str, dict] = {}  # resources folder -> the modules imported from it
+
+
+def load_component(resources: str, spec: str):
+    """``module:Class`` from the FMU's own copy of its packages -> a new instance (default name).
+
+    In a process that already imported this checkout's ``components`` (the master, under
+    fmpy in-process), a plain import would return the host's modules. The packages in
+    ``resources`` are imported with the host's modules of the same names set aside, and
+    put back afterwards, so the FMU runs the code it carries and the host keeps its own.
+    """
+    own = {entry.removesuffix(".py") for entry in os.listdir(resources)
+           if entry.endswith(".py") or os.path.isfile(os.path.join(resources, entry, "__init__.py"))}
+    own -= {__name__, "pythonfmu"}
+    ours = lambda module: module.partition(".")[0] in own
+    host = {name: module for name, module in sys.modules.items() if ours(name)}
+    bundle = _BUNDLES.setdefault(resources, {})
+    for name in host:
+        del sys.modules[name]
+    sys.modules.update(bundle)
+    sys.path.insert(0, resources)
+    try:
+        module, _, name = spec.partition(":")
+        return getattr(importlib.import_module(module), name)()
+    finally:
+        sys.path.remove(resources)
+        bundle.update({name: module for name, module in sys.modules.items() if ours(name)})
+        for name in bundle:
+            sys.modules.pop(name, None)
+        sys.modules.update(host)
 
 
 class ComponentSlave(Fmi2Slave):
@@ -42,7 +69,7 @@ class ComponentSlave(Fmi2Slave):
         super().__init__(**kwargs)
         with open(os.path.join(self.resources, COMPONENT_FILE)) as file:
             self.modelName, spec = file.read().split()
-        self.component = load_component(spec)
+        self.component = load_component(self.resources, spec)
         doc = (type(self.component).__doc__ or "").strip()
         self.description = doc.splitlines()[0] if doc else spec
         self.component.instantiate(1)
@@ -83,8 +110,8 @@ class ComponentSlave(Fmi2Slave):
     def do_step(self, current_time, step_size):
         try:
             status = self.component.do_step(current_time, step_size)
-        except Exception:  # pythonfmu would only say "unknown error": log the cause, fail the step
-            self.log(traceback.format_exc(limit=3), Fmi2Status.error)
+        except Exception as error:  # pythonfmu would only say "unknown error": log the cause, fail the step
+            self.log("".join(traceback.format_exception_only(error)).strip(), Fmi2Status.error)
             return False
         if status >= 2:  # discard, error or fatal
             self.log(self.component.last_reason or f"status {status}", Fmi2Status.error)

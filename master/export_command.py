@@ -1,0 +1,79 @@
+"""``rhi export-body``: the body plant as an FMI 2.0 co-simulation FMU, built with pythonfmu.
+
+The FMU carries its own copy of the ``components`` package (Python sources
+only) next to the slave script ``components/body/fmu_slave.py``, so it runs
+without this checkout, in any Python that has numpy, pymunk and pythonfmu's
+runtime. A resource file tells the slave which component class to wrap.
+
+Example::
+
+    build_fmu("Body.fmu", "kinematic")   # or: rhi export-body --variant kinematic --out Body.fmu
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from master.errors import ConfigError
+
+# variant -> (model name, which is also the FMI model identifier; component class as module:Class)
+VARIANTS = {
+    "native": ("ArmBody", "components.body.plant:ArmPlant"),
+    "kinematic": ("KinematicArmBody", "components.body.variants:KinematicArm"),
+}
+PACKAGE = Path(__file__).resolve().parent.parent / "components"
+
+
+def build_fmu(out, variant: str = "native", component: str | None = None, model_name: str | None = None,
+              extra_files=()) -> Path:
+    """Build an FMU at ``out`` (a path ending in .fmu) and return its path.
+
+    variant: a name in VARIANTS; ``component`` (``module:Class``) and ``model_name`` override it,
+    with ``extra_files`` (Python modules that define that class) bundled next to the slave.
+    """
+    from pythonfmu.builder import FmuBuilder
+    out = Path(out)
+    if out.suffix != ".fmu":
+        raise ConfigError(f"--out {str(out)!r} must be a file name ending in .fmu")
+    if variant not in VARIANTS:
+        raise ConfigError(f"--variant {variant!r} is not one of {', '.join(VARIANTS)}")
+    model_name = model_name or VARIANTS[variant][0]
+    component = component or VARIANTS[variant][1]
+    if not model_name.isidentifier():
+        raise ConfigError(f"model name {model_name!r} must be an identifier (it names the FMU's library)")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix="rhi_export_") as staging:
+        staging = Path(staging)
+        # Named after its content: in one process, FMUs with different slave code never share a module.
+        source = (PACKAGE / "body" / "fmu_slave.py").read_bytes()
+        script = staging / f"rhi_fmu_slave_{hashlib.sha1(source).hexdigest()[:10]}.py"
+        script.write_bytes(source)
+        # Python sources only: no caches, checkpoints or data files in the FMU.
+        shutil.copytree(PACKAGE, staging / "components",
+                        ignore=lambda folder, names: [n for n in names if not (
+                            n.endswith(".py") or (Path(folder) / n).is_dir()) or n == "__pycache__"])
+        spec = staging / "rhi_component.txt"
+        spec.write_text(f"{model_name} {component}\n")
+        files = [staging / "components", spec, *map(Path, extra_files)]
+        saved_path = list(sys.path)  # the builder puts the script's folder on sys.path for good
+        try:
+            built = FmuBuilder.build_FMU(script, dest=out, project_files=files)
+        except (ImportError, AttributeError, ValueError) as error:
+            raise ConfigError(f"cannot build the {model_name} FMU from {component}: {error}") from None
+        finally:
+            sys.path[:] = saved_path
+    return Path(built)
+
+
+def run_export(args) -> int:
+    """The ``rhi export-body`` command: args.variant (None: native), args.out."""
+    started = time.perf_counter()
+    path = build_fmu(args.out, args.variant or "native")
+    print(f"wrote {path} ({os.path.getsize(path) / 1024:.0f} KiB, variant {args.variant or 'native'}) "
+          f"in {time.perf_counter() - started:.2f} s")
+    return 0
