@@ -40,10 +40,12 @@ def build_parser() -> argparse.ArgumentParser:
     export.set_defaults(run=lambda args: __import__("master.export_command").export_command.run_export(args))
 
     sweep = commands.add_parser("sweep", help="run a parameter sweep, locally or on a Dask cluster")
-    sweep.add_argument("--config", metavar="FILE", required=True)
-    sweep.add_argument("--scheduler", metavar="ADDRESS")
+    sweep.add_argument("--config", metavar="FILE", required=True, help="the sweep file (TOML, see README)")
+    sweep.add_argument("--scheduler", metavar="ADDRESS",
+                       help="a Dask scheduler, tcp://HOST:PORT (default: a process pool on this machine)")
     sweep.add_argument("--out", metavar="DIR", required=True)
-    sweep.set_defaults(run=not_yet(9))
+    sweep.add_argument("--force", action="store_true", help="replace a different sweep in DIR")
+    sweep.set_defaults(run=lambda args: __import__("master.sweep_command").sweep_command.run_sweep(args))
 
     bench = commands.add_parser("bench", help="measure speed")
     bench.add_argument("--json", action="store_true")
@@ -66,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"rhi {args.command}: error: {error}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
-        print(f"rhi {args.command}: interrupted", file=sys.stderr)
+        print(f"rhi {args.command}: interrupted (run the same command again to resume a sweep)", file=sys.stderr)
         return 130
 
 

@@ -38,8 +38,10 @@ def merge(base: dict, overrides: dict, where: str = "") -> dict:
     for key, value in overrides.items():
         path = f"{where}{key}"
         if key not in base:
-            if where.split(".")[0] in OPEN_TABLES and where:
-                merged[key] = copy.deepcopy(value)
+            if where.rstrip(".") in OPEN_TABLES:  # a new entry: checked against an existing one's keys
+                template = next(iter(base.values()), None)
+                merged[key] = merge(template, value, f"{path}.") if isinstance(template, dict) and \
+                    isinstance(value, dict) else copy.deepcopy(value)
                 continue
             close = difflib.get_close_matches(key, list(base), n=1)
             hint = f" (did you mean {where}{close[0]}?)" if close else ""

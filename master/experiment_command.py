@@ -8,7 +8,6 @@ import time
 import numpy as np
 
 from master import config as configuration
-from master.errors import ConfigError
 from master.results import atomic_write, package_versions
 
 

@@ -19,7 +19,7 @@ def test_file_and_overrides_apply_in_order(tmp_path):
     path.write_text("[experiment]\ntrials = 3\nseed = 7\n[brain]\ngamma0 = 0.05\n")
     loaded = config.load(path, {"experiment.trials": 2}, quick=True)
     assert loaded["experiment"]["trials"] == 2 and loaded["experiment"]["seed"] == 7
-    assert loaded["experiment"]["steps"] == 100  # from [quick]
+    assert loaded["experiment"]["steps"] == 300  # from [quick]
     assert loaded["brain"]["gamma0"] == 0.05
 
 
@@ -62,3 +62,16 @@ def test_unreadable_files(tmp_path):
     broken.write_text("[experiment\n")
     with pytest.raises(ConfigError, match="cannot be read"):
         config.load(broken)
+
+
+def test_typos_inside_open_tables_are_named(tmp_path):
+    path = tmp_path / "typo.toml"
+    path.write_text("[stimulations.sync]\ndely_max = 0.2\n")
+    with pytest.raises(ConfigError, match=r"unknown config key stimulations\.sync\.dely_max \(did you mean "
+                                          r"stimulations\.sync\.delay_max\?\)"):
+        config.load(path)
+    path.write_text("[stimulations.slow]\ndelay_min = 0.5\ndelay_mx = 0.6\n")
+    with pytest.raises(ConfigError, match=r"unknown config key stimulations\.slow\.delay_mx"):
+        config.load(path)
+    path.write_text("[experiment]\nstimulations = ['slow']\n[stimulations.slow]\ndelay_min = 0.5\ndelay_max = 0.6\n")
+    assert config.load(path)["stimulations"]["slow"] == {"delay_min": 0.5, "delay_max": 0.6}

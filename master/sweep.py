@@ -1,0 +1,277 @@
+"""Parameter sweeps: points over the experiment's configuration, each trial an independent Dask task.
+
+A sweep file is an experiment configuration (any tables of defaults.toml, fixed for every point)
+plus a ``[sweep]`` table saying what varies::
+
+    [sweep]
+    trials = 3                     # per point and decoder x condition x stimulation (= experiment.trials)
+    quick = true                   # start from the [quick] defaults, like `rhi experiment --quick`
+    task = "master.experiment:trial_outcome"   # the trial function (module:function), this by default
+    workers = 2                    # processes of the local pool (default: one per core)
+    [sweep.grid]                   # every combination, in file order, the last key varying fastest
+    "stimulations.sync.delay_max" = [0.1, 0.5, 1.0]
+    "decoder.visual_variance" = [1000.0, 3000.0]
+    # or instead of [sweep.grid], a list of points:
+    # [[sweep.points]]
+    # "conditions.left" = -0.3
+
+A trial is one call ``task(config, decoder, condition, stimulation, index)`` for every point, every
+decoder x condition x stimulation of the point's experiment table and every index below its trials.
+Its id hashes everything that decides its result: the task, the point's full configuration, the
+cell, the index and the seed. The engine runs trials on any dask.distributed Client (a local process
+pool or a remote cluster) and writes each record as soon as it arrives, on the client's machine.
+"""
+from __future__ import annotations
+
+import difflib
+import hashlib
+import importlib
+import itertools
+import json
+import socket
+import time
+import traceback
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+
+from master import config as configuration
+from master.errors import ConfigError
+from master.experiment import trial_seed
+from master.results import atomic_write
+
+DEFAULT_TASK = "master.experiment:trial_outcome"
+SWEEP_KEYS = ("trials", "quick", "task", "workers", "grid", "points")
+
+
+@dataclass(frozen=True)
+class TrialSpec:
+    """One trial of a sweep: which point, which cell of the protocol, which repetition."""
+
+    id: str
+    point: int
+    decoder: str
+    condition: str
+    stimulation: str
+    index: int
+    seed: int
+
+
+@dataclass(frozen=True)
+class Sweep:
+    task: str                   # "module:function"
+    points: list[dict]          # per point: dotted key -> value, as written in the file
+    keys: list[str]             # the swept keys, in first-seen order
+    configs: list[dict]         # per point: the full effective configuration
+    workers: int | None         # local pool size; None = one per core
+    trials: list[TrialSpec]     # the plan, in order: point, decoder, condition, stimulation, index
+    fingerprint: str            # hash of the whole plan: same fingerprint, same trials
+
+
+def canonical_hash(value) -> str:
+    text = json.dumps(value, sort_keys=True, separators=(",", ":"), allow_nan=True)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def flatten(table: dict, prefix: str = "") -> dict:
+    """``{"a": {"b": 1}, "c.d": 2}`` -> ``{"a.b": 1, "c.d": 2}``: dotted keys, quoted or not."""
+    flat = {}
+    for key, value in table.items():
+        if isinstance(value, dict):
+            flat.update(flatten(value, f"{prefix}{key}."))
+        else:
+            flat[f"{prefix}{key}"] = value
+    return flat
+
+
+def nest(dotted: dict) -> dict:
+    nested: dict = {}
+    for path, value in dotted.items():
+        *tables, key = path.split(".")
+        cursor = nested
+        for table in tables:
+            cursor = cursor.setdefault(table, {})
+        cursor[key] = value
+    return nested
+
+
+def grid_points(grid: dict) -> list[dict]:
+    """Every combination of the grid's values; file order, the last key varying fastest."""
+    flat = flatten(grid)
+    for key, values in flat.items():
+        if not isinstance(values, list) or not values:
+            raise ConfigError(f"sweep.grid.{key} must be a non-empty list of values, got {values!r}")
+    return [dict(zip(flat, combination)) for combination in itertools.product(*flat.values())]
+
+
+def listed_points(points) -> list[dict]:
+    if not isinstance(points, list) or not points or not all(isinstance(p, dict) for p in points):
+        raise ConfigError("sweep.points must be a non-empty list of tables ([[sweep.points]])")
+    return [flatten(point) for point in points]
+
+
+def resolve_task(name: str):
+    """The callable named ``module:function``; a ConfigError naming it when it cannot be imported."""
+    module_name, _, function_name = name.partition(":")
+    if not module_name or not function_name:
+        raise ConfigError(f"sweep.task must be 'module:function', got {name!r}")
+    try:
+        function = getattr(importlib.import_module(module_name), function_name)
+    except (ImportError, AttributeError) as error:
+        raise ConfigError(f"sweep.task {name!r} cannot be imported: {error}") from None
+    if not callable(function):
+        raise ConfigError(f"sweep.task {name!r} is not a function")
+    return function
+
+
+def check_settings(settings: dict) -> None:
+    for key in settings:
+        if key not in SWEEP_KEYS:
+            close = difflib.get_close_matches(key, SWEEP_KEYS, n=1)
+            hint = f" (did you mean sweep.{close[0]}?)" if close else ""
+            raise ConfigError(f"unknown sweep key sweep.{key}{hint}")
+    for key in ("trials", "workers"):
+        value = settings.get(key, 1)
+        if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+            raise ConfigError(f"sweep.{key} must be a whole number of at least 1, got {value!r}")
+    if not isinstance(settings.get("quick", False), bool):
+        raise ConfigError(f"sweep.quick must be true or false, got {settings['quick']!r}")
+    if not isinstance(settings.get("task", DEFAULT_TASK), str):
+        raise ConfigError(f"sweep.task must be a string 'module:function', got {settings['task']!r}")
+    if "grid" in settings and "points" in settings:
+        raise ConfigError("sweep: give either sweep.grid or sweep.points, not both")
+
+
+def check_known(base: dict, dotted: str) -> None:
+    """Open tables take new entries (``conditions.far``, ``stimulations.slow.delay_max``), but a new key
+    inside an existing entry (``stimulations.sync.dely_max``) is a typo; merge() alone would accept it."""
+    parts, cursor = dotted.split("."), base
+    for depth, part in enumerate(parts):
+        if not isinstance(cursor, dict):
+            return  # merge() names the type error
+        if part not in cursor:
+            if depth == 1 and parts[0] in configuration.OPEN_TABLES:
+                return
+            close = difflib.get_close_matches(part, list(cursor), n=1)
+            hint = f" (did you mean {'.'.join([*parts[:depth], close[0]])}?)" if close else ""
+            raise ConfigError(f"unknown config key {'.'.join(parts[:depth + 1])}{hint}")
+        cursor = cursor[part]
+
+
+def point_config(base: dict, point: dict, number: int) -> dict:
+    try:
+        for key in point:
+            check_known(base, key)
+        effective = configuration.merge(base, nest(point))
+        configuration.validate(effective)
+    except ConfigError as error:
+        raise ConfigError(f"sweep point {number} ({describe(point)}): {error}") from None
+    return effective
+
+
+def describe(point: dict) -> str:
+    return ", ".join(f"{key}={json.dumps(value)}" for key, value in point.items()) or "no parameters"
+
+
+def plan(configs: list[dict], task: str) -> list[TrialSpec]:
+    trials = []
+    for number, config in enumerate(configs):
+        experiment = config["experiment"]
+        for decoder, condition, stimulation in itertools.product(
+                experiment["decoders"], experiment["conditions"], experiment["stimulations"]):
+            for index in range(experiment["trials"]):
+                seed = trial_seed(experiment["seed"], condition, stimulation, index)
+                identity = {"task": task, "config": config, "decoder": decoder, "condition": condition,
+                            "stimulation": stimulation, "index": index, "seed": seed}
+                trials.append(TrialSpec(canonical_hash(identity)[:20], number, decoder, condition,
+                                        stimulation, index, seed))
+    return trials
+
+
+def load(path: str | Path) -> Sweep:
+    """Read and check a sweep file; every point's configuration is validated before anything runs."""
+    fixed = configuration.read_toml(path)
+    settings = fixed.pop("sweep", None)
+    if not isinstance(settings, dict):
+        raise ConfigError(f"sweep file {path} has no [sweep] table (it says what to vary)")
+    check_settings(settings)
+    task = settings.get("task", DEFAULT_TASK)
+    resolve_task(task)
+    base = configuration.load(quick=settings.get("quick", False))
+    for key in flatten(fixed):
+        check_known(base, key)
+    base = configuration.merge(base, fixed)
+    configuration.validate(base)
+    if "trials" in settings:
+        base["experiment"]["trials"] = settings["trials"]
+    points = (grid_points(settings["grid"]) if "grid" in settings
+              else listed_points(settings["points"]) if "points" in settings else [{}])
+    configs = [point_config(base, point, number) for number, point in enumerate(points)]
+    seen: dict[str, int] = {}
+    for number, config in enumerate(configs):
+        other = seen.setdefault(canonical_hash(config), number)
+        if other != number:
+            raise ConfigError(f"sweep points {other} and {number} are the same configuration")
+    trials = plan(configs, task)
+    keys = list(dict.fromkeys(key for point in points for key in point))
+    fingerprint = canonical_hash({"task": task, "configs": configs, "points": points})
+    return Sweep(task, points, keys, configs, settings.get("workers"), trials, fingerprint)
+
+
+def run_trial(task, config: dict, trial: TrialSpec) -> dict:
+    """Runs on a worker. Never raises: a failure is a record with its error, so the rest continue."""
+    began = time.perf_counter()
+    try:
+        outcome = task(config, trial.decoder, trial.condition, trial.stimulation, trial.index)
+        record = {"status": "ok", "outcome": {key: plain(value) for key, value in outcome.items()}}
+    except Exception as error:  # noqa: BLE001: any failure of a trial is data, not a crash
+        record = failed(error, traceback.format_exc())
+    record.update(elapsed_s=round(time.perf_counter() - began, 6), host=socket.gethostname())
+    return record
+
+
+def plain(value):
+    """numpy scalars and arrays -> Python numbers and lists, so the record is plain JSON."""
+    return value.tolist() if hasattr(value, "tolist") else value
+
+
+def failed(error: BaseException, trace: str = "") -> dict:
+    message = " ".join(str(error).split()) or "(no message)"
+    return {"status": "failed", "error": f"{type(error).__name__}: {message}", "traceback": trace}
+
+
+def worker_check(module: str) -> str:
+    """Runs on each worker before the sweep: can it import the task's module?"""
+    importlib.import_module(module)
+    return socket.gethostname()
+
+
+def execute(sweep: Sweep, task, client, out: Path, done: set[str], on_record=None) -> list[dict]:
+    """Submit every trial not in ``done``; write each record to ``out/trials/ID.json`` as it arrives.
+
+    ``on_record(record)`` is called after each write (progress, index). Returns the new records.
+    """
+    from dask.distributed import as_completed
+
+    pending, token = {}, uuid.uuid4().hex[:8]
+    for trial in sweep.trials:
+        if trial.id not in done:
+            future = client.submit(run_trial, task, sweep.configs[trial.point], trial, pure=False,
+                                   key=f"rhi-trial-{trial.id}-{token}")
+            pending[future] = trial
+    records = []
+    for future in as_completed(list(pending)):
+        trial = pending.pop(future)
+        try:
+            result = future.result()
+        except Exception as error:  # noqa: BLE001: a lost worker or an unpicklable task fails one trial
+            result = failed(error)
+        record = {"id": trial.id, "point": trial.point, "parameters": sweep.points[trial.point],
+                  "decoder": trial.decoder, "condition": trial.condition, "stimulation": trial.stimulation,
+                  "trial": trial.index, "seed": trial.seed, **result}
+        atomic_write(out / "trials" / f"{trial.id}.json", json.dumps(record, indent=1, sort_keys=True) + "\n")
+        records.append(record)
+        future.release()
+        if on_record is not None:
+            on_record(record)
+    return records

@@ -1,0 +1,31 @@
+"""Fast stand-ins for master.experiment.trial_outcome, importable by Dask workers (repo root on PYTHONPATH).
+
+``fake_outcome`` is a closed-form function of the configuration and the trial's seed, so a test can
+compute every trial's exact result itself. It places the rubber hand by inverse kinematics, so an
+offset out of the arm's reach fails as the real experiment would.
+"""
+import time
+
+import numpy as np
+
+from components.body import kinematics
+from master.experiment import trial_seed
+
+SLOW_TRIAL_S = 0.4
+
+
+def fake_outcome(config: dict, decoder: str, condition: str, stimulation: str, index: int) -> dict:
+    offset = config["conditions"][condition]
+    kinematics.inverse(kinematics.REST_HAND[0] + offset, kinematics.REST_HAND[1])  # ValueError when out of reach
+    seed = trial_seed(config["experiment"]["seed"], condition, stimulation, index)
+    noise = np.random.default_rng(seed).normal()
+    delay = config["stimulations"][stimulation]["delay_max"]
+    gain = 0.5 if decoder == "vae" else 0.4
+    return {"drift_cm": 100.0 * gain * offset * np.exp(-delay / 0.3) + 0.1 * noise,
+            "force_n": -2.0 * offset * np.exp(-delay / 0.3),
+            "gamma_final": float(np.exp(-delay))}
+
+
+def slow_outcome(config: dict, decoder: str, condition: str, stimulation: str, index: int) -> dict:
+    time.sleep(SLOW_TRIAL_S)
+    return fake_outcome(config, decoder, condition, stimulation, index)
