@@ -14,7 +14,7 @@ from pathlib import Path
 
 from master.errors import ConfigError
 
-OPEN_TABLES = ("conditions", "stimulations", "train")  # users may add entries here (a new condition, say)
+OPEN_TABLES = ("conditions", "stimulations")  # users may add entries here (a new condition, say)
 
 
 def defaults() -> dict:

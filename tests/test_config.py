@@ -75,3 +75,11 @@ def test_typos_inside_open_tables_are_named(tmp_path):
         config.load(path)
     path.write_text("[experiment]\nstimulations = ['slow']\n[stimulations.slow]\ndelay_min = 0.5\ndelay_max = 0.6\n")
     assert config.load(path)["stimulations"]["slow"] == {"delay_min": 0.5, "delay_max": 0.6}
+
+
+def test_shipped_train_defaults_are_the_training_code_defaults():
+    from components.vision.training import TrainSettings
+
+    defaults = TrainSettings().as_dict()
+    defaults.pop("resolution")  # taken from experiment.resolution
+    assert config.load()["train"] == defaults

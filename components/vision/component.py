@@ -1,0 +1,186 @@
+"""The visual decoder as a co-simulation component.
+
+Each step, for the whole batch in one decoder call, it predicts the image from the
+belief mu, g(mu), differentiates it with forward-mode AD, J = dg/dmu (per degree,
+through the input normalisation), and returns the visual term of the paper's eq. 6
+(without gamma, which the brain applies)::
+
+    visual_drive = J^T (s_v - g(mu)) * (256*256 / (H*W)) / visual_variance
+
+Visual variance is per pixel, expressed at the reference resolution 256x256: the
+factor 256*256/(H*W) makes the drive the same at any resolution (a sum over H*W
+pixels of a smooth image scales with H*W), so a value means what the released
+agent's 3000 meant at 256x256.
+
+Example::
+
+    decoder = Decoder("conv.pt", resolution=64, rest_pose=kinematics.REST_POSE)
+    images = jacobian_images(decoder.model, np.array([[147.7, -91.2]]))   # (1, 2, 64, 64)
+"""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import torch
+from torch.func import jvp
+
+from components.component import Component, StepFailure
+from components.variables import Variable
+from components.vision.checkpoint import check_matches, load
+from components.vision.networks import normalise
+
+REFERENCE_PIXELS = 256 * 256
+DEFAULT_VISUAL_VARIANCE = 3000.0  # the released agent's value at 256x256; the experiment calibrates its own
+
+
+def available_cores() -> int:
+    """Torch threads to use: OMP_NUM_THREADS when set (Dask workers set it to 1), else the usable cores."""
+    requested = os.environ.get("OMP_NUM_THREADS", "")
+    if requested.isdigit() and int(requested) > 0:
+        return int(requested)
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+class GenerativeModel:
+    """g(mu): the trained decoder behind the training normalisation; degrees in, image out.
+
+    decoder: a module mapping normalised angles (B, 2) to images (B, R, R).
+    rest_pose, half_ranges: the training ranges (deg), where the input is 0 and +-1.
+    """
+
+    def __init__(self, decoder: torch.nn.Module, rest_pose, half_ranges, metadata: dict | None = None):
+        self.decoder = decoder.float().eval().requires_grad_(False)
+        self.rest_pose = np.array(rest_pose, dtype=np.float64)      # deg, as trained
+        self.half_ranges = np.array(half_ranges, dtype=np.float64)  # deg
+        self._rest, self._half = torch.from_numpy(self.rest_pose).float(), torch.from_numpy(self.half_ranges).float()
+        self.metadata = dict(metadata or {})
+        with torch.no_grad():
+            self.resolution = int(self(self._rest[None]).shape[-1])
+
+    @classmethod
+    def from_checkpoint(cls, path, resolution=None, rest_pose=None, half_ranges=None) -> "GenerativeModel":
+        """Load ``path``; CheckpointError if it is unusable or trained for another camera or body."""
+        model, metadata = load(path, resolution, rest_pose, half_ranges)
+        return cls(model.decoder, metadata["rest_pose"], metadata["half_ranges"], metadata)
+
+    def __call__(self, mu_deg: torch.Tensor) -> torch.Tensor:
+        """g(mu) for mu (B, 2) float32 degrees: images (B, R, R) in [0, 1]."""
+        return self.decoder(normalise(mu_deg, self._rest, self._half))
+
+    def predict_with_jacobian(self, mu_deg: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """g(mu) (B, R, R) and J = dg/dmu (B, 2, R, R) in 1/deg, by forward-mode AD.
+
+        One jvp per joint with the same unit tangent for every trial: trials are
+        independent (no batch coupling in the decoder), so each gives one Jacobian
+        column for the whole batch, and the first also gives the prediction.
+        """
+        columns = []
+        for joint in range(2):
+            tangent = torch.zeros_like(mu_deg)
+            tangent[:, joint] = 1.0
+            prediction, column = jvp(self, (mu_deg,), (tangent,))
+            columns.append(column)
+        return prediction, torch.stack(columns, dim=1)
+
+
+def jacobian_images(model: GenerativeModel, mu_deg) -> np.ndarray:
+    """The two Jacobian images dg/d(shoulder), dg/d(elbow) per belief: (B, 2, R, R) float32, 1/deg."""
+    mu = torch.as_tensor(np.asarray(mu_deg, dtype=np.float32).reshape(-1, 2))
+    with torch.no_grad():
+        return model.predict_with_jacobian(mu)[1].numpy()
+
+
+def resolution_weight(height: int, width: int) -> float:
+    """256*256 / (H*W): makes a per-pixel variance mean the same at any resolution."""
+    return REFERENCE_PIXELS / (height * width)
+
+
+def visual_drive(jacobian: torch.Tensor, error: torch.Tensor, precision: torch.Tensor) -> torch.Tensor:
+    """Visual term of eq. 6 without gamma: J^T Sigma_v^-1 e_v, (B, 2).
+
+    jacobian (B, 2, R, R); error e_v = s_v - g(mu) (B, R, R) (eq. 4); precision (B,):
+    resolution weight / visual variance.
+    """
+    return torch.einsum("bkhw,bhw->bk", jacobian, error) * precision[:, None]
+
+
+def visual_error(error: torch.Tensor, precision: torch.Tensor) -> torch.Tensor:
+    """Precision-weighted squared error e_v^T Sigma_v^-1 e_v, (B,); the free energy holds half of it."""
+    return error.square().sum(dim=(1, 2)) * precision
+
+
+def visual_stiffness(jacobian: torch.Tensor, precision: torch.Tensor) -> torch.Tensor:
+    """Largest eigenvalue of J^T Sigma_v^-1 J (B,), 1/s: how fast the drive pulls mu back."""
+    gram = torch.einsum("bkhw,blhw->bkl", jacobian, jacobian) * precision[:, None, None]
+    a, b, d = gram[:, 0, 0], gram[:, 0, 1], gram[:, 1, 1]
+    return 0.5 * (a + d) + torch.sqrt((0.5 * (a - d)).square() + b.square())
+
+
+class Decoder(Component):
+    """Visual decoder component: belief and image in, visual drive and prediction out.
+
+    checkpoint: a path (loaded safely) or a :class:`GenerativeModel`.
+    resolution, rest_pose, half_ranges: what the camera renders and the body rests at;
+        when given, a checkpoint trained for anything else is rejected (CheckpointError).
+    threads: torch threads for the step (default: the cores this process may use).
+    """
+
+    def __init__(self, checkpoint, name: str = "decoder", resolution: int | None = None, rest_pose=None,
+                 half_ranges=None, threads: int | None = None):
+        if isinstance(checkpoint, GenerativeModel):
+            self.model = checkpoint
+            trained = {"resolution": checkpoint.resolution, "rest_pose": checkpoint.rest_pose.tolist(),
+                       "half_ranges": checkpoint.half_ranges.tolist()}
+            check_matches(f"{name} (an in-memory decoder)", trained, resolution, rest_pose, half_ranges)
+        else:
+            self.model = GenerativeModel.from_checkpoint(checkpoint, resolution, rest_pose, half_ranges)
+        self.threads = threads or available_cores()
+        image = (self.model.resolution, self.model.resolution)
+        super().__init__(name, [
+            Variable("visual_variance", "parameter", start=DEFAULT_VISUAL_VARIANCE, unit="1", min=1e-12,
+                     description="Sigma_v: visual variance per pixel, at the 256x256 reference resolution"),
+            Variable("mu", "input", "Array", shape=(2,), start=self.model.rest_pose, unit="deg",
+                     description="belief mu: shoulder, elbow joint angles"),
+            Variable("image", "input", "Array", shape=image, element="float32", start=None, unit="1",
+                     description="s_v: the camera image, grayscale in [0, 1]"),
+            Variable("visual_drive", "output", "Array", shape=(2,), start=None, unit="deg/s",
+                     description="J^T (s_v - g(mu)) * 256^2/(H W) / visual_variance (eq. 6, without gamma)",
+                     depends_on=("mu", "image")),
+            Variable("prediction", "output", "Array", shape=image, element="float32", start=None, unit="1",
+                     description="g(mu): the image the belief predicts", depends_on=("mu",)),
+            Variable("visual_error", "output", start=None, unit="1", min=0.0,
+                     description="(s_v - g)^T (s_v - g) * 256^2/(H W) / visual_variance",
+                     depends_on=("mu", "image")),
+            Variable("visual_stiffness", "output", start=None, unit="1/s", min=0.0,
+                     description="largest eigenvalue of J^T J * 256^2/(H W) / visual_variance",
+                     depends_on=("mu",)),
+        ])
+
+    def initialize(self):
+        torch.set_num_threads(self.threads)
+        self._update()
+
+    def step(self, t, h):
+        self._update()
+
+    def _update(self):
+        mu = np.asarray(self.values["mu"])
+        if not np.all(np.isfinite(mu)):
+            trial = int(np.argwhere(~np.isfinite(mu))[0][0])
+            raise StepFailure(f"belief mu of trial {trial} is not finite: {mu[trial].tolist()}")
+        image = self.values["image"]
+        if image.dtype != np.float32 or not image.flags.c_contiguous:
+            image = np.ascontiguousarray(image, dtype=np.float32)
+        sensed = torch.from_numpy(image)  # shares memory: no copy of the images
+        precision = torch.from_numpy(resolution_weight(*image.shape[1:]) / self.values["visual_variance"]).float()
+        with torch.no_grad():
+            prediction, jacobian = self.model.predict_with_jacobian(torch.from_numpy(mu.astype(np.float32)))
+            error = sensed - prediction
+            self.values["visual_drive"] = visual_drive(jacobian, error, precision).double().numpy()
+            self.values["visual_error"] = visual_error(error, precision).double().numpy()
+            self.values["visual_stiffness"] = visual_stiffness(jacobian, precision).double().numpy()
+        self.values["prediction"] = prediction.numpy()  # a new tensor each step, shared with numpy

@@ -1,0 +1,77 @@
+"""The experiment's decoders: which checkpoint each uses, training the defaults once, the component.
+
+A checkpoint named in ``[decoder]`` is used as given. Otherwise the default decoder
+is trained once with the ``[train]`` settings at the experiment's resolution and
+cached under ``$RHI_CACHE`` (default ``~/.cache/rhi``), named by a hash of those
+settings, so a changed setting trains a new one and an unchanged one is reused.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from components.body import kinematics
+from components.component import ComponentError
+from components.vision import training
+from components.vision.component import Decoder, jacobian_images
+from master.errors import ConfigError
+from master.train_command import load_decoder, train_decoder
+
+
+def cache_folder() -> Path:
+    return Path(os.environ.get("RHI_CACHE") or Path.home() / ".cache" / "rhi")
+
+
+def train_settings(config: dict) -> training.TrainSettings:
+    """TrainSettings from ``[train]``, at the experiment's resolution."""
+    try:
+        return training.TrainSettings(**{**config.get("train", {}),
+                                         "resolution": config["experiment"]["resolution"]})
+    except TypeError as error:  # an unknown key
+        raise ConfigError(f"[train]: {error}") from None
+    except ComponentError as error:
+        raise ConfigError(f"[train]: {error}") from None
+
+
+def checkpoint_path(kind: str, config: dict, must_exist: bool = False) -> str:
+    """The checkpoint of decoder ``kind``: the configured one, or the cached default."""
+    given = config["decoder"].get(f"{kind}_checkpoint") or ""
+    if given:
+        if not Path(given).is_file():
+            raise ConfigError(f"decoder.{kind}_checkpoint: {given} does not exist")
+        return given
+    settings = train_settings(config).as_dict()
+    key = hashlib.sha256(json.dumps([kind, settings], sort_keys=True).encode()).hexdigest()[:16]
+    path = cache_folder() / f"{kind}-r{settings['resolution']}-{settings['preset']}-{key}.pt"
+    if must_exist and not path.is_file():
+        raise ConfigError(f"no trained {kind} decoder for these settings at {path}: run `rhi experiment` "
+                          "once, or name a checkpoint in [decoder]")
+    return str(path)
+
+
+def ensure_checkpoints(config: dict, progress: bool = True) -> tuple[dict[str, str], dict[str, float]]:
+    """Every decoder the experiment needs, training (and caching) the missing defaults."""
+    paths, seconds = {}, {}
+    for kind in config["experiment"]["decoders"]:
+        paths[kind] = checkpoint_path(kind, config)
+        if not Path(paths[kind]).is_file():
+            Path(paths[kind]).parent.mkdir(parents=True, exist_ok=True)
+            began = time.perf_counter()
+            train_decoder(kind, paths[kind], train_settings(config), progress=progress)
+            seconds[kind] = time.perf_counter() - began
+    return paths, seconds
+
+
+def decoder_component(kind: str, path: str, config: dict) -> Decoder:
+    return Decoder(load_decoder(path, config["experiment"]["resolution"]), name="decoder")
+
+
+def jacobian_pair(kind: str, path: str, config: dict) -> np.ndarray:
+    """dg/d(shoulder) and dg/d(elbow) at the rest pose: (2, R, R), 1/deg."""
+    model = load_decoder(path, config["experiment"]["resolution"])
+    return jacobian_images(model, np.array([kinematics.REST_POSE]))[0]
