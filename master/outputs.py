@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from master.errors import ConfigError
+from master.results import UMASK
 
 SUMMARY_COLUMNS = ["decoder", "condition", "stimulation", "n_trials", "drift_cm_mean", "drift_cm_sd",
                    "force_n_mean", "force_n_sd", "gamma_final_mean"]
@@ -32,9 +33,11 @@ def staging_folder(out: str | os.PathLike, force: bool) -> Path:
     if not parent.is_dir():
         raise ConfigError(f"cannot write {out}: folder {parent} does not exist")
     try:
-        return Path(tempfile.mkdtemp(dir=parent, prefix=f".{out.name}.", suffix=".partial"))
+        staging = Path(tempfile.mkdtemp(dir=parent, prefix=f".{out.name}.", suffix=".partial"))
     except OSError as error:
         raise ConfigError(f"cannot write into {parent}: {error.strerror}") from None
+    staging.chmod(0o777 & ~UMASK)  # mkdtemp makes it private; the published folder is an ordinary one
+    return staging
 
 
 def publish(staging: Path, out: str | os.PathLike) -> None:

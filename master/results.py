@@ -20,6 +20,8 @@ import numpy as np
 from master.errors import ConfigError
 
 PACKAGES = ("numpy", "scipy", "torch", "pymunk", "pillow", "fmpy", "pythonfmu", "matplotlib", "dask", "rhi")
+UMASK = os.umask(0o022)
+os.umask(UMASK)  # read once: the umask can only be read by setting it
 MAX_CSV_ELEMENTS = 64  # per-trial elements of one variable; images do not belong in a CSV
 
 
@@ -31,6 +33,7 @@ def atomic_write(path: str | os.PathLike, data: str | bytes) -> None:
     try:
         with os.fdopen(handle, mode, **({} if mode == "wb" else {"newline": "", "encoding": "utf-8"})) as file:
             file.write(data)
+        os.chmod(temporary, 0o666 & ~UMASK)  # mkstemp makes files private; results are ordinary files
         os.replace(temporary, path)
     except BaseException:
         os.unlink(temporary)

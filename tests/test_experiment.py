@@ -99,3 +99,22 @@ def test_unwritable_parent_is_refused_without_traces(tmp_path, cache):
     blocker.write_text("")
     one_line_error(rhi("experiment", "--quick", "--out", str(blocker / "run"), cache=cache), "does not exist")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
+
+
+def test_body_fmu_reproduces_the_native_summary(quick_run, cache, tmp_path):
+    """The exported pymunk body, swapped in as an FMU, gives the native run's summary."""
+    from master.export_command import build_fmu
+
+    fmu = build_fmu(tmp_path / "Body.fmu", "native")
+    result = rhi("experiment", "--quick", "--body", str(fmu), "--out", str(tmp_path / "fmu"), cache=cache)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert (tmp_path / "fmu" / "summary.csv").read_bytes() == (quick_run / "summary.csv").read_bytes()
+    assert json.loads((tmp_path / "fmu" / "run.json").read_text())["body"] == str(fmu)
+
+
+def test_a_broken_body_fmu_is_refused_before_any_work(tmp_path, cache):
+    fake = tmp_path / "Body.fmu"
+    fake.write_text("not a zip")
+    one_line_error(rhi("experiment", "--quick", "--body", str(fake), "--out", str(tmp_path / "o"), cache=cache),
+                   "Body.fmu cannot be used")
+    assert not (tmp_path / "o").exists()
