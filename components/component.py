@@ -48,10 +48,11 @@ class Status(enum.IntEnum):
 class StepFailure(Exception):
     """Raised inside :meth:`Component.step` to fail the step with a status and a reason."""
 
-    def __init__(self, reason: str, status: Status = Status.ERROR):
+    def __init__(self, reason: str, status: Status = Status.ERROR, trials: tuple[int, ...] = ()):
         super().__init__(reason)
         self.reason = reason
         self.status = status
+        self.trials = tuple(int(i) for i in trials)  # batch positions that failed; () = the whole batch
 
 
 class ComponentError(ValueError):
@@ -83,6 +84,7 @@ class Component:
         self.batch_size = 0
         self.values: dict[str, object] = {}
         self.last_reason = ""
+        self.failed_trials: tuple[int, ...] = ()
         self.start_time = 0.0
         self.stop_time: float | None = None
 
@@ -175,9 +177,9 @@ class Component:
         try:
             hook()
         except StepFailure as failure:
-            self.last_reason = failure.reason
+            self.last_reason, self.failed_trials = failure.reason, failure.trials
             return failure.status
-        self.last_reason = ""
+        self.last_reason, self.failed_trials = "", ()
         return Status.OK
 
     def _coerce(self, var: Variable, value):

@@ -271,9 +271,10 @@ class FMUComponent(Component):
                 getattr(fmu, f"fmi2Get{kind}")(fmu.component, refs, len(names), buffer)
                 rows[trial] = buffer[:]
             if kind == "Real" and not np.isfinite(rows).all():
-                trial, column = np.argwhere(~np.isfinite(rows))[0]
+                bad = np.argwhere(~np.isfinite(rows))
+                trial, column = bad[0]
                 raise StepFailure(f"{self.label}: output {names[column]} is {rows[trial, column]} "
-                                  f"in trial {trial} at t = {t:.6g} s")
+                                  f"in trial {trial} at t = {t:.6g} s", trials=np.unique(bad[:, 0]))
             for column, name in enumerate(names):
                 self.values[name] = rows[:, column].copy()
 
@@ -291,7 +292,7 @@ class FMUComponent(Component):
             except FMICallException as error:
                 self.failure = StepFailure(f"{self.label}: {what} returned {Status(error.status).name.lower()} "
                                            f"in trial {trial} at t = {t:.6g} s{self._reason()}",
-                                           Status(max(error.status, Status.DISCARD)))
+                                           Status(max(error.status, Status.DISCARD)), trials=(trial,))
                 raise self.failure from None
 
     def enter_initialization_mode(self) -> None:

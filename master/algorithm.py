@@ -115,7 +115,7 @@ def simulate(system: System, stop_time: float, step_size: float = 0.02, start_ti
                 spent[component.name] += time.perf_counter() - began
                 if status >= Status.DISCARD:
                     raise SimulationError(component.name, t, component.last_reason or "no reason given",
-                                          status.name.lower())
+                                          status.name.lower(), component.failed_trials)
             for path, c, v in recorded:
                 history[path].append(np.array(c.values[v], copy=True))
             if progress is not None:

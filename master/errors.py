@@ -14,6 +14,7 @@ class ConfigError(ValueError):
 class SimulationError(RuntimeError):
     """A component failed a step (status discard, error or fatal)."""
 
-    def __init__(self, component: str, time: float, reason: str, status: str = "error"):
+    def __init__(self, component: str, time: float, reason: str, status: str = "error", trials=()):
         super().__init__(f"{component} failed the step at t = {time:.6g} s ({status}): {reason}")
         self.component, self.time, self.reason, self.status = component, time, reason, status
+        self.trials = tuple(trials)  # batch positions the component blamed; () = the whole batch

@@ -18,6 +18,7 @@ from components.body.rubber_arm import RubberArm
 from components.brain.integrator import Brain
 from components.stimulus import Stimulus
 from master.algorithm import simulate
+from master.errors import SimulationError
 from master.system import System
 
 # Gauss-Seidel order within one step (DESIGN.md): the decoder reads the brain's mu of time t and the
@@ -159,33 +160,60 @@ def measures(result) -> dict[str, np.ndarray]:
     }
 
 
-def timed(function, *args, **kwargs):
-    began = time.perf_counter()
-    value = function(*args, **kwargs)
-    return value, time.perf_counter() - began
+def without_failures(run_trials, trials: list[Trial]):
+    """``run_trials(trials)``, dropping any trial a component blames for a failed step.
+
+    A component that names the failing trials (``StepFailure(trials=...)``, e.g. the FMU adapter on a
+    NaN) costs only those: they are recorded and the rest of the batch is run again from the start,
+    which gives them exactly the numbers they would have had (trials are independent). A failure
+    that names no trial stops the run. Returns (result or None, kept trials, {trial: error}).
+    """
+    failures: dict[Trial, str] = {}
+    while trials:
+        try:
+            return run_trials(trials), trials, failures
+        except SimulationError as error:
+            if not error.trials:
+                raise
+            for position in error.trials:
+                failures[trials[position]] = str(error)
+            trials = [t for position, t in enumerate(trials) if position not in error.trials]
+    return None, trials, failures
 
 
 def run(config: dict, checkpoints: dict[str, str], body_factory=None, progress: bool = False):
     """Every trial of the protocol, one lockstep batch per decoder.
 
-    Returns (trials, times, per_step, seconds): ``per_step[key]`` has shape (steps + 1, n_trials) in
-    the order of :func:`plan`.
+    Returns (trials, times, per_step, seconds, failures): ``per_step[key]`` has shape
+    (steps + 1, n_trials) in the order of ``trials`` (the protocol's order, less any failed trial);
+    ``failures`` maps each failed trial to its error.
     """
     from master.decoders import decoder_component  # torch is imported only when a run needs it
 
-    trials, blocks, seconds = plan(config), [], {}
+    kept, blocks, seconds, failures, times = [], [], {}, {}, None
     for kind in config["experiment"]["decoders"]:
-        batch = [t for t in trials if t.decoder == kind]
-        bar = progress_bar(f"{kind} trials x{len(batch)}", config["experiment"]["steps"]) if progress else None
-        body = body_factory() if body_factory else None
-        result, seconds[kind] = timed(run_batch, decoder_component(kind, checkpoints[kind], config), batch,
-                                      config, body, bar.update_to if bar else None)
-        if bar:
-            bar.close()
-        blocks.append(measures(result))
-        times = result.times
+        def run_trials(batch, kind=kind):
+            bar = progress_bar(f"{kind} trials x{len(batch)}", config["experiment"]["steps"]) if progress else None
+            body = body_factory() if body_factory else None
+            try:
+                return run_batch(decoder_component(kind, checkpoints[kind], config), batch, config, body,
+                                 bar.update_to if bar else None)
+            finally:
+                if bar:
+                    bar.close()
+
+        began = time.perf_counter()
+        result, batch, failed = without_failures(run_trials, [t for t in plan(config) if t.decoder == kind])
+        seconds[kind] = time.perf_counter() - began
+        failures.update(failed)
+        if result is not None:
+            kept += batch
+            blocks.append(measures(result))
+            times = result.times
+    if not blocks:
+        raise SimulationError("experiment", 0.0, "every trial failed: " + "; ".join(sorted(set(failures.values()))))
     per_step = {key: np.concatenate([block[key] for block in blocks], axis=1) for key in blocks[0]}
-    return trials, times, per_step, seconds
+    return kept, times, per_step, seconds, failures
 
 
 def trial_outcome(config: dict, decoder: str, condition: str, stimulation: str, index: int,

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import sys
 import time
 
 import numpy as np
@@ -53,7 +54,8 @@ def run_experiment(args) -> int:
     staging = outputs.staging_folder(args.out, args.force)
     try:
         checkpoints, training_seconds = ensure_checkpoints(config, progress=True)
-        trials, times, per_step, run_seconds = experiment.run(config, checkpoints, make_body, progress=True)
+        trials, times, per_step, run_seconds, failures = experiment.run(config, checkpoints, make_body,
+                                                                        progress=True)
         final = {key: values[-1] for key, values in per_step.items()}
         atomic_write(staging / "summary.csv", outputs.csv_text(outputs.SUMMARY_COLUMNS, outputs.summary(trials, final)))
         atomic_write(staging / "trials.csv", outputs.trials_csv(trials, times, per_step))
@@ -74,6 +76,7 @@ def run_experiment(args) -> int:
             "timings_s": {"training": training_seconds, "trials": run_seconds,
                           "total": time.perf_counter() - started},
             "figures": written + [name],
+            "failed_trials": [{**trial.__dict__, "error": error} for trial, error in failures.items()],
         }
         atomic_write(staging / "run.json", json.dumps(provenance, indent=2, default=str) + "\n")
         outputs.publish(staging, args.out)
@@ -83,6 +86,9 @@ def run_experiment(args) -> int:
     print(f"wrote {args.out}: summary.csv, trials.csv, run.json, figures/ "
           f"({time.perf_counter() - started:.0f} s)")
     print((outputs.Path(args.out) / "summary.csv").read_text(), end="")
-    return 0
+    for trial, error in failures.items():
+        print(f"rhi experiment: trial failed and left out: {trial.decoder}/{trial.condition}/{trial.stimulation} "
+              f"trial {trial.index}: {error}", file=sys.stderr)
+    return 1 if failures else 0
 
 

@@ -205,8 +205,11 @@ def test_every_problem_is_reported_at_once(fmus, tmp_path):
 
 def test_nan_output_stops_the_run_naming_fmu_time_variable_and_trial(fmus):
     with pytest.raises(SimulationError, match=r"body failed the step at t = 0\.1 s \(error\): FMU 'NanArmPlant' "
-                                              r"\(NanArmPlant\.fmu\): output hand_y is nan in trial 1 at t = 0\.12 s"):
-        run(FMUComponent(fmus["NanArmPlant"]), True, batch_size=2, parameters={"body.q0_shoulder": [147.0, 150.5]})
+                                              r"\(NanArmPlant\.fmu\): output hand_y is nan in trial 1 at t = 0\.12 s"
+                       ) as caught:
+        run(FMUComponent(fmus["NanArmPlant"]), True, batch_size=3,
+            parameters={"body.q0_shoulder": [147.0, 150.5, 147.5]})
+    assert caught.value.trials == (1,)  # only that trial is blamed: the experiment drops it and goes on
 
 
 def test_a_raising_fmu_stops_the_run_with_its_reason_and_runs_its_own_code(fmus):

@@ -57,3 +57,31 @@ def test_staging_needs_an_existing_parent(tmp_path):
     (tmp_path / "file").write_text("")
     with pytest.raises(ConfigError, match="is not a folder"):
         outputs.staging_folder(tmp_path / "file", force=False)
+
+
+def test_a_failing_trial_is_dropped_and_the_rest_rerun():
+    """The batch is rerun without the trials a component blames; a failure blaming none stops the run."""
+    from master.errors import SimulationError
+    from master.experiment import without_failures
+
+    trials = plan(load())[:6]
+    bad = {trials[1], trials[4]}
+    calls = []
+
+    def run_trials(batch):
+        calls.append(list(batch))
+        blamed = [position for position, trial in enumerate(batch) if trial in bad]
+        if blamed:
+            raise SimulationError("body", 0.12, "output hand_y is nan", trials=blamed[:1])
+        return "result"
+
+    result, kept, failures = without_failures(run_trials, trials)
+    assert result == "result" and kept == [t for t in trials if t not in bad]
+    assert set(failures) == bad and all("hand_y is nan" in e and "t = 0.12 s" in e for e in failures.values())
+    assert len(calls) == 3  # one failure at a time, then the clean batch
+
+    def run_all_fail(batch):
+        raise SimulationError("decoder", 0.0, "out of memory")
+
+    with pytest.raises(SimulationError, match="out of memory"):
+        without_failures(run_all_fail, trials)
