@@ -12,12 +12,6 @@ from master.errors import ConfigError, SimulationError
 USER_ERRORS = (ConfigError, ComponentError)
 
 
-def not_yet(issue: int):
-    def command(args):
-        raise ConfigError(f"'rhi {args.command}' is not implemented yet (see issue {issue})")
-    return command
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="rhi", description="A deep active inference model of the rubber-hand illusion, as a co-simulation.")
@@ -48,8 +42,13 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.set_defaults(run=lambda args: __import__("master.sweep_command").sweep_command.run_sweep(args))
 
     bench = commands.add_parser("bench", help="measure speed")
-    bench.add_argument("--json", action="store_true")
-    bench.set_defaults(run=not_yet(8))
+    bench.add_argument("--json", action="store_true", help="print the results as JSON (for machines)")
+    bench.add_argument("--quick", action="store_true", help="tiny settings: a smoke test in seconds")
+    bench.add_argument("--threads", type=int, default=0, metavar="N",
+                       help="torch threads (default: all cores; 1 on a machine busy with other work)")
+    bench.add_argument("--checkpoint", metavar="CKPT", default="",
+                       help="trained conv decoder for the fast mode's drift error (default: the cached default)")
+    bench.set_defaults(run=lambda args: __import__("master.bench").bench.run_bench(args))
     return parser
 
 
