@@ -1,0 +1,500 @@
+"""``rhi bench [--json]``: agent-steps per second of each way to run the protocol, and why.
+
+An agent-step is one trial advanced one communication step, everything included (body,
+camera, stimulus, rubber arm, decoder, brain, master). Measured per preset (paper: 256x256
+and the paper's decoder; default: 64x64 and the default decoder), with UNTRAINED seeded
+decoders of the right architecture (speed does not depend on the weights):
+
+- baseline: :class:`master.baseline.PaperStyleAgent`, one trial the way the released agent runs;
+- exact_single: this project's integrator, B = 1 through :func:`master.algorithm.simulate`;
+- exact_batched: all ``batch`` trials of the protocol in lockstep, one decoder call per step;
+- exact_batched_optimised: the same with the decoder's JVPs written out, in channels-last layout;
+- fast: the linearised decoder (:mod:`components.vision.fast`), batched.
+
+Each is timed after a warm-up (the initialization's decoder call, and a 2-step probe run
+that sizes the measured run to ``budget_s``). Also: the decoder's FLOPs per agent-step
+(analytic from the layer shapes, MACs x 2, checked against torch's FlopCounterMode, which
+also counts the JVP step), the achieved FLOP/s against a measured fp32 matmul peak, each
+component's share of the step, the master's per-step overhead against fmpy.simulate_fmu on
+the same body FMU, the whole paper protocol in fast mode (in a child process, for its peak
+memory), and the fast mode's drift error against the exact integrator with a trained default
+decoder when one is cached.
+"""
+from __future__ import annotations
+
+import json
+import os
+import platform
+import resource
+import sys
+import time
+from dataclasses import asdict, dataclass, replace
+
+import numpy as np
+import torch
+from torch.utils.flop_counter import FlopCounterMode
+
+from components.body import kinematics
+from components.vision.component import Decoder, GenerativeModel, available_cores
+from components.vision.fast import DEFAULT_TOLERANCE, LinearisedDecoder, optimised
+from components.vision.networks import build
+from master import config as configuration
+from master import experiment
+from master.baseline import PaperStyleAgent
+from master.errors import ConfigError
+from master.training_data import HALF_RANGES
+
+
+@dataclass(frozen=True)
+class BenchSettings:
+    presets: tuple = (("paper", 256), ("default", 64))  # (network preset, resolution)
+    batch: int = 60              # trials in lockstep: the whole protocol (2 decoders x 3 x 2 x 5)
+    max_steps: int = 50          # measured steps per mode at most ...
+    min_steps: int = 2           # ... and at least
+    budget_s: float = 8.0        # aimed-at measuring time per mode
+    protocol_steps: int = 1500   # the fast-mode run of the whole paper protocol
+    protocol_preset: tuple = ("paper", 256)
+    tolerance: float = DEFAULT_TOLERANCE
+    error_trials: int = 1        # per condition x stimulation, for the fast mode's drift error
+    error_steps: int = 1500
+    error_model: str = "cached"  # cached: the trained default conv decoder (or error_checkpoint); untrained: tiny
+    error_checkpoint: str = ""   # a trained conv checkpoint at the default resolution, instead of the cached one
+    fmu_steps: int = 300
+    matmul_size: int = 2048
+    threads: int = 0             # torch threads; 0: the cores this process may use
+    seed: int = 0
+
+
+QUICK = BenchSettings(presets=(("tiny", 32),), batch=6, max_steps=3, budget_s=0.5, protocol_steps=10,
+                      protocol_preset=("tiny", 32), error_steps=30, error_model="untrained", fmu_steps=20,
+                      matmul_size=256)
+
+
+def untrained(preset: str, resolution: int, seed: int) -> GenerativeModel:
+    torch.manual_seed(seed)
+    return GenerativeModel(build("conv", preset, resolution).decoder, kinematics.REST_POSE, HALF_RANGES)
+
+
+def protocol_config(resolution: int, steps: int, **overrides) -> dict:
+    return configuration.load(overrides={"experiment.resolution": resolution, "experiment.steps": steps,
+                                         "experiment.decoders": ["conv", "vae"], **overrides})
+
+
+def protocol_trials(config: dict, batch: int) -> list:
+    """``batch`` trials of the protocol's plan, spread over it (all 60 when batch is 60)."""
+    trials = experiment.plan(config)
+    return [trials[i] for i in np.linspace(0, len(trials) - 1, batch).round().astype(int)]
+
+
+# -- counting -------------------------------------------------------------------------------------
+def analytic_flops(decoder: torch.nn.Module, resolution: int) -> int:
+    """Forward FLOPs of one trial from the layer shapes: 2 x MACs of every Linear, Conv2d, ConvTranspose2d."""
+    total, hooks = [0], []
+
+    def count(module, inputs, output):
+        if isinstance(module, torch.nn.Linear):
+            total[0] += 2 * module.in_features * module.out_features
+        elif isinstance(module, torch.nn.ConvTranspose2d):  # every input pixel meets every kernel tap
+            total[0] += 2 * module.in_channels * module.out_channels * np.prod(module.kernel_size) * \
+                np.prod(inputs[0].shape[2:])
+        elif isinstance(module, torch.nn.Conv2d):  # every output pixel meets every kernel tap
+            total[0] += 2 * module.in_channels * module.out_channels * np.prod(module.kernel_size) * \
+                np.prod(output.shape[2:])
+
+    for module in decoder.modules():
+        hooks.append(module.register_forward_hook(count))
+    with torch.no_grad():
+        decoder(torch.zeros(1, 2))
+    for hook in hooks:
+        hook.remove()
+    return int(total[0])
+
+
+def counted_flops(function) -> int:
+    with FlopCounterMode(display=False) as counter:
+        function()
+    return int(counter.get_total_flops())
+
+
+def decoder_flops(model: GenerativeModel, agent: PaperStyleAgent) -> dict:
+    """FLOPs per trial: forward (analytic and counted), the exact step (JVPs), the baseline agent's step."""
+    mu = torch.tensor([kinematics.REST_POSE], dtype=torch.float32)
+
+    def forward_backward():
+        inpt, output = agent.visual_forward(mu.numpy())
+        output.backward(torch.ones_like(output), retain_graph=True)
+
+    fast = optimised(model)
+    with torch.no_grad():
+        forward = counted_flops(lambda: model(mu))
+        step = counted_flops(lambda: model.predict_with_jacobian(mu))
+        written_out = counted_flops(lambda: fast.predict_with_jacobian(mu))
+    return {"method": "forward: analytic from layer shapes (2 x MACs of Linear/Conv/ConvTranspose); "
+                      "steps: torch.utils.flop_counter.FlopCounterMode",
+            "forward_per_trial": analytic_flops(model.decoder, model.resolution),
+            "forward_per_trial_counted": forward, "exact_step_per_trial": step,
+            "optimised_step_per_trial": written_out, "baseline_step_per_trial": counted_flops(forward_backward)}
+
+
+def matmul_peak(size: int, repeats: int = 10) -> dict:
+    """Dense fp32 matmul FLOP/s: best of ``repeats`` torch.mm of size x size."""
+    a, b = torch.randn(size, size), torch.randn(size, size)
+    torch.mm(a, b)
+    best = min(timed(lambda: torch.mm(a, b))[1] for _ in range(repeats))
+    return {"size": size, "seconds": best, "flop_per_s": 2 * size ** 3 / best}
+
+
+def timed(function):
+    began = time.perf_counter()
+    value = function()
+    return value, time.perf_counter() - began
+
+
+# -- modes ----------------------------------------------------------------------------------------
+def system_run(make_decoder, trials, resolution: int, steps: int) -> dict:
+    """One run through the master; rates from the stepping time (setup and initialization excluded)."""
+    result = experiment.run_batch(make_decoder(), trials, protocol_config(resolution, steps))
+    t = result.timings
+    stepping = t["total_s"] - t["setup_s"]
+    components = {key[len("step_s."):]: value for key, value in t.items() if key.startswith("step_s.")}
+    return {"trials": len(trials), "steps": steps, "seconds": stepping, "setup_s": t["setup_s"],
+            "agent_steps_per_s": len(trials) * steps / stepping,
+            "component_s": components, "share": {k: v / stepping for k, v in components.items()},
+            "master_overhead_s_per_step": t["master_overhead_s"] / steps,
+            "decoder_s": components["decoder"]}
+
+
+def sized_run(make_decoder, trials, resolution: int, settings: BenchSettings) -> dict:
+    """A 2-step probe (the warm-up), then a run sized to the time budget (or the probe if that is all it allows)."""
+    probe = system_run(make_decoder, trials, resolution, settings.min_steps)
+    per_step = probe["seconds"] / probe["steps"]
+    steps = int(np.clip(settings.budget_s / per_step, settings.min_steps, settings.max_steps))
+    return probe if steps <= settings.min_steps else system_run(make_decoder, trials, resolution, steps)
+
+
+def baseline_run(model, trial, resolution: int, settings: BenchSettings) -> dict:
+    config = protocol_config(resolution, settings.max_steps)
+    PaperStyleAgent(model, trial, config).run(settings.min_steps)  # warm-up
+    probe = PaperStyleAgent(model, trial, config)
+    probe.run(settings.min_steps)
+    steps = int(np.clip(settings.budget_s * settings.min_steps / probe.step_seconds, settings.min_steps,
+                        settings.max_steps))
+    agent = PaperStyleAgent(model, trial, config)
+    agent.run(steps)
+    return {"trials": 1, "steps": steps, "seconds": agent.step_seconds, "setup_s": agent.setup_seconds,
+            "agent_steps_per_s": steps / agent.step_seconds, "decoder_s": agent.decoder_seconds,
+            "share": {"decoder": agent.decoder_seconds / agent.step_seconds}}
+
+
+def with_flops(row: dict, flops_per_agent_step: int, peak: float) -> dict:
+    """Decoder FLOPs of the run, the FLOP/s achieved inside the decoder and its fraction of the matmul peak."""
+    flops = flops_per_agent_step * row["trials"] * row["steps"]
+    return {**row, "decoder_flops": flops, "decoder_flop_per_s": flops / row["decoder_s"],
+            "peak_fraction": flops / row["decoder_s"] / peak}
+
+
+def preset_rows(preset: str, resolution: int, settings: BenchSettings, peak: float) -> dict:
+    model = untrained(preset, resolution, settings.seed)
+    threads = settings.threads or available_cores()
+    config = protocol_config(resolution, settings.max_steps)
+    batch = protocol_trials(config, settings.batch)
+    flops = decoder_flops(model, PaperStyleAgent(model, batch[0], config))
+    fast_model = optimised(model)
+    rows = {
+        "baseline": with_flops(baseline_run(model, batch[0], resolution, settings),
+                               flops["baseline_step_per_trial"], peak),
+        "exact_single": with_flops(sized_run(lambda: Decoder(model, threads=threads), batch[:1], resolution,
+                                             settings), flops["exact_step_per_trial"], peak),
+        "exact_batched": with_flops(sized_run(lambda: Decoder(model, threads=threads), batch, resolution,
+                                              settings), flops["exact_step_per_trial"], peak),
+        "exact_batched_optimised": with_flops(sized_run(lambda: Decoder(fast_model, threads=threads), batch,
+                                                        resolution, settings), flops["optimised_step_per_trial"], peak),
+        "fast": sized_run(lambda: LinearisedDecoder(fast_model, relinearise_tolerance=settings.tolerance,
+                                                    threads=threads, fast_layout=False), batch, resolution, settings),
+    }
+    return {"preset": preset, "resolution": resolution, "weights": f"untrained, torch seed {settings.seed}",
+            "flops": flops, "modes": rows}
+
+
+def run_suite(settings: BenchSettings = BenchSettings()) -> dict:
+    """Every measurement; the dictionary ``rhi bench --json`` prints."""
+    threads = settings.threads or available_cores()
+    torch.set_num_threads(threads)
+    began, load_before = time.perf_counter(), os.getloadavg()
+    report = {"settings": {**asdict(settings), "tolerance_unit": "deg"}, "machine": machine(threads),
+              "matmul_peak": matmul_peak(settings.matmul_size)}
+    peak = report["matmul_peak"]["flop_per_s"]
+    report["presets"] = {f"{preset}-{res}": preset_rows(preset, res, settings, peak)
+                         for preset, res in settings.presets}
+    report["protocol_fast"] = protocol_in_child(settings)
+    report["fast_error"] = fast_error(settings)
+    report["protocol_fast"]["projected_agent_steps_per_s"] = projected(report["protocol_fast"], report["fast_error"])
+    report["master_overhead"] = master_overhead(settings.fmu_steps)
+    report["memory"] = {"bench_peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+                        "protocol_peak_rss_mb": report["protocol_fast"]["peak_rss_mb"]}
+    report["machine"]["load_average_before"], report["machine"]["load_average_after"] = load_before, os.getloadavg()
+    report["matmul_peak_at_end"] = matmul_peak(settings.matmul_size)  # shows how steady the machine was
+    report["bench_seconds"] = time.perf_counter() - began
+    report["targets"] = targets(report)
+    return report
+
+
+def run_bench(args) -> int:
+    """The ``rhi bench`` command: args.json, and optionally args.quick, args.threads."""
+    settings = QUICK if getattr(args, "quick", False) else BenchSettings()
+    threads = getattr(args, "threads", 0) or 0
+    if threads < 0:
+        raise ConfigError(f"--threads {threads} must be a positive number of threads (0: all cores)")
+    checkpoint = getattr(args, "checkpoint", "") or ""
+    if checkpoint and not os.path.isfile(checkpoint):
+        raise ConfigError(f"--checkpoint {checkpoint} does not exist")
+    settings = replace(settings, threads=threads, error_checkpoint=checkpoint)
+    report = run_suite(settings)
+    if getattr(args, "json", False):
+        json.dump(report, sys.stdout, indent=1, default=float)
+        print()
+    else:
+        print(table(report))
+    return 0
+
+
+# -- the rest of the suite ------------------------------------------------------------------------
+def machine(threads: int) -> dict:
+    import fmpy
+    import pymunk
+    import scipy
+    info = {}
+    with open("/proc/cpuinfo") as file:
+        for line in file:
+            key, _, value = line.partition(":")
+            if key.strip() in ("model name", "flags") and key.strip() not in info:
+                info[key.strip()] = value.strip()
+    flags = set(info.get("flags", "").split())
+    return {"cpu": info.get("model name", platform.processor()), "cores": os.cpu_count(),
+            "usable_cores": available_cores(), "torch_threads": threads,
+            "cpu_flags": {f: f in flags for f in ("avx2", "fma", "avx512f", "avx512_bf16", "amx_bf16")},
+            "python": platform.python_version(), "torch": torch.__version__, "numpy": np.__version__,
+            "scipy": scipy.__version__, "pymunk": pymunk.version, "fmpy": fmpy.__version__}
+
+
+def _protocol(settings: BenchSettings) -> dict:
+    """The whole protocol in fast mode at ``protocol_preset`` (run in a child: its peak RSS is the run's)."""
+    threads = settings.threads or available_cores()
+    torch.set_num_threads(threads)
+    preset, resolution = settings.protocol_preset
+    model = optimised(untrained(preset, resolution, settings.seed))
+    config = protocol_config(resolution, settings.protocol_steps)
+    trials = protocol_trials(config, settings.batch)
+    beliefs = torch.tensor(kinematics.REST_POSE, dtype=torch.float32) + torch.linspace(-1, 1, 16).view(8, 2)
+    with torch.no_grad():  # warm-up: first-use imports and kernels
+        model.predict_with_jacobian(beliefs[:1])
+    decoder = LinearisedDecoder(model, relinearise_tolerance=settings.tolerance, threads=threads, fast_layout=False)
+    result, seconds = timed(lambda: experiment.run_batch(decoder, trials, config))
+    stepping = result.timings["total_s"] - result.timings["setup_s"]
+    peak_rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    with torch.no_grad():  # what one re-linearised trial costs (8 in one call)
+        _, call = timed(lambda: model.predict_with_jacobian(beliefs))
+    return {"preset": preset, "resolution": resolution, "weights": f"untrained, torch seed {settings.seed}",
+            "trials": len(trials), "steps": settings.protocol_steps, "seconds": seconds,
+            "agent_steps_per_s": len(trials) * settings.protocol_steps / seconds,
+            "stepping_agent_steps_per_s": len(trials) * settings.protocol_steps / stepping,
+            "share": {k[7:]: v / stepping for k, v in result.timings.items() if k.startswith("step_s.")},
+            "relinearisations_per_trial": float(decoder.relinearisations.mean()),
+            "decoder_calls": decoder.decoder_calls, "relinearise_s_per_trial": call / 8, "peak_rss_mb": peak_rss_mb}
+
+
+def projected(protocol: dict, error: dict) -> float | None:
+    """The protocol's rate had its (untrained) decoder needed as many linearisations per trial as the trained
+    default decoder needed in the drift-error run (the count depends on how mu moves, in degrees, not on pixels)."""
+    if "relinearisations_per_trial" not in error:
+        return None
+    extra = max(0.0, error["relinearisations_per_trial"] - protocol["relinearisations_per_trial"])
+    seconds = protocol["seconds"] + extra * protocol["trials"] * protocol["relinearise_s_per_trial"]
+    return protocol["trials"] * protocol["steps"] / seconds
+
+
+def protocol_in_child(settings: BenchSettings) -> dict:
+    """:func:`_protocol` in a fresh Python process (its peak RSS is the protocol's alone)."""
+    import subprocess
+    from pathlib import Path
+    root = str(Path(__file__).resolve().parent.parent)
+    code = ("import json, sys; from master.bench import BenchSettings, _protocol; "
+            "print(json.dumps(_protocol(BenchSettings(**json.loads(sys.argv[1])))))")
+    given = {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(settings).items()}
+    given["presets"] = [tuple(p) for p in given["presets"]]
+    child = subprocess.run([sys.executable, "-c", code, json.dumps(given)], capture_output=True, text=True,
+                           env={**os.environ, "PYTHONPATH": root + os.pathsep + os.environ.get("PYTHONPATH", "")})
+    if child.returncode:
+        raise RuntimeError(f"the fast-mode protocol run failed: {child.stderr.strip().splitlines()[-1:]}")
+    return json.loads(child.stdout.strip().splitlines()[-1])
+
+
+def fast_error(settings: BenchSettings) -> dict:
+    """Final drift of the fast mode against the exact integrator, trained default conv decoder (if cached)."""
+    from master.decoders import checkpoint_path
+    from master.train_command import load_decoder
+    config = configuration.load(overrides={"experiment.steps": settings.error_steps, "experiment.decoders": ["conv"],
+                                           "experiment.trials": settings.error_trials})
+    if settings.error_model == "untrained":  # smoke tests: tiny, strong drive, frequent touches
+        config = configuration.load(overrides={
+            "experiment.steps": settings.error_steps, "experiment.decoders": ["conv"], "experiment.resolution": 32,
+            "experiment.trials": settings.error_trials, "decoder.visual_variance": 1e-4, "stimulus.period": 0.4})
+        model, source = untrained("tiny", 32, settings.seed), "untrained tiny (smoke test)"
+    else:
+        source = settings.error_checkpoint or checkpoint_path("conv", config)
+        if not os.path.isfile(source):
+            return {"skipped": f"no trained default conv decoder at {source}: run `rhi experiment` once "
+                               "or name one with --checkpoint"}
+        model = load_decoder(source, config["experiment"]["resolution"])
+    threads = settings.threads or available_cores()
+    trials = experiment.plan(config)
+    exact, exact_s = timed(lambda: experiment.run_batch(Decoder(optimised(model), threads=threads), trials, config))
+    decoder = LinearisedDecoder(model, relinearise_tolerance=settings.tolerance, threads=threads)
+    fast, fast_s = timed(lambda: experiment.run_batch(decoder, trials, config))
+    drift_exact = experiment.measures(exact)["drift_cm"][-1]
+    drift_fast = experiment.measures(fast)["drift_cm"][-1]
+    error = np.abs(drift_fast - drift_exact)
+    largest = float(np.abs(drift_exact).max())
+    return {"decoder": source, "tolerance_deg": settings.tolerance, "trials": len(trials), "steps": settings.error_steps,
+            "exact_reference": "Decoder on the dual-number channels-last copy (same function, float rounding)",
+            "drift_exact_cm": drift_exact.tolist(), "drift_fast_cm": drift_fast.tolist(),
+            "max_error_cm": float(error.max()), "largest_drift_cm": largest,
+            "relative_error": float(error.max()) / largest if largest > 0 else 0.0,
+            "bound_met": bool(error.max() <= 0.01 * largest),
+            "relinearisations_per_trial": float(decoder.relinearisations.mean()),
+            "exact_s": exact_s, "fast_s": fast_s, "speedup": exact_s / fast_s}
+
+
+OUTPUTS = ("q_shoulder", "q_elbow", "hand_x", "hand_y", "force_x", "force_y")
+
+
+def master_overhead(steps: int, step_size: float = 0.02) -> dict:
+    """Per-step wall time of the same body FMU (B = 1): a bare fmi2DoStep loop (the floor), fmpy.simulate_fmu,
+    and this master driving the FMUComponent adapter alone; from time stamps after each step (setup excluded)."""
+    import tempfile
+    from pathlib import Path
+
+    from fmpy import read_model_description, simulate_fmu
+    from fmpy.fmi2 import FMU2Slave
+
+    from components.fmu_adapter import FMUComponent, extracted, guard_library
+    from master.algorithm import simulate
+    from master.export_command import build_fmu
+    from master.system import System
+
+    def bare(stamp):
+        fmu = FMU2Slave(guid=description.guid, unzipDirectory=unzipdir, modelIdentifier=identifier,
+                        instanceName="bench")
+        fmu.instantiate()
+        fmu.setupExperiment(startTime=0.0)
+        fmu.enterInitializationMode()
+        fmu.exitInitializationMode()
+        for tick in range(steps):
+            fmu.doStep(tick * step_size, step_size)
+            stamp()
+        fmu.terminate()
+        fmu.freeInstance()
+
+    def under_fmpy(stamp):
+        simulate_fmu(unzipdir, stop_time=steps * step_size, step_size=step_size, output_interval=step_size,
+                     output=list(OUTPUTS), model_description=description, validate=False,
+                     step_finished=lambda *_: stamp() or True)
+
+    def under_master(stamp):
+        timings.append(simulate(System([FMUComponent(path)], []), steps * step_size, step_size,
+                                record=[f"body.{o}" for o in OUTPUTS], progress=lambda *_: stamp()).timings)
+
+    def per_step(run):
+        stamps = []
+        run(lambda: stamps.append(time.perf_counter()))
+        return (stamps[-1] - stamps[0]) / (len(stamps) - 1)
+
+    saved, timings = list(sys.path), []  # a pythonfmu FMU prepends its resources to sys.path
+    with tempfile.TemporaryDirectory(prefix="rhi_bench_") as folder:
+        path = str(build_fmu(Path(folder) / "Body.fmu", "native"))
+        description = read_model_description(path)
+        identifier = description.coSimulation.modelIdentifier
+        unzipdir = extracted(path)
+        guard_library(unzipdir, identifier)
+        try:
+            # Interleaved rounds, best of each: a slow patch of the machine hits all three alike.
+            floor, fmpy_step, master_step = np.min([[per_step(run) for run in (bare, under_fmpy, under_master)]
+                                                    for _ in range(3)], axis=0).tolist()
+        finally:
+            sys.path[:] = saved
+    fmpy_overhead, master_cost = fmpy_step - floor, master_step - floor
+    return {"fmu": "native body (pythonfmu)", "steps": steps, "fmi2DoStep_s": floor, "fmpy_step_s": fmpy_step,
+            "master_step_s": master_step, "fmpy_overhead_s": fmpy_overhead, "master_overhead_s": master_cost,
+            "wall_ratio": master_step / fmpy_step,
+            "of_which_master_loop_s": min(t["master_overhead_s"] for t in timings) / steps,
+            "of_which_adapter_s": min(t["step_s.body"] for t in timings) / steps - floor,
+            "overhead_ratio": master_cost / fmpy_overhead if fmpy_overhead > 0 else None}
+
+
+def targets(report: dict) -> dict:
+    paper = next((p for p in report["presets"].values() if p["preset"] == "paper"), None)
+    protocol, error, overhead = report["protocol_fast"], report["fast_error"], report["master_overhead"]
+    rows = {
+        "exact_batched_peak_fraction_paper": (paper["modes"]["exact_batched"]["peak_fraction"] if paper else None,
+                                              ">=", 0.5),
+        "fast_protocol_agent_steps_per_s": (protocol["agent_steps_per_s"], ">=", 1500.0),
+        "fast_drift_relative_error": (error.get("relative_error"), "<=", 0.01),
+        "master_step_vs_fmpy_simulate_fmu": (overhead["wall_ratio"], "<=", 1.2),
+        "protocol_peak_rss_mb": (protocol["peak_rss_mb"], "<", 2048.0),
+    }
+    met = {">=": lambda v, t: v >= t, "<=": lambda v, t: v <= t, "<": lambda v, t: v < t}
+    return {name: {"value": value, "target": f"{op} {target:g}", "met": None if value is None else met[op](value, target)}
+            for name, (value, op, target) in rows.items()}
+
+
+def table(report: dict) -> str:
+    """The report for people."""
+    m, peak = report["machine"], report["matmul_peak"]
+    lines = [f"machine: {m['cpu']}, {m['usable_cores']} usable cores, torch {m['torch']} on {m['torch_threads']} "
+             f"threads; load average {m['load_average_before'][0]:.1f} before, {m['load_average_after'][0]:.1f} after",
+             f"fp32 matmul peak ({peak['size']}^2): {peak['flop_per_s'] / 1e9:.1f} GFLOP/s (at the end: "
+             f"{report['matmul_peak_at_end']['flop_per_s'] / 1e9:.1f})", ""]
+    for name, block in report["presets"].items():
+        f = block["flops"]
+        lines += [f"{name} ({block['weights']}): decoder forward {f['forward_per_trial'] / 1e6:.1f} MFLOP/trial "
+                  f"(counted {f['forward_per_trial_counted'] / 1e6:.1f}), exact step {f['exact_step_per_trial'] / 1e6:.1f} "
+                  f"(optimised {f['optimised_step_per_trial'] / 1e6:.1f}), baseline step "
+                  f"{f['baseline_step_per_trial'] / 1e6:.1f}",
+                  f"  {'mode':26s}{'B':>4s}{'steps':>6s}{'agent-steps/s':>15s}{'decoder GFLOP/s':>17s}{'of peak':>9s}"
+                  f"{'camera':>8s}{'body':>7s}{'decoder':>9s}"]
+        for mode, row in block["modes"].items():
+            share = row["share"]
+            flops = (f"{row['decoder_flop_per_s'] / 1e9:17.2f}{100 * row['peak_fraction']:8.1f}%"
+                     if "decoder_flop_per_s" in row else f"{'-':>17s}{'-':>9s}")
+            lines.append(f"  {mode:26s}{row['trials']:4d}{row['steps']:6d}{row['agent_steps_per_s']:15.1f}{flops}"
+                         f"{100 * share.get('camera', 0):7.1f}%{100 * share.get('body', 0):6.1f}%"
+                         f"{100 * share['decoder']:8.1f}%")
+        lines.append("")
+    p = report["protocol_fast"]
+    guess = "" if p.get("projected_agent_steps_per_s") is None else \
+        f" (with the trained decoder's linearisations: {p['projected_agent_steps_per_s']:.0f})"
+    lines += [f"fast mode, whole protocol at {p['preset']}-{p['resolution']} ({p['trials']} trials x {p['steps']} steps, "
+              f"{p['weights']}): {p['agent_steps_per_s']:.0f} agent-steps/s{guess} ({p['seconds']:.1f} s), "
+              f"{p['relinearisations_per_trial']:.1f} linearisations/trial, peak RSS {p['peak_rss_mb']:.0f} MB; "
+              f"shares: " + ", ".join(f"{k} {100 * v:.0f}%" for k, v in p["share"].items() if v >= 0.005)]
+    e = report["fast_error"]
+    lines.append(f"fast mode drift error: {e['skipped']}" if "skipped" in e else
+                 f"fast mode drift error (tolerance {e['tolerance_deg']} deg, {e['trials']} trials x {e['steps']} "
+                 f"steps, {os.path.basename(e['decoder'])}): max {e['max_error_cm']:.4f} cm of the largest drift "
+                 f"{e['largest_drift_cm']:.3f} cm = {100 * e['relative_error']:.2f} %, "
+                 f"{e['relinearisations_per_trial']:.1f} linearisations/trial, {e['speedup']:.1f}x faster")
+    o = report["master_overhead"]
+    ratio = "n/a" if o["overhead_ratio"] is None else f"{o['overhead_ratio']:.2f}x"
+    lines += [f"body FMU per step: fmi2DoStep {1e3 * o['fmi2DoStep_s']:.3f} ms, fmpy.simulate_fmu "
+              f"{1e3 * o['fmpy_step_s']:.3f} ms, this master {1e3 * o['master_step_s']:.3f} ms; overhead beyond "
+              f"fmi2DoStep: fmpy {1e3 * o['fmpy_overhead_s']:.3f} ms, master {1e3 * o['master_overhead_s']:.3f} ms "
+              f"({ratio}): master loop {1e3 * o['of_which_master_loop_s']:.3f} ms, FMU adapter "
+              f"{1e3 * o['of_which_adapter_s']:.3f} ms",
+              f"peak memory: protocol {report['memory']['protocol_peak_rss_mb']:.0f} MB, this bench "
+              f"{report['memory']['bench_peak_rss_mb']:.0f} MB; bench took {report['bench_seconds']:.0f} s", "",
+              "targets:"]
+    for name, row in report["targets"].items():
+        value = "n/a" if row["value"] is None else f"{row['value']:.4g}"
+        state = {True: "met", False: "NOT met", None: "not measured"}[row["met"]]
+        lines.append(f"  {name:36s}{value:>12s}  {row['target']:10s}{state}")
+    return "\n".join(lines)
