@@ -167,16 +167,21 @@ class Decoder(Component):
     def step(self, t, h):
         self._update()
 
-    def _update(self):
-        mu = np.asarray(self.values["mu"])
+    def _checked_inputs(self):
+        """mu (B, 2) float64, the image as float32 C-contiguous numpy, and the per-trial precision tensor."""
+        mu = np.asarray(self.values["mu"], dtype=np.float64)
         if not np.all(np.isfinite(mu)):
             trial = int(np.argwhere(~np.isfinite(mu))[0][0])
             raise StepFailure(f"belief mu of trial {trial} is not finite: {mu[trial].tolist()}")
         image = self.values["image"]
         if image.dtype != np.float32 or not image.flags.c_contiguous:
             image = np.ascontiguousarray(image, dtype=np.float32)
-        sensed = torch.from_numpy(image)  # shares memory: no copy of the images
         precision = torch.from_numpy(resolution_weight(*image.shape[1:]) / self.values["visual_variance"]).float()
+        return mu, image, precision
+
+    def _update(self):
+        mu, image, precision = self._checked_inputs()
+        sensed = torch.from_numpy(image)  # shares memory: no copy of the images
         with torch.no_grad():
             prediction, jacobian = self.model.predict_with_jacobian(torch.from_numpy(mu.astype(np.float32)))
             error = sensed - prediction

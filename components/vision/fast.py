@@ -30,10 +30,8 @@ import torch.nn.functional as F
 from torch import nn
 from torch.autograd import forward_ad
 
-from components.component import StepFailure
 from components.variables import Variable
-from components.vision.component import (Decoder, GenerativeModel, resolution_weight, visual_drive, visual_error,
-                                         visual_stiffness)
+from components.vision.component import Decoder, GenerativeModel, visual_drive, visual_error, visual_stiffness
 from components.vision.networks import ConvDecoder, normalise
 
 DEFAULT_TOLERANCE = 0.01  # deg: final drift within 0.1 % of the exact integrator's (README, bench section)
@@ -170,15 +168,8 @@ class LinearisedDecoder(Decoder):
         self.decoder_calls += 1
 
     def _update(self):
-        mu = np.asarray(self.values["mu"], dtype=np.float64)
-        if not np.all(np.isfinite(mu)):
-            trial = int(np.argwhere(~np.isfinite(mu))[0][0])
-            raise StepFailure(f"belief mu of trial {trial} is not finite: {mu[trial].tolist()}")
-        image = self.values["image"]
-        if image.dtype != np.float32 or not image.flags.c_contiguous:
-            image = np.ascontiguousarray(image, dtype=np.float32)
+        mu, image, precision = self._checked_inputs()
         batch, side = image.shape[0], image.shape[1]
-        precision = torch.from_numpy(resolution_weight(*image.shape[1:]) / self.values["visual_variance"]).float()
         stale = np.flatnonzero(self.stale(mu))
         if len(stale):
             self.relinearise(stale, mu, precision)
