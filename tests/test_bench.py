@@ -50,8 +50,9 @@ def test_rates_are_positive_and_consistent(report):
         assert math.isclose(row["agent_steps_per_s"] * row["seconds"], row["trials"] * row["steps"])
         assert 0 < row["share"]["decoder"] < 1 and sum(row["share"].values()) < 1 + 1e-9
         if mode != "fast":
-            per_step = block["flops"][{"baseline": "baseline_step_per_trial",
-                                       "exact_batched_optimised": "optimised_step_per_trial"}.get(mode, "exact_step_per_trial")]
+            key = {"baseline": "baseline_step_per_trial",
+                   "exact_batched_optimised": "optimised_step_per_trial"}.get(mode, "exact_step_per_trial")
+            per_step = block["flops"][key]
             assert row["decoder_flops"] == per_step * row["trials"] * row["steps"]
             assert math.isclose(row["decoder_flop_per_s"], row["decoder_flops"] / row["decoder_s"])
             assert math.isclose(row["peak_fraction"], row["decoder_flop_per_s"] / peak["flop_per_s"])
