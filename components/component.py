@@ -13,6 +13,8 @@ to the master:
 Values live in ``self.values`` as arrays with a leading batch dimension. A
 component replaces its output arrays in ``step``; it never mutates them in
 place, because the master hands the same array object to the inputs it feeds.
+An output that is costly and often unread may be published as a :class:`Deferred`:
+it is computed on its first read, as an FMU may compute an output in fmi2GetReal.
 
 Example::
 
@@ -63,6 +65,33 @@ class ComponentError(ValueError):
     """
 
 
+class Deferred:
+    """An output value computed on its first read: ``Deferred(lambda: ...)`` in place of the array.
+
+    The function must capture what it needs at the step that publishes it; the next
+    step replaces it (unread, it costs nothing).
+    """
+
+    __slots__ = ("compute",)
+
+    def __init__(self, compute):
+        self.compute = compute
+
+
+class Values(dict):
+    """A component's current values by name; a :class:`Deferred` one is computed when first read."""
+
+    def __getitem__(self, name):
+        value = dict.__getitem__(self, name)
+        if type(value) is Deferred:
+            value = value.compute()
+            dict.__setitem__(self, name, value)
+        return value
+
+    def get(self, name, default=None):
+        return self[name] if name in self else default
+
+
 # Lifecycle states, in order.
 CREATED, INSTANTIATED, INITIALIZATION, STEPPING, TERMINATED = (
     "created", "instantiated", "initialization mode", "step mode", "terminated")
@@ -82,7 +111,7 @@ class Component:
             raise ValueError(f"component {name!r} declares a variable twice")
         self.state = CREATED
         self.batch_size = 0
-        self.values: dict[str, object] = {}
+        self.values = Values()
         self.last_reason = ""
         self.failed_trials: tuple[int, ...] = ()
         self.start_time = 0.0

@@ -100,14 +100,19 @@ def run_camera(poses_per_step, balls_per_step, resolution=32):
 
 
 def test_component_with_its_cache_gives_the_same_bytes_as_render():
-    fixed = np.array([inverse(-0.45, 0.5), REST_POSE])
-    moved = fixed + [[0.0, 0.0], [0.5, -0.5]]  # trial 1 moves: its cached layer must be redrawn
+    # Trial 2 repeats trial 0 (pose and ball: drawn once, copied); trial 3 shares trial 0's pose
+    # (and arm layer) with its own ball; trial 1 moves at step 2, so its layer must be redrawn.
+    rubber, rest = inverse(-0.45, 0.5), np.array(REST_POSE)
+    fixed = np.array([rubber, rest, rubber, rubber])
+    moved = fixed + [[0.0, 0.0], [0.5, -0.5], [0.0, 0.0], [0.0, 0.0]]
     poses = [fixed, fixed, moved, moved]
-    balls = [np.array([[-0.45, 0.7 - 0.05 * k], [np.nan, np.nan]]) for k in range(4)]
+    balls = [np.array([[-0.45, 0.7 - 0.05 * k], [np.nan, np.nan], [-0.45, 0.7 - 0.05 * k], [-0.40, 0.6]])
+             for k in range(4)]
     images = run_camera(poses, balls)
-    assert all(image.shape == (2, 32, 32) and image.dtype == np.float32 for image in images)
+    assert all(image.shape == (4, 32, 32) and image.dtype == np.float32 for image in images)
     for step in range(4):
         assert images[step].tobytes() == render(poses[step], 32, balls[step]).tobytes()
+        assert not np.array_equal(images[step][0], images[step][3])  # same arm, other ball
     assert images[1] is not images[0]  # a new array each step, never mutated in place
     assert not np.array_equal(images[1][0], images[0][0])  # the ball moved
 

@@ -34,8 +34,9 @@ def test_tolerance_zero_is_the_exact_decoder(exact, fast_layout, threads):
     decoder, fast = run_fast(tiny_model(), 0.0, fast_layout, threads=threads)
     # The initial call, then one every step but the first (the decoder steps before the brain moves mu).
     assert (decoder.relinearisations == STEPS).all()
-    for path in COMPARED:
-        np.testing.assert_allclose(fast.values[path], exact.values[path], rtol=1e-6, atol=1e-6, err_msg=path)
+    for path in COMPARED:  # visual_error: float32 sums of ~1e8 over the image, in another order
+        rtol = 1e-5 if path == "decoder.visual_error" else 1e-6
+        np.testing.assert_allclose(fast.values[path], exact.values[path], rtol=rtol, atol=1e-6, err_msg=path)
 
 
 def test_small_tolerance_is_close_and_calls_the_decoder_less(exact):

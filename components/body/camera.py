@@ -15,8 +15,9 @@ on top. Limbs are wide and soft so that a rubber arm displaced 15 cm still overl
 arm the decoder predicts (the shoulder is shared, the forearms overlap near the elbow): at
 64 x 64 the Left and Right rubber arms have a cosine overlap of 0.47 and 0.43 with the real arm.
 
-The camera component caches each trial's arm layer while the pose is unchanged (the rubber
-arm is still within a trial), so a step redraws only the ball, in a window around it.
+The camera component keeps the arm layer of each pose in use (the rubber arm is still within
+a trial, and trials of one condition share it), so a step redraws only the ball, in a window
+around it, and only once for trials whose pose and ball are the same.
 
 Example::
 
@@ -141,9 +142,14 @@ def ball_alpha(ball_xy, resolution: int):
     return slice(r0, r1), slice(c0, c1), _blur(_reduce(canvas, factor), resolution)
 
 
-def composite(arm: np.ndarray, alpha) -> np.ndarray:
-    """A new image: the ball over the arm, arm * (1 - alpha) + BALL_LEVEL * alpha inside the ball's window."""
-    image = arm.copy()
+def composite(arm: np.ndarray, alpha, out: np.ndarray | None = None) -> np.ndarray:
+    """The ball over the arm, arm * (1 - alpha) + BALL_LEVEL * alpha inside the ball's window.
+
+    Written into ``out`` (res, res) when given, else into a new image; ``arm`` is left as it is.
+    """
+    image = arm.copy() if out is None else out
+    if out is not None:
+        image[...] = arm
     if alpha is not None:
         rows, columns, patch = alpha
         image[rows, columns] = arm[rows, columns] * (1 - patch) + np.float32(BALL_LEVEL) * patch
@@ -173,8 +179,9 @@ def render(poses_deg, resolution: int = 64, balls=None) -> np.ndarray:
 class Camera(Component):
     """The camera as a component: arm pose and ball in, image out (direct feedthrough).
 
-    The arm layer of each trial is cached while its pose stays the same (the rubber arm
-    does not move within a trial), so a step redraws only the ball.
+    The arm layer of each pose in use is kept (the rubber arm does not move within a trial,
+    and trials of one condition share it), so a step redraws only the ball; trials whose
+    pose and ball are the same bytes share one drawing (the image is a function of them).
     """
 
     def __init__(self, name: str = "camera", resolution: int = 64):
@@ -190,10 +197,10 @@ class Camera(Component):
                      start=None, unit="1", min=0.0, max=1.0, depends_on=("arm_pose", "ball"),
                      description="overhead grayscale image s_v, black background"),
         ])
-        self._cache: list[tuple[bytes, np.ndarray] | None] = []
+        self._arm_layers: dict[bytes, np.ndarray] = {}  # pose bytes -> arm layer
 
     def initialize(self):
-        self._cache = [None] * self.batch_size
+        self._arm_layers = {}
         self._draw()
 
     def step(self, t, h):
@@ -205,10 +212,16 @@ class Camera(Component):
         if not np.all(np.isfinite(poses)):
             raise StepFailure(f"{self.name}.arm_pose is not finite: {poses.tolist()}")
         images = np.empty((self.batch_size, self.resolution, self.resolution), np.float32)
+        arm_layers, drawn = {}, {}  # pose bytes -> arm layer; (pose, ball) bytes -> first trial drawn
         for trial in range(self.batch_size):
-            key = poses[trial].tobytes()
-            cached = self._cache[trial]
-            if cached is None or cached[0] != key:
-                cached = self._cache[trial] = (key, arm_layer(poses[trial], self.resolution))
-            images[trial] = composite(cached[1], ball_alpha(balls[trial], self.resolution))
+            pose = poses[trial].tobytes()
+            first = drawn.setdefault(pose + balls[trial].tobytes(), trial)
+            if first != trial:
+                images[trial] = images[first]
+                continue
+            if pose not in arm_layers:
+                known = self._arm_layers.get(pose)
+                arm_layers[pose] = known if known is not None else arm_layer(poses[trial], self.resolution)
+            composite(arm_layers[pose], ball_alpha(balls[trial], self.resolution), out=images[trial])
+        self._arm_layers = arm_layers  # only the poses of this step: the rest are gone for good
         self.values["image"] = images

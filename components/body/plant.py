@@ -31,6 +31,7 @@ import math
 
 import numpy as np
 import pymunk
+from pymunk._chipmunk import lib as chipmunk  # the C calls behind pymunk's properties (see step)
 
 from components.body.kinematics import FOREARM, REST_HAND, REST_POSE, SHOULDER, UPPER_ARM, forward
 from components.component import Component, ComponentError, StepFailure
@@ -157,23 +158,31 @@ class ArmPlant(Component):
             raise StepFailure(f"{self.name}.substeps = {substeps} is too few for servo_gain: a sub-step of "
                               f"{dt:.3g} s exceeds the servo time constant {1 / rate.max():.3g} s; "
                               f"use substeps >= {math.ceil(h * rate.max())}")
-        # Plain Python floats in the hot loop (numpy scalars are several times slower here).
-        servos = list(zip(self._arms, command.tolist(), v["servo_gain"].tolist(), v["torque_limit"].tolist()))
-        impulses = np.zeros((self.batch_size, 2))
+        # The hot loop runs B x substeps times: plain Python floats (numpy scalars are several times
+        # slower) and Chipmunk's own getters and setters, which pymunk's properties wrap at about
+        # 1 us a call (measured: the loop 3x faster, the same numbers bit for bit).
+        get_speed, set_torque = chipmunk.cpBodyGetAngularVelocity, chipmunk.cpBodySetTorque
+        get_impulse = chipmunk.cpConstraintGetImpulse
+        servos = [(upper._body, forearm._body, want[0], want[1], k, cap) for (upper, forearm), want, k, cap
+                  in zip(self._arms, command.tolist(), v["servo_gain"].tolist(), v["torque_limit"].tolist())]
+        cells = [(trial, cell[0]._constraint, cell[1]._constraint) for trial, cell in enumerate(self._cells)
+                 if cell is not None]
+        impulses = [[0.0, 0.0] for _ in range(self.batch_size)]
         for _ in range(substeps):
-            for (upper, forearm), (want_shoulder, want_elbow), k, cap in servos:
-                shoulder_speed = upper.angular_velocity
-                elbow_speed = forearm.angular_velocity - shoulder_speed
+            for upper, forearm, want_shoulder, want_elbow, k, cap in servos:
+                shoulder_speed = get_speed(upper)
+                elbow_speed = get_speed(forearm) - shoulder_speed
                 tau_shoulder = min(max(k * (want_shoulder - shoulder_speed), -cap), cap)
                 tau_elbow = min(max(k * (want_elbow - elbow_speed), -cap), cap)
-                upper.torque = tau_shoulder - tau_elbow  # the elbow motor pushes back on the upper arm
-                forearm.torque = tau_elbow
+                set_torque(upper, tau_shoulder - tau_elbow)  # the elbow motor pushes back on the upper arm
+                set_torque(forearm, tau_elbow)
             self.space.step(dt)
-            for trial, cell in enumerate(self._cells):
-                if cell is not None:
-                    impulses[trial] += (cell[0].impulse, cell[1].impulse)
+            for trial, along_x, along_y in cells:
+                total = impulses[trial]
+                total[0] += get_impulse(along_x)
+                total[1] += get_impulse(along_y)
         # The springs' impulse is what the clamp does to the arm; the arm exerts the opposite.
-        self._publish(-impulses / h)
+        self._publish(-np.array(impulses) / h)
 
     def _publish(self, force):
         """Replace every output array from the bodies' current state (never mutate in place)."""

@@ -115,7 +115,16 @@ def visual_error(error: torch.Tensor, precision: torch.Tensor) -> torch.Tensor:
 
 def visual_stiffness(jacobian: torch.Tensor, precision: torch.Tensor) -> torch.Tensor:
     """Largest eigenvalue of J^T Sigma_v^-1 J (B,), 1/s: how fast the drive pulls mu back."""
-    gram = torch.einsum("bkhw,blhw->bkl", jacobian, jacobian) * precision[:, None, None]
+    return largest_eigenvalue(jacobian_gram(jacobian) * precision[:, None, None])
+
+
+def jacobian_gram(jacobian: torch.Tensor) -> torch.Tensor:
+    """J^T J (B, 2, 2) of Jacobians (B, 2, R, R)."""
+    return torch.einsum("bkhw,blhw->bkl", jacobian, jacobian)
+
+
+def largest_eigenvalue(gram: torch.Tensor) -> torch.Tensor:
+    """Largest eigenvalue (B,) of symmetric 2 x 2 matrices (B, 2, 2), in closed form."""
     a, b, d = gram[:, 0, 0], gram[:, 0, 1], gram[:, 1, 1]
     return 0.5 * (a + d) + torch.sqrt((0.5 * (a - d)).square() + b.square())
 

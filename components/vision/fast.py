@@ -1,24 +1,30 @@
-"""The fast (linearised) decoder: g(mu) replaced by its tangent between re-linearisations.
+"""The fast (linearised) decoder: g(mu) replaced by its tangent at a nearby linearisation point.
 
-Per trial, the component keeps a linearisation point mu0 with g0 = g(mu0) and J0 = dg/dmu(mu0)
-(forward-mode JVPs, :meth:`GenerativeModel.predict_with_jacobian`) and predicts
+Each trial keeps a linearisation point mu0, with g0 = g(mu0) and J0 = dg/dmu(mu0) from
+forward-mode JVPs (:meth:`GenerativeModel.predict_with_jacobian`), and the decoder predicts
 
-    g(mu) ~ g0 + J0 (mu - mu0),   J(mu) ~ J0,
+    g(mu) ~ g0 + J0 (mu - mu0),   J(mu) ~ J0.
 
-so a step costs a few passes over J0 instead of a decoder call. A trial is re-linearised
-at its current mu when max_j |mu_j - mu0_j| exceeds ``relinearise_tolerance`` (deg); all
-trials that need it in one step share one batched decoder call, and identical beliefs (all
-trials start at the rest pose) are evaluated once. Tolerance 0 re-linearises every trial
-whose mu changed at all: the outputs are then the exact decoder's (to float rounding).
+When mu moves more than ``relinearise_tolerance`` (deg, on either joint) from mu0, the trial
+takes a new point: the nearest stored point within half the tolerance of its mu if there
+is one, else mu itself. Points are shared between trials and kept (up to ``memory_mb``, the
+least recently used dropped first), so trials moving along similar paths (the protocol's
+repetitions of a cell) share decoder evaluations, and all new points of a step are
+evaluated in one batched call. Tolerance 0 takes a new point every step mu changes: the
+outputs are then the exact decoder's (to float rounding).
 
-The outputs are those of :class:`~components.vision.component.Decoder`, computed by the same
-functions (visual_drive, visual_error, visual_stiffness) on the linearised prediction; the
-stiffness is the one of J0.
+A step costs one pass over each trial's image and one over each point in use:
+J0^T (s - g0) and |s - g0|^2 per trial, then in float64 the terms in d = mu - mu0:
+
+    J(mu)^T e = J0^T (s - g0) - J0^T J0 d,  |e|^2 = |s - g0|^2 - 2 d . J0^T (s - g0) + d^T J0^T J0 d
+
+(e = s - g0 - J0 d), scaled by the precision as in :func:`visual_drive` and :func:`visual_error`.
+The prediction output is computed only if read (:class:`~components.component.Deferred`).
 
 Example::
 
     decoder = LinearisedDecoder("conv.pt", relinearise_tolerance=0.01)
-    ...simulate as with Decoder...; decoder.relinearisations   # per trial, initialisation included
+    ...simulate as with Decoder...; decoder.decoder_points   # linearisations the decoder evaluated
 """
 from __future__ import annotations
 
@@ -30,8 +36,9 @@ import torch.nn.functional as F
 from torch import nn
 from torch.autograd import forward_ad
 
+from components.component import Deferred
 from components.variables import Variable
-from components.vision.component import Decoder, GenerativeModel, visual_drive, visual_error, visual_stiffness
+from components.vision.component import Decoder, GenerativeModel, jacobian_gram, largest_eigenvalue
 from components.vision.networks import ConvDecoder, normalise
 
 DEFAULT_TOLERANCE = 0.01  # deg: final drift within 0.1 % of the exact integrator's (README, bench section)
@@ -119,79 +126,126 @@ class LinearisedDecoder(Decoder):
     checkpoint, name, resolution, rest_pose, half_ranges, threads: as for Decoder.
     relinearise_tolerance: start value of the parameter (deg, >= 0).
     fast_layout: run the decoder through :func:`optimised` (written-out JVPs, channels-last).
+    memory_mb: room for stored linearisations (12 bytes a pixel each); at least 2 per trial.
 
-    After a run, ``relinearisations`` (B,) counts each trial's linearisations (the initial
-    one included) and ``decoder_calls`` the batched decoder calls.
+    After a run: ``relinearisations`` (B,) counts how often each trial's linearisation point
+    changed (the first included), ``decoder_points`` the points the decoder evaluated and
+    ``decoder_calls`` its batched calls.
     """
 
     def __init__(self, checkpoint, name: str = "decoder", relinearise_tolerance: float = DEFAULT_TOLERANCE,
                  resolution: int | None = None, rest_pose=None, half_ranges=None, threads: int | None = None,
-                 fast_layout: bool = True):
+                 fast_layout: bool = True, memory_mb: float = 256.0):
         super().__init__(checkpoint, name, resolution, rest_pose, half_ranges, threads)
         if fast_layout:
             self.model = optimised(self.model)
         tolerance = Variable("relinearise_tolerance", "parameter", start=relinearise_tolerance, unit="deg", min=0.0,
-                             description="re-linearise g when a joint of mu moves more than this from mu0")
+                             description="take a new linearisation point when a joint of mu moves more than this from mu0")
         self.variables[tolerance.name] = tolerance
+        self.memory_mb = memory_mb
         self.relinearisations = np.zeros(0, dtype=np.int64)
-        self.decoder_calls = 0
+        self.decoder_points = self.decoder_calls = 0
 
     def initialize(self):
         torch.set_num_threads(self.threads)
         pixels = self.model.resolution ** 2
-        self._mu0 = np.full((self.batch_size, 2), np.nan)  # NaN: never linearised, so every trial is at first
-        self._g0 = torch.zeros(self.batch_size, pixels)
-        self._jacobian = torch.zeros(self.batch_size, 2, pixels)
-        self._stiffness = torch.zeros(self.batch_size)
+        capacity = max(2 * self.batch_size, int(self.memory_mb * 2**20) // (12 * pixels))
+        self._store = torch.empty(capacity, 3, pixels)  # per point: g0, then J0's columns (shoulder, elbow)
+        self._gram = torch.empty(capacity, 2, 2, dtype=torch.float64)  # J0^T J0
+        self._points = np.full((capacity, 2), np.nan)    # deg; NaN: an empty slot
+        self._last_used = np.full(capacity, -1)          # step count, for least-recently-used eviction
+        self._slots = np.full(self.batch_size, -1)       # each trial's point; -1: none yet
+        self._residual = torch.empty(self.batch_size, pixels)  # s - g0 of the trials at one point
+        self._steps = 0
         self.relinearisations = np.zeros(self.batch_size, dtype=np.int64)
-        self.decoder_calls = 0
+        self.decoder_points = self.decoder_calls = 0
         self._update()
 
     def stale(self, mu: np.ndarray) -> np.ndarray:
-        """Trials (B,) bool whose belief moved more than the tolerance from their linearisation point."""
-        moved = np.abs(mu - self._mu0).max(axis=1)
-        return ~(moved <= self.values["relinearise_tolerance"])  # NaN (never linearised) counts as stale
+        """Trials (B,) bool that have no point yet or whose belief moved more than the tolerance from it."""
+        moved = np.abs(mu - self._points[self._slots]).max(axis=1)
+        return (self._slots < 0) | ~(moved <= self.values["relinearise_tolerance"])
 
-    def relinearise(self, trials: np.ndarray, mu: np.ndarray, precision: torch.Tensor) -> None:
-        """g0, J0 and the stiffness at the current mu of ``trials``, in one decoder call over distinct beliefs."""
-        points, inverse = np.unique(mu[trials], axis=0, return_inverse=True)
+    def reassign(self, trials: np.ndarray, mu: np.ndarray) -> None:
+        """A new point for each of ``trials``: the nearest stored (or just chosen) point within half its tolerance
+        of its mu, else its mu itself; the new points are evaluated in one decoder call."""
+        tolerance = self.values["relinearise_tolerance"]
+        stored = np.flatnonzero(~np.isnan(self._points[:, 0]))
+        candidates, owners = list(self._points[stored]), list(stored)  # owner -1 - k: the k-th new point
+        new = []
+        for trial in trials:
+            distance = np.abs(np.array(candidates) - mu[trial]).max(axis=1) if candidates else np.array([np.inf])
+            nearest = int(distance.argmin())
+            if distance[nearest] <= tolerance[trial] / 2:
+                self._slots[trial] = owners[nearest]
+            else:
+                self._slots[trial] = -1 - len(new)
+                candidates.append(mu[trial])
+                owners.append(-1 - len(new))
+                new.append(mu[trial])
+        if new:
+            keep = self._slots[self._slots >= 0]
+            slots = self.linearise(np.array(new), keep)
+            pending = self._slots < 0
+            self._slots[pending] = slots[-1 - self._slots[pending]]
+        self.relinearisations[trials] += 1
+
+    def linearise(self, points: np.ndarray, keep: np.ndarray) -> np.ndarray:
+        """g0, J0 and J0^T J0 at ``points`` (N, 2) in one decoder call, into slots other than ``keep``."""
+        free = np.flatnonzero(np.isnan(self._points[:, 0]))
+        if len(free) < len(points):  # evict the least recently used points that no trial stands on now
+            spare = np.setdiff1d(np.flatnonzero(~np.isnan(self._points[:, 0])), keep)
+            free = np.concatenate([free, spare[np.argsort(self._last_used[spare], kind="stable")]])
+        slots = free[:len(points)]
         with torch.no_grad():
             prediction, jacobian = self.model.predict_with_jacobian(torch.from_numpy(points.astype(np.float32)))
-        index = torch.from_numpy(trials)
-        rows = torch.from_numpy(inverse.reshape(-1))
-        self._g0[index] = prediction.reshape(len(points), -1)[rows]
-        self._jacobian[index] = jacobian.reshape(len(points), 2, -1)[rows]
-        shape = (len(trials), 2, *prediction.shape[1:])
-        self._stiffness[index] = visual_stiffness(self._jacobian[index].view(shape), precision[index])
-        self._mu0[trials] = mu[trials]
-        self.relinearisations[trials] += 1
+        index = torch.from_numpy(slots)
+        self._store[index, 0] = prediction.reshape(len(points), -1)
+        self._store[index, 1:] = jacobian.reshape(len(points), 2, -1)
+        self._gram[index] = jacobian_gram(jacobian).double()
+        self._points[slots] = points
+        self.decoder_points += len(points)
         self.decoder_calls += 1
+        return slots
 
     def _update(self):
         mu, image, precision = self._checked_inputs()
         batch, side = image.shape[0], image.shape[1]
+        self._steps += 1
         stale = np.flatnonzero(self.stale(mu))
         if len(stale):
-            self.relinearise(stale, mu, precision)
+            self.reassign(stale, mu)
+        slots = self._slots
+        self._last_used[slots] = self._steps
+
+        sensed = torch.from_numpy(image).view(batch, -1)
+        projected, squared = torch.empty(batch, 2), torch.empty(batch)  # J0^T (s - g0), |s - g0|^2
         with torch.no_grad():
-            step = torch.from_numpy((mu - self._mu0).astype(np.float32))
-            prediction = torch.empty(batch, side, side)
-            drive, squared = torch.empty(batch, 2), torch.empty(batch)
-            sensed = torch.from_numpy(image)
-            # On one thread, one trial at a time, so that its J0, g0, prediction and error stay in cache
-            # (about 1.3 MB at 256 x 256): 1.5x faster than whole-batch passes, which stream each array
-            # from memory again. On more threads, whole-batch passes, which parallelise better.
-            chunk = batch if torch.get_num_threads() > 1 else 1
-            for start in range(0, batch, chunk):
-                part = slice(start, start + chunk)
-                # A freshly linearised trial has a step of exactly 0: its prediction is g0 to the bit.
-                torch.baddbmm(self._g0[part, None], step[part, None], self._jacobian[part],
-                              out=prediction[part].view(-1, 1, side * side))
-                error = sensed[part] - prediction[part]
-                jacobian = self._jacobian[part].view(-1, 2, side, side)
-                drive[part] = visual_drive(jacobian, error, precision[part])
-                squared[part] = visual_error(error, precision[part])
-            self.values["visual_drive"] = drive.double().numpy()
-            self.values["visual_error"] = squared.double().numpy()
-            self.values["visual_stiffness"] = self._stiffness.double().numpy()
-        self.values["prediction"] = prediction.numpy()
+            for slot in np.unique(slots):  # one pass over each point in use and over each image
+                trials = np.flatnonzero(slots == slot)
+                residual = self._residual[:len(trials)]  # preallocated: a fresh 16 MB a step costs page faults
+                if trials[-1] - trials[0] == len(trials) - 1:  # a run of trials: no gather
+                    torch.sub(sensed[trials[0]:trials[-1] + 1], self._store[slot, 0], out=residual)
+                else:
+                    torch.index_select(sensed, 0, torch.from_numpy(trials), out=residual).sub_(self._store[slot, 0])
+                projected[trials] = F.linear(residual, self._store[slot, 1:])
+                squared[trials] = torch.linalg.vector_norm(residual, dim=1).square()
+        step = mu - self._points[slots]  # d, float64
+        d, gram, projected = torch.from_numpy(step), self._gram[torch.from_numpy(slots)], projected.double()
+        drive = projected - (gram @ d[:, :, None])[:, :, 0]
+        error = squared.double() - 2 * (projected * d).sum(1) + (d[:, None] @ gram @ d[:, :, None]).view(-1)
+        weight = precision.double()
+        self.values["visual_drive"] = (drive * weight[:, None]).numpy()
+        self.values["visual_error"] = (error.clamp(min=0) * weight).numpy()  # >= 0 but for rounding
+        self.values["visual_stiffness"] = largest_eigenvalue(gram * weight[:, None, None]).numpy()
+        self.values["prediction"] = Deferred(self._prediction_of(slots, step, side))
+
+    def _prediction_of(self, slots: np.ndarray, step: np.ndarray, side: int):
+        """g0 + J0 d per trial (B, side, side) float32, for the points and steps of this step."""
+        store, slots, step = self._store, torch.from_numpy(slots), torch.from_numpy(step.astype(np.float32))
+
+        def compute():  # the store is unchanged until the next step, which replaces this output
+            rows = store[slots]
+            # A trial on its point exactly (d = 0) predicts g0 to the bit.
+            return torch.baddbmm(rows[:, :1], step[:, None], rows[:, 1:]).view(-1, side, side).numpy()
+        return compute
