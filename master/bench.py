@@ -55,7 +55,8 @@ class BenchSettings:
     protocol_steps: int = 1500   # the fast-mode run of the whole paper protocol
     protocol_preset: tuple = ("paper", 256)
     tolerance: float = DEFAULT_TOLERANCE
-    error_trials: int = 1        # per condition x stimulation, for the fast mode's drift error
+    error_trials: int = 5        # per condition x stimulation, for the fast mode's drift error (as in one
+                                 # decoder's half of the protocol)
     error_steps: int = 1500
     error_model: str = "cached"  # cached: the trained default conv decoder (or error_checkpoint); untrained: tiny
     error_checkpoint: str = ""   # a trained conv checkpoint at the default resolution, instead of the cached one
@@ -66,8 +67,8 @@ class BenchSettings:
 
 
 QUICK = BenchSettings(presets=(("tiny", 32),), batch=6, max_steps=3, budget_s=0.5, protocol_steps=10,
-                      protocol_preset=("tiny", 32), error_steps=30, error_model="untrained", fmu_steps=20,
-                      matmul_size=256)
+                      protocol_preset=("tiny", 32), error_trials=1, error_steps=30, error_model="untrained",
+                      fmu_steps=20, matmul_size=256)
 
 
 def untrained(preset: str, resolution: int, seed: int) -> GenerativeModel:
@@ -228,7 +229,8 @@ def run_suite(settings: BenchSettings = BenchSettings()) -> dict:
                          for preset, res in settings.presets}
     report["protocol_fast"] = protocol_in_child(settings)
     report["fast_error"] = fast_error(settings)
-    report["protocol_fast"]["projected_agent_steps_per_s"] = projected(report["protocol_fast"], report["fast_error"])
+    report["protocol_fast"]["projected_agent_steps_per_s"] = projected(report["protocol_fast"], report["fast_error"],
+                                                                      settings)
     report["master_overhead"] = master_overhead(settings.fmu_steps)
     report["memory"] = {"bench_peak_rss_mb": peak_rss_mb(),
                         "protocol_peak_rss_mb": report["protocol_fast"]["peak_rss_mb"]}
@@ -285,15 +287,12 @@ def _protocol(settings: BenchSettings) -> dict:
     model = optimised(untrained(preset, resolution, settings.seed))
     config = protocol_config(resolution, settings.protocol_steps)
     trials = protocol_trials(config, settings.batch)
-    beliefs = torch.tensor(kinematics.REST_POSE, dtype=torch.float32) + torch.linspace(-1, 1, 16).view(8, 2)
     with torch.no_grad():  # warm-up: first-use imports and kernels
-        model.predict_with_jacobian(beliefs[:1])
+        model.predict_with_jacobian(beliefs(1))
     decoder = LinearisedDecoder(model, relinearise_tolerance=settings.tolerance, threads=threads, fast_layout=False)
     result, seconds = timed(lambda: experiment.run_batch(decoder, trials, config))
     stepping = result.timings["total_s"] - result.timings["setup_s"]
     rss = peak_rss_mb()
-    with torch.no_grad():  # what one linearisation point costs (8 in one call)
-        _, call = timed(lambda: model.predict_with_jacobian(beliefs))
     return {"preset": preset, "resolution": resolution, "weights": f"untrained, torch seed {settings.seed}",
             "trials": len(trials), "steps": settings.protocol_steps, "seconds": seconds,
             "agent_steps_per_s": len(trials) * settings.protocol_steps / seconds,
@@ -301,18 +300,36 @@ def _protocol(settings: BenchSettings) -> dict:
             "share": {k[7:]: v / stepping for k, v in result.timings.items() if k.startswith("step_s.")},
             "relinearisations_per_trial": float(decoder.relinearisations.mean()),
             "decoder_points_per_trial": decoder.decoder_points / len(trials), "decoder_calls": decoder.decoder_calls,
-            "linearise_s_per_point": call / 8, "peak_rss_mb": rss}
+            "peak_rss_mb": rss}
 
 
-def projected(protocol: dict, error: dict) -> float | None:
-    """The protocol's rate had its (untrained) decoder needed as many linearisation points per trial as the trained
-    default decoder needed in the drift-error run (the count depends on how mu moves, in degrees, not on pixels;
-    that run has one trial per cell, so fewer trials share each point than in the protocol: a lower bound)."""
-    if "decoder_points_per_trial" not in error:
+def beliefs(count: int) -> torch.Tensor:
+    """``count`` distinct beliefs near the rest pose (count, 2) deg."""
+    offsets = torch.linspace(-1, 1, 2 * count, dtype=torch.float32).view(count, 2)
+    return torch.tensor(kinematics.REST_POSE, dtype=torch.float32) + offsets
+
+
+def replayed_calls(call_sizes: list[int], settings: BenchSettings) -> float:
+    """Seconds the protocol preset's decoder takes for decoder calls of these sizes (each size timed once)."""
+    model = optimised(untrained(*settings.protocol_preset, settings.seed))
+    sizes, counts = np.unique(np.asarray(call_sizes, dtype=int), return_counts=True)
+    total = 0.0
+    with torch.no_grad():
+        model.predict_with_jacobian(beliefs(1))  # warm-up
+        for size, count in zip(sizes, counts):
+            _, seconds = timed(lambda: model.predict_with_jacobian(beliefs(int(size))))
+            total += int(count) * seconds
+    return total
+
+
+def projected(protocol: dict, error: dict, settings: BenchSettings) -> float | None:
+    """The protocol's rate had its untrained decoder made the decoder calls the trained default decoder made in the
+    drift-error run (how often and how many points depends on how mu moves, in degrees, not on pixels): those
+    calls replayed on the protocol's decoder, scaled from that run's trials to the protocol's."""
+    if "call_sizes" not in error:
         return None
-    extra = max(0.0, error["decoder_points_per_trial"] - protocol["decoder_points_per_trial"])
-    seconds = protocol["seconds"] + extra * protocol["trials"] * protocol["linearise_s_per_point"]
-    return protocol["trials"] * protocol["steps"] / seconds
+    extra = replayed_calls(error["call_sizes"], settings) * protocol["trials"] / error["trials"]
+    return protocol["trials"] * protocol["steps"] / (protocol["seconds"] + extra)
 
 
 def peak_rss_mb() -> float:
@@ -375,7 +392,7 @@ def fast_error(settings: BenchSettings) -> dict:
             "relative_error": float(error.max()) / largest if largest > 0 else 0.0,
             "bound_met": bool(error.max() <= 0.01 * largest),
             "relinearisations_per_trial": float(decoder.relinearisations.mean()),
-            "decoder_points_per_trial": decoder.decoder_points / len(trials),
+            "decoder_points_per_trial": decoder.decoder_points / len(trials), "call_sizes": decoder.call_sizes,
             "exact_s": exact_s, "fast_s": fast_s, "speedup": exact_s / fast_s}
 
 
@@ -434,9 +451,11 @@ def targets(report: dict) -> dict:
     paper = next((p for p in report["presets"].values() if p["preset"] == "paper"), None)
     protocol, error, overhead = report["protocol_fast"], report["fast_error"], report["master_overhead"]
     rows = {
-        "exact_batched_peak_fraction_paper": (paper["modes"]["exact_batched"]["peak_fraction"] if paper else None,
-                                              ">=", 0.5),
-        "fast_protocol_agent_steps_per_s": (protocol["agent_steps_per_s"], ">=", 1500.0),
+        "exact_batched_peak_fraction_paper": (
+            paper["modes"]["exact_batched_optimised"]["peak_fraction"] if paper else None, ">=", 0.5),
+        # With the trained decoder's calls replayed when there is one (the untrained decoder barely moves mu).
+        "fast_protocol_agent_steps_per_s": (protocol.get("projected_agent_steps_per_s") or
+                                            protocol["agent_steps_per_s"], ">=", 1500.0),
         "fast_drift_relative_error": (error.get("relative_error"), "<=", 0.01),
         "master_step_vs_fmpy_simulate_fmu": (overhead["wall_ratio"], "<=", 1.2),
         "protocol_peak_rss_mb": (protocol["peak_rss_mb"], "<", 2048.0),

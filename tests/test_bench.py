@@ -68,6 +68,10 @@ def test_error_overhead_memory_and_targets(report):
     assert math.isclose(error["max_error_cm"],
                         np.abs(np.subtract(error["drift_fast_cm"], error["drift_exact_cm"])).max())
     assert error["bound_met"] == (error["max_error_cm"] <= 0.01 * error["largest_drift_cm"])
+    assert math.isclose(error["decoder_points_per_trial"], sum(error["call_sizes"]) / error["trials"])
+    protocol = report["protocol_fast"]  # the trained (here: error-run) decoder's calls replayed cost extra time
+    assert 0 < protocol["projected_agent_steps_per_s"] < protocol["agent_steps_per_s"]
+    assert report["targets"]["fast_protocol_agent_steps_per_s"]["value"] == protocol["projected_agent_steps_per_s"]
     overhead = report["master_overhead"]
     for key in ("fmpy_step_s", "master_step_s", "of_which_master_loop_s", "of_which_adapter_and_fmu_s"):
         assert overhead[key] > 0, key

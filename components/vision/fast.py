@@ -66,10 +66,13 @@ class DualNumberModel(GenerativeModel):
 class TangentModel(DualNumberModel):
     """g(mu) and J by forward-mode AD written out layer by layer, for a ConvDecoder (others: dual numbers).
 
-    The tangents of both joints ride together as a batch of 2B through the same layers: Linear,
-    Conv2d and ConvTranspose2d without their bias, ReLU and Sigmoid as masks. One primal pass and
-    two tangent passes, against the three per joint that PyTorch's convolution JVP runs (it also
-    convolves the input with a zero weight tangent): half the FLOPs, the same Jacobian to 1e-6.
+    The primal and the tangents of both joints ride as one batch of 3B (rows: primal, then
+    d/d shoulder, then d/d elbow) through each Linear, Conv2d and ConvTranspose2d, run once
+    without bias (the bias is added to the primal rows alone); ReLU zeroes all three where
+    the primal is not positive, and Sigmoid scales the tangents by its slope. One primal pass
+    and two tangent passes, against the three per joint that PyTorch's convolution JVP runs
+    (it also convolves the input with a zero weight tangent): half the FLOPs, the same
+    Jacobian to 1e-6, and one large convolution call per layer instead of two.
     """
 
     def predict_with_jacobian(self, mu_deg: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -77,35 +80,38 @@ class TangentModel(DualNumberModel):
         if not isinstance(decoder, ConvDecoder):
             return super().predict_with_jacobian(mu_deg)
         batch = len(mu_deg)
-        primal = normalise(mu_deg, self._rest, self._half)
-        tangent = torch.zeros(2 * batch, 2)  # d(normalised input)/d(joint angle): 1/half-range
-        tangent[:batch, 0], tangent[batch:, 1] = 1.0 / self._half[0], 1.0 / self._half[1]
+        rows = torch.zeros(3 * batch, 2)  # tangent rows: d(normalised input)/d(joint angle) = 1/half-range
+        rows[:batch] = normalise(mu_deg, self._rest, self._half)
+        rows[batch:2 * batch, 0], rows[2 * batch:, 1] = 1.0 / self._half[0], 1.0 / self._half[1]
         for layer in decoder.dense:
-            primal, tangent = _tangent_step(layer, primal, tangent)
-        shape = (decoder.start_channels, decoder.start, decoder.start)
-        primal, tangent = primal.view(-1, *shape), tangent.view(-1, *shape)
+            rows = _tangent_step(layer, rows, batch)
+        rows = rows.view(-1, decoder.start_channels, decoder.start, decoder.start)
         for layer in decoder.convolutions:
-            primal, tangent = _tangent_step(layer, primal, tangent)
-        return primal[:, 0], torch.stack([tangent[:batch, 0], tangent[batch:, 0]], dim=1)
+            rows = _tangent_step(layer, rows, batch)
+        return rows[:batch, 0], torch.stack([rows[batch:2 * batch, 0], rows[2 * batch:, 0]], dim=1)
 
 
-def _tangent_step(layer, primal, tangent):
-    """One layer's output and the tangents' (linear layers without bias; activations as derivative masks)."""
-    if isinstance(layer, nn.Linear):
-        return layer(primal), F.linear(tangent, layer.weight)
-    if isinstance(layer, nn.ConvTranspose2d):
-        return layer(primal), F.conv_transpose2d(tangent, layer.weight, None, layer.stride, layer.padding,
-                                                 layer.output_padding, layer.groups, layer.dilation)
-    if isinstance(layer, nn.Conv2d):
-        return layer(primal), F.conv2d(tangent, layer.weight, None, layer.stride, layer.padding, layer.dilation,
-                                       layer.groups)
-    if isinstance(layer, nn.ReLU):
-        mask = (primal > 0).to(tangent.dtype)
-        return layer(primal), tangent * torch.cat([mask, mask])
+def _tangent_step(layer, rows: torch.Tensor, batch: int) -> torch.Tensor:
+    """One layer applied to [primal; tangents] (3B, ...): linear maps without bias, then the bias on the primal."""
+    if isinstance(layer, (nn.Linear, nn.Conv2d, nn.ConvTranspose2d)):
+        if isinstance(layer, nn.Linear):
+            out = F.linear(rows, layer.weight)
+        elif isinstance(layer, nn.ConvTranspose2d):
+            out = F.conv_transpose2d(rows, layer.weight, None, layer.stride, layer.padding, layer.output_padding,
+                                     layer.groups, layer.dilation)
+        else:
+            out = F.conv2d(rows, layer.weight, None, layer.stride, layer.padding, layer.dilation, layer.groups)
+        if layer.bias is not None:
+            bias = layer.bias if out.dim() == 2 else layer.bias.view(-1, 1, 1)
+            out[:batch] += bias
+        return out
+    split = rows.view(3, batch, *rows.shape[1:])
+    if isinstance(layer, nn.ReLU):  # relu(x) = x * [x > 0], and its tangent is t * [x > 0]
+        return split.mul_(split[0] > 0).view(rows.shape)  # a multiply: 1.6x faster than masked_fill_
     if isinstance(layer, nn.Sigmoid):
-        output = torch.sigmoid(primal)
-        slope = output * (1 - output)
-        return output, tangent * torch.cat([slope, slope])
+        output = torch.sigmoid_(split[0])
+        split[1:] *= output * (1 - output)
+        return rows
     raise TypeError(f"no tangent rule for {type(layer).__name__}")
 
 
@@ -129,8 +135,7 @@ class LinearisedDecoder(Decoder):
     memory_mb: room for stored linearisations (12 bytes a pixel each); at least 2 per trial.
 
     After a run: ``relinearisations`` (B,) counts how often each trial's linearisation point
-    changed (the first included), ``decoder_points`` the points the decoder evaluated and
-    ``decoder_calls`` its batched calls.
+    changed (the first included); ``call_sizes`` lists the points of each batched decoder call.
     """
 
     def __init__(self, checkpoint, name: str = "decoder", relinearise_tolerance: float = DEFAULT_TOLERANCE,
@@ -144,7 +149,16 @@ class LinearisedDecoder(Decoder):
         self.variables[tolerance.name] = tolerance
         self.memory_mb = memory_mb
         self.relinearisations = np.zeros(0, dtype=np.int64)
-        self.decoder_points = self.decoder_calls = 0
+        self.call_sizes: list[int] = []
+
+    @property
+    def decoder_points(self) -> int:
+        """Linearisation points the decoder evaluated."""
+        return sum(self.call_sizes)
+
+    @property
+    def decoder_calls(self) -> int:
+        return len(self.call_sizes)
 
     def initialize(self):
         torch.set_num_threads(self.threads)
@@ -158,7 +172,7 @@ class LinearisedDecoder(Decoder):
         self._residual = torch.empty(self.batch_size, pixels)  # s - g0 of the trials at one point
         self._steps = 0
         self.relinearisations = np.zeros(self.batch_size, dtype=np.int64)
-        self.decoder_points = self.decoder_calls = 0
+        self.call_sizes = []
         self._update()
 
     def stale(self, mu: np.ndarray) -> np.ndarray:
@@ -204,8 +218,7 @@ class LinearisedDecoder(Decoder):
         self._store[index, 1:] = jacobian.reshape(len(points), 2, -1)
         self._gram[index] = jacobian_gram(jacobian).double()
         self._points[slots] = points
-        self.decoder_points += len(points)
-        self.decoder_calls += 1
+        self.call_sizes.append(len(points))
         return slots
 
     def _update(self):
