@@ -36,6 +36,8 @@ def test_tiny_decoder_flops_match_a_hand_count(report):
     # Two JVPs: at least a primal and a tangent pass each; the baseline: forward plus input and weight grads.
     assert flops["exact_step_per_trial"] >= 4 * flops["forward_per_trial"]
     assert flops["optimised_step_per_trial"] == 3 * flops["forward_per_trial"]  # a primal and two tangent passes
+    # ... of which the last layer (ConvT 8 -> 1, 16 x 16 in) runs as a sub-pixel convolution with 2.25x its FLOPs
+    assert flops["optimised_step_counted"] == flops["optimised_step_per_trial"] + 3 * 1.25 * (2 * 8 * 16 * 256)
     assert 2 * flops["forward_per_trial"] < flops["baseline_step_per_trial"] <= 3 * flops["forward_per_trial"]
 
 

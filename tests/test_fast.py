@@ -8,7 +8,8 @@ import torch
 from components.body import kinematics
 from components.component import ComponentError
 from components.vision.component import Decoder, GenerativeModel, resolution_weight
-from components.vision.fast import DualNumberModel, LinearisedDecoder, TangentModel, optimised
+from components.vision.fast import (DualNumberModel, LinearisedDecoder, SubPixelTransposedConv, TangentModel,
+                                   optimised)
 from components.vision.networks import normalise
 from master import experiment
 from master.bench import counted_flops
@@ -144,4 +145,20 @@ def test_optimised_jacobians_equal_torch_func_jvp():
             torch.testing.assert_close(got, want, rtol=0, atol=1e-5 * want.abs().max().item())
         flops = [counted_flops(lambda m=m: m.predict_with_jacobian(mu)) for m in (model, fast)]
     assert reference[1].abs().max() > 0  # a real Jacobian
-    assert flops[1] * 2 == flops[0]
+    # Half the FLOPs, but for the last layer (ConvT 8 -> 1 on 16 x 16, 2 x 8 x 16 x 256 FLOPs) run as a sub-pixel
+    # 3x3 convolution with 4 outputs (2.25x the FLOPs), for 3 beliefs x (primal + 2 tangents).
+    assert flops[1] == flops[0] // 2 + 3 * 3 * (2.25 - 1) * (2 * 8 * 16 * 256)
+
+
+def test_sub_pixel_convolution_is_the_transposed_convolution():
+    torch.manual_seed(0)
+    layer = torch.nn.ConvTranspose2d(5, 1, 4, 2, 1)
+    sub_pixel = SubPixelTransposedConv(layer)
+    assert SubPixelTransposedConv.applies_to(layer) and not SubPixelTransposedConv.applies_to(
+        torch.nn.ConvTranspose2d(5, 2, 4, 2, 1))
+    inputs = torch.randn(3, 5, 7, 9, dtype=torch.float64)
+    with torch.no_grad():
+        want = layer.double()(inputs)
+        got = sub_pixel.double()(inputs)
+    assert got.shape == want.shape == (3, 1, 14, 18)
+    torch.testing.assert_close(got, want, rtol=0, atol=1e-12)
