@@ -24,9 +24,10 @@ def exact():
     return reference_runs()[1]  # the exact decoder, the three trials batched
 
 
-def run_fast(model, tolerance, fast_layout=True, config=None, threads=1):
+def run_fast(model, tolerance, fast_layout=True, config=None, threads=1, memory_mb=256.0):
     config = config or tiny_config()
-    decoder = LinearisedDecoder(model, relinearise_tolerance=tolerance, threads=threads, fast_layout=fast_layout)
+    decoder = LinearisedDecoder(model, relinearise_tolerance=tolerance, threads=threads, fast_layout=fast_layout,
+                                memory_mb=memory_mb)
     return decoder, experiment.run_batch(decoder, three_trials(config), config)
 
 
@@ -48,6 +49,32 @@ def test_small_tolerance_is_close_and_calls_the_decoder_less(exact):
     assert (error <= 0.01 * moved.max()).all(), (error, moved)
     force_error = np.abs(fast.values["body.force_x"] - exact.values["body.force_x"]).max()
     assert force_error <= 0.01 * np.abs(exact.values["body.force_x"]).max()
+
+
+def test_small_tolerance_holds_with_the_fewest_stored_points(exact):
+    """memory_mb ~ 0 keeps 2 points per trial: old points are dropped and re-evaluated, still within the bound."""
+    unlimited, _ = run_fast(tiny_model(), 0.02)
+    decoder, fast = run_fast(tiny_model(), 0.02, memory_mb=1e-9)
+    assert decoder._store.shape[0] == 6 and decoder.decoder_points > unlimited.decoder_points  # measured 63, 59
+    moved = np.abs(exact.values["brain.mu"][-1] - exact.values["brain.mu"][0])
+    assert (np.abs(fast.values["brain.mu"] - exact.values["brain.mu"]).max(axis=0) <= 0.01 * moved.max()).all()
+
+
+def test_trials_within_the_tolerance_share_a_point():
+    """Trial 1 starts 0.3 deg from trial 0 (tolerance 0.5) and takes its point; trial 2, 2 deg away, gets its own.
+    Trial 1 then predicts g(mu0) + J(mu0) d with d = (0.3, 0), J from the model's own JVPs."""
+    model = tiny_model()
+    rest = np.array(kinematics.REST_POSE)
+    mu = rest + np.array([[0.0, 0.0], [0.3, 0.0], [2.0, 0.0]])
+    image = np.random.default_rng(1).uniform(0, 1, (3, 32, 32)).astype(np.float32)
+    decoder = LinearisedDecoder(model, threads=1, fast_layout=False)
+    start(decoder, 3, mu, image, relinearise_tolerance=0.5)
+    assert decoder.call_sizes == [2] and decoder.relinearisations.tolist() == [1, 1, 1]
+    with torch.no_grad():
+        g0, jacobian = model.predict_with_jacobian(torch.tensor(rest[None], dtype=torch.float32))
+    expected = (g0[0] + 0.3 * jacobian[0, 0]).numpy()
+    np.testing.assert_allclose(decoder.values["prediction"][1], expected, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(decoder.values["prediction"][0], g0[0].numpy(), rtol=0, atol=1e-6)
 
 
 class LinearImage(torch.nn.Module):
