@@ -109,6 +109,8 @@ def _tangent_step(layer, rows: torch.Tensor, batch: int) -> torch.Tensor:
 
 def _without_bias(layer, rows: torch.Tensor) -> torch.Tensor:
     if isinstance(layer, nn.Linear):
+        if len(rows) <= 64:  # few rows: W x^T streams the weight once (measured 2x faster for 3 rows x 1024 x 8192)
+            return (layer.weight @ rows.T).T.contiguous()
         return F.linear(rows, layer.weight)
     if isinstance(layer, nn.ConvTranspose2d):
         return F.conv_transpose2d(rows, layer.weight, None, layer.stride, layer.padding, layer.output_padding,
