@@ -124,3 +124,6 @@ def validate(config: dict) -> None:
         raise ConfigError(f"brain.gamma0 must be in (0, 1], got {brain['gamma0']}")
     if config["decoder"]["visual_variance"] <= 0:
         raise ConfigError(f"decoder.visual_variance must be positive, got {config['decoder']['visual_variance']}")
+    if not config["decoder"]["relinearise_tolerance"] >= 0:
+        raise ConfigError(f"decoder.relinearise_tolerance must be >= 0 deg, got "
+                          f"{config['decoder']['relinearise_tolerance']}")

@@ -68,7 +68,12 @@ def ensure_checkpoints(config: dict, progress: bool = True) -> tuple[dict[str, s
 
 
 def decoder_component(kind: str, path: str, config: dict) -> Decoder:
-    return Decoder(load_decoder(path, config["experiment"]["resolution"]), name="decoder")
+    """The exact decoder, or the linearised one of the fast mode when ``decoder.fast`` is true."""
+    model = load_decoder(path, config["experiment"]["resolution"])
+    if config["decoder"]["fast"]:
+        from components.vision.fast import LinearisedDecoder
+        return LinearisedDecoder(model, name="decoder", relinearise_tolerance=config["decoder"]["relinearise_tolerance"])
+    return Decoder(model, name="decoder")
 
 
 def jacobian_pair(kind: str, path: str, config: dict) -> np.ndarray:

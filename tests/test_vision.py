@@ -241,3 +241,23 @@ def test_bad_checkpoints_give_one_clear_error_naming_the_file(tmp_path, case, me
         Decoder(path, **expect)
     assert str(path) in str(info.value) and isinstance(info.value, ValueError)
     assert not Payload.ran
+
+
+def test_experiment_config_chooses_the_exact_or_the_fast_decoder(tmp_path):
+    from components.vision.fast import LinearisedDecoder
+    from master import config as configuration
+    from master.decoders import decoder_component
+    from master.errors import ConfigError
+    from components.body.kinematics import REST_POSE
+    from master.training_data import HALF_RANGES
+    path = tmp_path / "conv.pt"
+    checkpoint.save(path, random_model(), {**METADATA, "rest_pose": list(REST_POSE), "half_ranges": list(HALF_RANGES)})
+    exact = decoder_component("conv", str(path), configuration.load(overrides={"experiment.resolution": RES}))
+    assert type(exact) is Decoder
+    config = configuration.load(overrides={"experiment.resolution": RES, "decoder.fast": True,
+                                           "decoder.relinearise_tolerance": 0.05})
+    fast = decoder_component("conv", str(path), config)
+    fast.instantiate(2)
+    assert isinstance(fast, LinearisedDecoder) and fast.get("relinearise_tolerance").tolist() == [0.05, 0.05]
+    with pytest.raises(ConfigError, match="decoder.relinearise_tolerance must be >= 0"):
+        configuration.load(overrides={"decoder.relinearise_tolerance": -0.1})
