@@ -36,7 +36,8 @@ from torch.utils.flop_counter import FlopCounterMode
 
 from components.body import kinematics
 from components.vision.component import Decoder, GenerativeModel, available_cores
-from components.vision.fast import DEFAULT_TOLERANCE, LinearisedDecoder, optimised
+from components.vision.fast import DEFAULT_TOLERANCE, LinearisedDecoder
+from components.vision.optimised import optimised
 from components.vision.networks import build
 from master import config as configuration
 from master import experiment

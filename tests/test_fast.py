@@ -8,9 +8,9 @@ import torch
 from components.body import kinematics
 from components.component import ComponentError
 from components.vision.component import Decoder, GenerativeModel, resolution_weight
-from components.vision import fast
-from components.vision.fast import (DualNumberModel, LinearisedDecoder, SubPixelTransposedConv, TangentModel,
-                                   optimised)
+from components.vision import optimised as optimisation
+from components.vision.fast import LinearisedDecoder
+from components.vision.optimised import DualNumberModel, SubPixelTransposedConv, TangentModel, optimised
 from components.vision.networks import normalise
 from master import experiment
 from master.bench import counted_flops
@@ -182,11 +182,11 @@ def test_chunks_of_trials_give_the_whole_batch(monkeypatch):
     """Tiny at 32 x 32: feature maps of 16 x 4^2, 16 x 8^2 (two), 8 x 16^2 (two), the sub-pixel 4 x 16^2 and
     1 x 32^2 floats, the largest 2048; a budget of one trial's three rows makes chunks of one."""
     model = optimised(tiny_model())
-    assert fast.largest_feature_map(model.decoder) == 8 * 16 * 16
+    assert optimisation.largest_feature_map(model.decoder) == 8 * 16 * 16
     mu = torch.tensor(np.array(kinematics.REST_POSE) + [[0.0, 0.0], [5.0, -7.0], [-20.0, 30.0]], dtype=torch.float32)
     with torch.no_grad():
         whole = model.predict_with_jacobian(mu)
-        monkeypatch.setattr(fast, "ACTIVATION_BUDGET", 3 * 4 * 2048)
+        monkeypatch.setattr(optimisation, "ACTIVATION_BUDGET", 3 * 4 * 2048)
         chunked = model.predict_with_jacobian(mu)
     for got, want in zip(chunked, whole):
         torch.testing.assert_close(got, want, rtol=0, atol=1e-6)
