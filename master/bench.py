@@ -498,7 +498,7 @@ def table(report: dict) -> str:
         lines.append("")
     p = report["protocol_fast"]
     guess = "" if p.get("projected_agent_steps_per_s") is None else \
-        f" (with the trained decoder's linearisations: {p['projected_agent_steps_per_s']:.0f})"
+        f" (with the drift-error run's decoder calls replayed: {p['projected_agent_steps_per_s']:.0f})"
     lines += [f"fast mode, whole protocol at {p['preset']}-{p['resolution']} "
               f"({p['trials']} trials x {p['steps']} steps, "
               f"{p['weights']}): {p['agent_steps_per_s']:.0f} agent-steps/s{guess} ({p['seconds']:.1f} s), "
