@@ -179,7 +179,7 @@ class LinearisedDecoder(Decoder):
 
     def _prediction_of(self, slots: np.ndarray, step: np.ndarray, side: int):
         """g0 + J0 d per trial (B, side, side) float32, for the points and steps of this step."""
-        store, slots, step = self._store, torch.from_numpy(slots), torch.from_numpy(step.astype(np.float32))
+        store, slots, step = self._store, torch.from_numpy(slots.copy()), torch.from_numpy(step.astype(np.float32))
 
         def compute():  # the store is unchanged until the next step, which replaces this output
             rows = store[slots]
