@@ -84,16 +84,21 @@ def load(path: str | Path | None = None, overrides: dict | None = None, quick: b
         config = merge(config, quick_values)
     if path is not None:
         config = merge(config, read_toml(path))
-    for dotted, value in (overrides or {}).items():
-        table, _, key = dotted.rpartition(".")
-        nested = {}
-        cursor = nested
-        for part in table.split("."):
-            cursor = cursor.setdefault(part, {})
-        cursor[key] = value
-        config = merge(config, nested)
+    config = merge(config, nest(overrides or {}))
     validate(config)
     return config
+
+
+def nest(dotted: dict) -> dict:
+    """``{"experiment.trials": 3}`` -> ``{"experiment": {"trials": 3}}``."""
+    nested: dict = {}
+    for path, value in dotted.items():
+        *tables, key = path.split(".")
+        cursor = nested
+        for table in tables:
+            cursor = cursor.setdefault(table, {})
+        cursor[key] = value
+    return nested
 
 
 def validate(config: dict) -> None:

@@ -191,6 +191,7 @@ def run(config: dict, checkpoints: dict[str, str], body_factory=None, progress: 
     from master.decoders import decoder_component  # torch is imported only when a run needs it
 
     kept, blocks, seconds, failures, times = [], [], {}, {}, None
+    protocol = plan(config)
     for kind in config["experiment"]["decoders"]:
         def run_trials(batch, kind=kind):
             bar = progress_bar(f"{kind} trials x{len(batch)}", config["experiment"]["steps"]) if progress else None
@@ -203,7 +204,7 @@ def run(config: dict, checkpoints: dict[str, str], body_factory=None, progress: 
                     bar.close()
 
         began = time.perf_counter()
-        result, batch, failed = without_failures(run_trials, [t for t in plan(config) if t.decoder == kind])
+        result, batch, failed = without_failures(run_trials, [t for t in protocol if t.decoder == kind])
         seconds[kind] = time.perf_counter() - began
         failures.update(failed)
         if result is not None:

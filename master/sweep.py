@@ -37,7 +37,7 @@ from pathlib import Path
 
 from master import config as configuration
 from master.errors import ConfigError
-from master.experiment import trial_seed
+from master import experiment
 from master.results import atomic_write
 
 DEFAULT_TASK = "master.experiment:trial_outcome"
@@ -82,17 +82,6 @@ def flatten(table: dict, prefix: str = "") -> dict:
         else:
             flat[f"{prefix}{key}"] = value
     return flat
-
-
-def nest(dotted: dict) -> dict:
-    nested: dict = {}
-    for path, value in dotted.items():
-        *tables, key = path.split(".")
-        cursor = nested
-        for table in tables:
-            cursor = cursor.setdefault(table, {})
-        cursor[key] = value
-    return nested
 
 
 def grid_points(grid: dict) -> list[dict]:
@@ -142,27 +131,9 @@ def check_settings(settings: dict) -> None:
         raise ConfigError("sweep: give either sweep.grid or sweep.points, not both")
 
 
-def check_known(base: dict, dotted: str) -> None:
-    """Open tables take new entries (``conditions.far``, ``stimulations.slow.delay_max``), but a new key
-    inside an existing entry (``stimulations.sync.dely_max``) is a typo; merge() alone would accept it."""
-    parts, cursor = dotted.split("."), base
-    for depth, part in enumerate(parts):
-        if not isinstance(cursor, dict):
-            return  # merge() names the type error
-        if part not in cursor:
-            if depth == 1 and parts[0] in configuration.OPEN_TABLES:
-                return
-            close = difflib.get_close_matches(part, list(cursor), n=1)
-            hint = f" (did you mean {'.'.join([*parts[:depth], close[0]])}?)" if close else ""
-            raise ConfigError(f"unknown config key {'.'.join(parts[:depth + 1])}{hint}")
-        cursor = cursor[part]
-
-
 def point_config(base: dict, point: dict, number: int) -> dict:
     try:
-        for key in point:
-            check_known(base, key)
-        effective = configuration.merge(base, nest(point))
+        effective = configuration.merge(base, configuration.nest(point))
         configuration.validate(effective)
     except ConfigError as error:
         raise ConfigError(f"sweep point {number} ({describe(point)}): {error}") from None
@@ -176,15 +147,11 @@ def describe(point: dict) -> str:
 def plan(configs: list[dict], task: str) -> list[TrialSpec]:
     trials = []
     for number, config in enumerate(configs):
-        experiment = config["experiment"]
-        for decoder, condition, stimulation in itertools.product(
-                experiment["decoders"], experiment["conditions"], experiment["stimulations"]):
-            for index in range(experiment["trials"]):
-                seed = trial_seed(experiment["seed"], condition, stimulation, index)
-                identity = {"task": task, "config": config, "decoder": decoder, "condition": condition,
-                            "stimulation": stimulation, "index": index, "seed": seed}
-                trials.append(TrialSpec(canonical_hash(identity)[:20], number, decoder, condition,
-                                        stimulation, index, seed))
+        for t in experiment.plan(config):
+            identity = {"task": task, "config": config, "decoder": t.decoder, "condition": t.condition,
+                        "stimulation": t.stimulation, "index": t.index, "seed": t.seed}
+            trials.append(TrialSpec(canonical_hash(identity)[:20], number, t.decoder, t.condition,
+                                    t.stimulation, t.index, t.seed))
     return trials
 
 
@@ -197,10 +164,7 @@ def load(path: str | Path) -> Sweep:
     check_settings(settings)
     task = settings.get("task", DEFAULT_TASK)
     resolve_task(task)
-    base = configuration.load(quick=settings.get("quick", False))
-    for key in flatten(fixed):
-        check_known(base, key)
-    base = configuration.merge(base, fixed)
+    base = configuration.merge(configuration.load(quick=settings.get("quick", False)), fixed)
     configuration.validate(base)
     if "trials" in settings:
         base["experiment"]["trials"] = settings["trials"]
@@ -240,10 +204,9 @@ def failed(error: BaseException, trace: str = "") -> dict:
     return {"status": "failed", "error": f"{type(error).__name__}: {message}", "traceback": trace}
 
 
-def worker_check(module: str) -> str:
-    """Runs on each worker before the sweep: can it import the task's module?"""
+def worker_check(module: str) -> None:
+    """Runs on each worker before the sweep: can it import the task's module? (ImportError if not)"""
     importlib.import_module(module)
-    return socket.gethostname()
 
 
 def execute(sweep: Sweep, task, client, out: Path, done: set[str], on_record=None) -> list[dict]:

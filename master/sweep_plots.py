@@ -13,8 +13,9 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
+from master.figures import save  # noqa: E402
+
 OUTCOMES = {"drift_cm": "final drift (cm)", "force_n": "final force (N)", "gamma_final": "final gamma"}
-METADATA = {"Software": None}  # no version string in the file: same data, same bytes
 MAX_LEGEND = 12
 
 
@@ -43,10 +44,10 @@ def plot_key(key: str, keys: list[str], summary: list[dict], path: Path) -> None
     for axis, outcome in zip(axes[0], outcomes):
         for (decoder, condition, stimulation, others), rows in groups.items():
             rows = [r for r in rows if r.get(f"{outcome}_mean") is not None]
-            rows.sort(key=lambda r: position[json.dumps(r["parameters"].get(key))])
             if not rows:
                 continue
-            name = " ".join([decoder, condition, stimulation, *(o for o in others)])
+            rows.sort(key=lambda r: position[json.dumps(r["parameters"].get(key))])
+            name = " ".join([decoder, condition, stimulation, *others])
             axis.errorbar([position[json.dumps(r["parameters"].get(key))] for r in rows],
                           [r[f"{outcome}_mean"] for r in rows], yerr=[r[f"{outcome}_sd"] for r in rows],
                           marker="o", markersize=3, capsize=2, linewidth=1, label=name)
@@ -58,18 +59,11 @@ def plot_key(key: str, keys: list[str], summary: list[dict], path: Path) -> None
     if len(groups) <= MAX_LEGEND:
         axes[0][0].legend(fontsize=6)
     figure.suptitle(f"outcome against {key} (mean +/- sd over trials)", fontsize=9)
-    figure.tight_layout()
-    figure.savefig(path, dpi=110, metadata=METADATA)
-    plt.close(figure)
+    save(figure, path)
 
 
-def plot_sweep(keys: list[str], summary: list[dict], folder: Path) -> list[Path]:
-    """Write ``folder/KEY.png`` for each swept key; returns the paths written."""
+def plot_sweep(keys: list[str], summary: list[dict], folder: Path) -> None:
+    """Write ``folder/KEY.png`` for each swept key that has an outcome to show."""
     folder.mkdir(exist_ok=True)
-    written = []
     for key in keys:
-        path = folder / f"{key}.png"
-        plot_key(key, keys, summary, path)
-        if path.exists():
-            written.append(path)
-    return written
+        plot_key(key, keys, summary, folder / f"{key}.png")

@@ -147,9 +147,8 @@ def composite(arm: np.ndarray, alpha, out: np.ndarray | None = None) -> np.ndarr
 
     Written into ``out`` (res, res) when given, else into a new image; ``arm`` is left as it is.
     """
-    image = arm.copy() if out is None else out
-    if out is not None:
-        image[...] = arm
+    image = np.empty_like(arm) if out is None else out
+    image[...] = arm
     if alpha is not None:
         rows, columns, patch = alpha
         image[rows, columns] = arm[rows, columns] * (1 - patch) + np.float32(BALL_LEVEL) * patch
