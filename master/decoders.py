@@ -7,6 +7,7 @@ settings, so a changed setting trains a new one and an unchanged one is reused.
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -18,7 +19,7 @@ import numpy as np
 from components.body import kinematics
 from components.component import ComponentError
 from components.vision import training
-from components.vision.component import Decoder, jacobian_images
+from components.vision.component import Decoder, GenerativeModel, jacobian_images
 from master.errors import ConfigError
 from master.train_command import load_decoder, train_decoder
 
@@ -32,9 +33,7 @@ def train_settings(config: dict) -> training.TrainSettings:
     try:
         return training.TrainSettings(**{**config.get("train", {}),
                                          "resolution": config["experiment"]["resolution"]})
-    except TypeError as error:  # an unknown key
-        raise ConfigError(f"[train]: {error}") from None
-    except ComponentError as error:
+    except (TypeError, ComponentError) as error:  # TypeError: an unknown key
         raise ConfigError(f"[train]: {error}") from None
 
 
@@ -67,9 +66,20 @@ def ensure_checkpoints(config: dict, progress: bool = True) -> tuple[dict[str, s
     return paths, seconds
 
 
+def loaded(path: str, resolution: int) -> GenerativeModel:
+    """:func:`load_decoder`, once per file version in this process (each load also renders the camera
+    signature); the components never change the model, and the optimised copy is a deep copy."""
+    return _loaded(path, os.stat(path).st_mtime_ns, resolution)
+
+
+@functools.lru_cache(maxsize=4)
+def _loaded(path: str, version: int, resolution: int) -> GenerativeModel:
+    return load_decoder(path, resolution)
+
+
 def decoder_component(kind: str, path: str, config: dict) -> Decoder:
     """The exact decoder, or the linearised one of the fast mode when ``decoder.fast`` is true."""
-    model = load_decoder(path, config["experiment"]["resolution"])
+    model = loaded(path, config["experiment"]["resolution"])
     if config["decoder"]["fast"]:
         from components.vision.fast import LinearisedDecoder
         return LinearisedDecoder(model, name="decoder", relinearise_tolerance=config["decoder"]["relinearise_tolerance"])
@@ -78,5 +88,5 @@ def decoder_component(kind: str, path: str, config: dict) -> Decoder:
 
 def jacobian_pair(kind: str, path: str, config: dict) -> np.ndarray:
     """dg/d(shoulder) and dg/d(elbow) at the rest pose: (2, R, R), 1/deg."""
-    model = load_decoder(path, config["experiment"]["resolution"])
+    model = loaded(path, config["experiment"]["resolution"])
     return jacobian_images(model, np.array([kinematics.REST_POSE]))[0]

@@ -86,7 +86,6 @@ class LinearisedDecoder(Decoder):
         return len(self.call_sizes)
 
     def initialize(self):
-        torch.set_num_threads(self.threads)
         pixels = self.model.resolution ** 2
         capacity = max(2 * self.batch_size, int(self.memory_mb * 2**20) // (12 * pixels))
         self._store = torch.empty(capacity, 3, pixels)  # per point: g0, then J0's columns (shoulder, elbow)
@@ -98,7 +97,7 @@ class LinearisedDecoder(Decoder):
         self._steps = 0
         self.relinearisations = np.zeros(self.batch_size, dtype=np.int64)
         self.call_sizes = []
-        self._update()
+        super().initialize()
 
     def stale(self, mu: np.ndarray) -> np.ndarray:
         """Trials (B,) bool that have no point yet or whose belief moved more than the tolerance from it."""
@@ -110,16 +109,19 @@ class LinearisedDecoder(Decoder):
         mu, else its mu itself; the new points are evaluated in one decoder call."""
         tolerance = self.values["relinearise_tolerance"]
         stored = np.flatnonzero(~np.isnan(self._points[:, 0]))
-        candidates, owners = list(self._points[stored]), list(stored)  # owner -1 - k: the k-th new point
+        candidates = np.empty((len(stored) + len(trials), 2))  # the stored points, then this call's new ones
+        candidates[:len(stored)] = self._points[stored]
+        owners = list(stored)  # slot of each candidate; -1 - k for the k-th new point
         new = []
         for trial in trials:
-            distance = np.abs(np.array(candidates) - mu[trial]).max(axis=1) if candidates else np.array([np.inf])
+            count = len(owners)
+            distance = np.abs(candidates[:count] - mu[trial]).max(axis=1) if count else np.array([np.inf])
             nearest = int(distance.argmin())
             if distance[nearest] <= tolerance[trial]:
                 self._slots[trial] = owners[nearest]
             else:
                 self._slots[trial] = -1 - len(new)
-                candidates.append(mu[trial])
+                candidates[count] = mu[trial]
                 owners.append(-1 - len(new))
                 new.append(mu[trial])
         if new:
