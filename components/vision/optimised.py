@@ -5,7 +5,7 @@ function to float rounding (tested against torch.func.jvp). Each speed-up below 
 on the 2-core AMD EPYC of the README's performance section:
 
 - forward-mode JVPs written out layer by layer, the primal and both tangents as one batch
-  (half the FLOPs of two torch.func.jvp calls);
+  (half the FLOPs of two JVPs through PyTorch's own rules);
 - channels-last layout (oneDNN kernels for ConvTranspose2d);
 - a one-channel last ConvTranspose2d as a sub-pixel convolution (:class:`SubPixelTransposedConv`);
 - dense layers with few rows as W x^T, and trials in chunks whose largest feature map fits the
@@ -23,7 +23,6 @@ import copy
 import torch
 import torch.nn.functional as F
 from torch import nn
-from torch.autograd import forward_ad
 
 from components.vision.component import GenerativeModel
 from components.vision.networks import ConvDecoder, normalise
@@ -31,27 +30,8 @@ from components.vision.networks import ConvDecoder, normalise
 ACTIVATION_BUDGET = 24 * 2**20  # bytes of the largest feature map of one decoder pass: about this CPU's L3 (32 MB)
 
 
-class DualNumberModel(GenerativeModel):
-    """g(mu) whose Jacobian comes from forward-mode AD with dual tensors (torch.autograd.forward_ad).
-
-    The same JVPs as :meth:`GenerativeModel.predict_with_jacobian` (torch.func.jvp), bitwise
-    equal results, but several times faster on CPU (measured 3.7 s -> 0.8 s for 60 trials at
-    64x64): torch.func's transform machinery is skipped.
-    """
-
-    def predict_with_jacobian(self, mu_deg: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        columns = []
-        with forward_ad.dual_level():
-            for joint in range(2):
-                tangent = torch.zeros_like(mu_deg)
-                tangent[:, joint] = 1.0
-                prediction, column = forward_ad.unpack_dual(self(forward_ad.make_dual(mu_deg, tangent)))
-                columns.append(column)
-        return prediction, torch.stack(columns, dim=1)
-
-
-class TangentModel(DualNumberModel):
-    """g(mu) and J by forward-mode AD written out layer by layer, for a ConvDecoder (others: dual numbers).
+class TangentModel(GenerativeModel):
+    """g(mu) and J by forward-mode AD written out layer by layer, for a ConvDecoder (others: as GenerativeModel).
 
     The primal and the tangents of both joints ride as one batch of 3B (rows: primal, then
     d/d shoulder, then d/d elbow) through each Linear, Conv2d and ConvTranspose2d, run once
