@@ -77,8 +77,8 @@ class GenerativeModel:
         One JVP per joint with the same unit tangent for every trial: trials are
         independent (no batch coupling in the decoder), so each gives one Jacobian
         column for the whole batch, and the first also gives the prediction. Dual tensors
-        (torch.autograd.forward_ad) give torch.func.jvp's results bitwise, several times
-        faster on CPU (measured 3.7 s -> 0.8 s for 60 trials at 64x64): no transform machinery.
+        (torch.autograd.forward_ad) give torch.func.jvp's results bitwise and skip its transform
+        machinery (measured: 134 -> 125 ms for 60 trials at 64x64, the same at 256x256).
         """
         columns = []
         with forward_ad.dual_level():
