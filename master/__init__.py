@@ -1,12 +1,13 @@
-"""The master: wires components into a system and runs it at a fixed step.
+"""The master: a co-simulation engine (``master.cosim``) and what is built on it.
 
 The one obvious call::
 
     from master import System, simulate
     result = simulate(System([a, b], [("a.y", "b.u")]), stop_time=30.0, step_size=0.02)
+
+Sub-packages, imports going one way (README, Layout): ``commands`` -> ``sweeps``, ``bench`` ->
+``experiment``, ``export`` -> ``outputs`` -> ``cosim`` -> ``components``.
 """
-from master.algorithm import Result, simulate
-from master.errors import ConfigError, SimulationError
-from master.system import Connection, System
+from master.cosim import ConfigError, Connection, Result, SimulationError, System, simulate
 
 __all__ = ["System", "Connection", "simulate", "Result", "ConfigError", "SimulationError"]

@@ -14,9 +14,9 @@ import torch
 from components.body import kinematics
 from components.vision.component import Decoder, GenerativeModel
 from components.vision.networks import build
-from master import config as configuration
+from master.experiment import config as configuration
 from master import experiment
-from master.training_data import HALF_RANGES
+from master.experiment.training_data import HALF_RANGES
 
 STEPS = 60
 

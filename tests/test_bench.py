@@ -11,10 +11,12 @@ import math
 import numpy as np
 import pytest
 
-from master import bench
-from master.cli import build_parser
-from master.errors import ConfigError
-from master.baseline import PaperStyleAgent
+from master.bench import suite as bench
+from master.bench.report import table
+from master.commands.bench import run_bench
+from master.commands.cli import build_parser
+from master.cosim import ConfigError
+from master.bench.baseline import PaperStyleAgent
 from tests.test_batching import STEPS, reference_runs, tiny_config, tiny_model
 
 MODES = ("baseline", "exact_single", "exact_batched", "exact_batched_optimised", "fast")
@@ -90,7 +92,7 @@ def test_error_overhead_memory_and_targets(report):
 
 
 def test_table_names_every_mode_and_target(report):
-    text = bench.table(report)
+    text = table(report)
     for word in (*MODES, *report["targets"], "GFLOP/s", "fmpy.simulate_fmu", "peak memory"):
         assert word in text
 
@@ -100,9 +102,9 @@ def test_command_arguments_and_their_errors(tmp_path):
     args = parser.parse_args(["bench", "--json", "--quick", "--threads", "1", "--checkpoint", "conv.pt"])
     assert (args.json, args.quick, args.threads, args.checkpoint) == (True, True, 1, "conv.pt")
     with pytest.raises(ConfigError, match="--threads -2"):
-        bench.run_bench(parser.parse_args(["bench", "--threads", "-2"]))
+        run_bench(parser.parse_args(["bench", "--threads", "-2"]))
     with pytest.raises(ConfigError, match="--checkpoint .*missing.pt does not exist"):
-        bench.run_bench(parser.parse_args(["bench", "--checkpoint", str(tmp_path / "missing.pt")]))
+        run_bench(parser.parse_args(["bench", "--checkpoint", str(tmp_path / "missing.pt")]))
 
 
 def test_baseline_agent_computes_the_exact_integrators_numbers():

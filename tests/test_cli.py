@@ -6,7 +6,7 @@ COMMANDS = ("train", "experiment", "export-body", "sweep", "bench")
 
 
 def rhi(*args):
-    return subprocess.run([sys.executable, "-m", "master.cli", *args], capture_output=True, text=True)
+    return subprocess.run([sys.executable, "-m", "master", *args], capture_output=True, text=True)
 
 
 def test_help_lists_every_command():

@@ -1,8 +1,8 @@
 """Configuration: shipped defaults, user TOML, overrides; bad keys and values named."""
 import pytest
 
-from master import config
-from master.errors import ConfigError
+from master.experiment import config
+from master.cosim import ConfigError
 
 
 def test_defaults_are_the_paper_protocol():

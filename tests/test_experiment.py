@@ -7,12 +7,12 @@ import sys
 
 import pytest
 
-from master.outputs import SUMMARY_COLUMNS
+from master.outputs.tables import SUMMARY_COLUMNS
 
 
 def rhi(*args, cache):
     environment = {**os.environ, "RHI_CACHE": str(cache)}
-    return subprocess.run([sys.executable, "-m", "master.cli", *args], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "master", *args], capture_output=True, text=True,
                           env=environment, timeout=600)
 
 
@@ -103,7 +103,7 @@ def test_unwritable_parent_is_refused_without_traces(tmp_path, cache):
 
 def test_body_fmu_reproduces_the_native_summary(quick_run, cache, tmp_path):
     """The exported pymunk body, swapped in as an FMU, gives the native run's summary."""
-    from master.export_command import build_fmu
+    from master.export.body import build_fmu
 
     fmu = build_fmu(tmp_path / "Body.fmu", "native")
     result = rhi("experiment", "--quick", "--body", str(fmu), "--out", str(tmp_path / "fmu"), cache=cache)

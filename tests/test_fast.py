@@ -13,8 +13,8 @@ from components.vision.fast import LinearisedDecoder
 from components.vision.optimised import SubPixelTransposedConv, TangentModel, optimised
 from components.vision.networks import normalise
 from master import experiment
-from master.bench import counted_flops
-from master.training_data import HALF_RANGES
+from master.bench.suite import counted_flops
+from master.experiment.training_data import HALF_RANGES
 from tests.test_batching import STEPS, reference_runs, three_trials, tiny_config, tiny_model
 
 COMPARED = ("brain.mu", "brain.u_shoulder", "brain.u_elbow", "body.force_x", "decoder.visual_error")

@@ -21,7 +21,8 @@ from components.body.plant import ArmPlant
 from components.component import ComponentError
 from components.fmu_adapter import BODY_CONTRACT, FMUComponent, check_contract, extracted, guard_library
 from master import ConfigError, SimulationError, System, simulate
-from master.export_command import build_fmu, run_export
+from master.commands.export_body import run_export
+from master.export.body import build_fmu
 from tests.toys import Constant
 
 OUTPUTS = ("q_shoulder", "q_elbow", "hand_x", "hand_y", "force_x", "force_y")

@@ -7,8 +7,8 @@ from scipy.linalg import expm
 
 from components.component import Status
 from master import ConfigError, SimulationError, System, simulate
-from master.algorithm import step_count
-from master.results import save
+from master.cosim.loop import step_count
+from master.outputs.files import save
 from tests.toys import Constant, FailsAt, FirstOrder, Gain, Image, ImageSink
 
 

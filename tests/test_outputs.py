@@ -2,10 +2,10 @@
 import numpy as np
 import pytest
 
-from master import outputs
-from master.errors import ConfigError
+from master.outputs import files, tables as outputs
+from master.cosim import ConfigError
 from master.experiment import Trial, plan, trial_seed
-from master.config import load
+from master.experiment.config import load
 
 
 def test_plan_covers_the_protocol_with_stable_seeds():
@@ -42,26 +42,26 @@ def test_staging_refuses_foreign_content_and_publishes_whole(tmp_path):
     out.mkdir()
     (out / "notes.txt").write_text("mine")
     with pytest.raises(ConfigError, match=r"exists and is not empty \(use --force"):
-        outputs.staging_folder(out, force=False)
-    staging = outputs.staging_folder(out, force=True)
+        files.staging_folder(out, force=False)
+    staging = files.staging_folder(out, force=True)
     (staging / "summary.csv").write_text("x\n")
     assert (out / "notes.txt").exists()  # untouched until the run is complete
-    outputs.publish(staging, out)
+    files.publish(staging, out)
     assert [p.name for p in out.iterdir()] == ["summary.csv"]
     assert [p.name for p in tmp_path.iterdir()] == ["run"]
 
 
 def test_staging_needs_an_existing_parent(tmp_path):
     with pytest.raises(ConfigError, match="does not exist"):
-        outputs.staging_folder(tmp_path / "no" / "such", force=False)
+        files.staging_folder(tmp_path / "no" / "such", force=False)
     (tmp_path / "file").write_text("")
     with pytest.raises(ConfigError, match="is not a folder"):
-        outputs.staging_folder(tmp_path / "file", force=False)
+        files.staging_folder(tmp_path / "file", force=False)
 
 
 def test_a_failing_trial_is_dropped_and_the_rest_rerun():
     """The batch is rerun without the trials a component blames; a failure blaming none stops the run."""
-    from master.errors import SimulationError
+    from master.cosim import SimulationError
     from master.experiment import without_failures
 
     trials = plan(load())[:6]

@@ -15,11 +15,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from master import sweep as sweeps
-from master.errors import ConfigError
+from master.sweeps import plan as sweeps
+from master.cosim import ConfigError
+from master.experiment import config as configuration
 from master.experiment import trial_seed
-from master.cli import main
-from master.sweep_command import run_sweep
+from master.commands.cli import main
+from master.commands.sweep import run_sweep
 from tests.sweep_tasks import fake_outcome
 
 REPO = Path(__file__).resolve().parents[1]
@@ -55,7 +56,7 @@ def expected(sweep):
 
 
 def command(*arguments):
-    return [sys.executable, "-m", "master.cli", "sweep", *map(str, arguments)]
+    return [sys.executable, "-m", "master", "sweep", *map(str, arguments)]
 
 
 @pytest.fixture(scope="module")
@@ -262,12 +263,12 @@ def single_core(function, *arguments):
 
 def test_tiny_real_sweep_matches_the_trial_run_here(dask_cluster, tmp_path, monkeypatch):
     """master.experiment.trial_outcome through the cluster: the same numbers as one call in this process."""
-    from master.decoders import ensure_checkpoints
+    from master.experiment.decoders import ensure_checkpoints
     from master.experiment import trial_outcome
 
     monkeypatch.setenv("RHI_CACHE", str(tmp_path / "cache"))
     (tmp_path / "base.toml").write_text('[experiment]\ndecoders = ["conv"]\n[train]\nsamples = 200\nepochs = 2\n')
-    paths, _ = ensure_checkpoints(sweeps.configuration.load(tmp_path / "base.toml", quick=True), progress=False)
+    paths, _ = ensure_checkpoints(configuration.load(tmp_path / "base.toml", quick=True), progress=False)
     checkpoint = paths["conv"]  # named in the sweep file: the workers do not share this process's cache
     # 22 steps of 0.1 s hold the first touch (t = 2 s); fixed delays: sync 0.05 s, async 0.9 s
     path = tmp_path / "s.toml"

@@ -12,9 +12,12 @@ from components.vision import checkpoint
 from components.vision.component import GenerativeModel
 from components.vision.training import TrainSettings, kl_to_prior, train
 import torch  # after components.vision, which configures torch's threads
-from master import training_data
-from master.errors import ConfigError
-from master.train_command import fit_camera, fit_decoder, load_decoder, read_settings, run_train
+from master.experiment import training_data
+from master.cosim import ConfigError
+from master.commands.train import run_train
+from master.experiment import config as configuration
+from master.experiment.quality import fit_camera, fit_decoder
+from master.experiment.training import load_decoder, train_settings
 
 REST, HALF = np.asarray(kinematics.REST_POSE), np.asarray(training_data.HALF_RANGES)
 TINY = dict(preset="tiny", resolution=16, batch_size=16, lr=1e-2, quality_poses=0, threads=1)
@@ -131,22 +134,26 @@ def write(path, text):
     return str(path)
 
 
+def read_settings(path):
+    return train_settings(configuration.load(path))
+
+
 def test_settings_come_from_the_train_table_and_unknown_keys_are_named(tmp_path):
     assert read_settings(None) == TrainSettings()
     settings = read_settings(write(tmp_path / "a.toml", "[train]\nepochs = 7\nlr = 1\n[experiment]\ntrials = 2\n"))
     assert settings.epochs == 7 and settings.lr == 1 and settings.batch_size == TrainSettings().batch_size
-    with pytest.raises(ConfigError, match=r"unknown key train\.epoch \(did you mean train\.epochs\?\)"):
+    with pytest.raises(ConfigError, match=r"unknown config key train\.epoch \(did you mean train\.epochs\?\)"):
         read_settings(write(tmp_path / "b.toml", "[train]\nepoch = 7\n"))
     with pytest.raises(ConfigError, match="batch_size = 0 must be a positive integer"):
         read_settings(write(tmp_path / "c.toml", "[train]\nbatch_size = 0\n"))
     with pytest.raises(ConfigError, match="lr = 'fast'"):
         read_settings(write(tmp_path / "d.toml", "[train]\nlr = 'fast'\n"))
     with pytest.raises(ConfigError, match="resolution = 24 does not fit"):
-        read_settings(write(tmp_path / "e.toml", "[train]\nresolution = 24\n"))
+        read_settings(write(tmp_path / "e.toml", "[experiment]\nresolution = 24\n"))
 
 
 def test_rhi_train_writes_a_checkpoint_that_loads_and_checks_the_camera(tmp_path, capsys, monkeypatch):
-    config = write(tmp_path / "t.toml", "[train]\nsamples = 120\nepochs = 2\npreset = 'tiny'\nresolution = 16\n"
+    config = write(tmp_path / "t.toml", "[experiment]\nresolution = 16\n[train]\nsamples = 120\nepochs = 2\npreset = 'tiny'\n"
                                         "batch_size = 16\nquality_poses = 3\nthreads = 1\n")
     out = tmp_path / "conv.pt"
     assert run_train(argparse.Namespace(decoder="conv", config=config, out=str(out))) == 0

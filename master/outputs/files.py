@@ -10,6 +10,7 @@ import io
 import json
 import os
 import platform
+import shutil
 import sys
 import tempfile
 from importlib import metadata
@@ -17,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from master.errors import ConfigError
+from master.cosim import ConfigError
 
 PACKAGES = ("numpy", "scipy", "torch", "pymunk", "pillow", "fmpy", "pythonfmu", "matplotlib", "dask", "rhi")
 UMASK = os.umask(0o022)
@@ -92,3 +93,29 @@ def save(result, directory: str | os.PathLike, configuration: dict, seeds: dict 
     atomic_write(csv_path, table)
     atomic_write(json_path, json.dumps(provenance, indent=2, sort_keys=True, default=str) + "\n")
     return csv_path, json_path
+
+
+def staging_folder(out: str | os.PathLike, force: bool) -> Path:
+    """Check DIR can be written and return an empty staging folder beside it."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"output {out} exists and is not a folder")
+    if out.is_dir() and any(out.iterdir()) and not force:
+        raise ConfigError(f"output folder {out} exists and is not empty (use --force to replace it)")
+    parent = out.absolute().parent
+    if not parent.is_dir():
+        raise ConfigError(f"cannot write {out}: folder {parent} does not exist")
+    try:
+        staging = Path(tempfile.mkdtemp(dir=parent, prefix=f".{out.name}.", suffix=".partial"))
+    except OSError as error:
+        raise ConfigError(f"cannot write into {parent}: {error.strerror}") from None
+    staging.chmod(0o777 & ~UMASK)  # mkdtemp makes it private; the published folder is an ordinary one
+    return staging
+
+
+def publish(staging: Path, out: str | os.PathLike) -> None:
+    """Replace DIR by the finished staging folder."""
+    out = Path(out)
+    if out.exists():
+        shutil.rmtree(out)
+    os.replace(staging, out)

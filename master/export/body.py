@@ -12,21 +12,19 @@ Example::
 from __future__ import annotations
 
 import hashlib
-import os
 import shutil
 import sys
 import tempfile
-import time
 from pathlib import Path
 
-from master.errors import ConfigError
+from master.cosim import ConfigError
 
 # variant -> (model name, which is also the FMI model identifier; component class as module:Class)
 VARIANTS = {
     "native": ("ArmBody", "components.body.plant:ArmPlant"),
     "kinematic": ("KinematicArmBody", "components.body.variants:KinematicArm"),
 }
-PACKAGE = Path(__file__).resolve().parent.parent / "components"
+PACKAGE = Path(__file__).resolve().parents[2] / "components"
 
 
 def build_fmu(out, variant: str = "native", component: str | None = None, model_name: str | None = None,
@@ -68,12 +66,3 @@ def build_fmu(out, variant: str = "native", component: str | None = None, model_
         finally:
             sys.path[:] = saved_path
     return Path(built)
-
-
-def run_export(args) -> int:
-    """The ``rhi export-body`` command: args.variant (None: native), args.out."""
-    started = time.perf_counter()
-    path = build_fmu(args.out, args.variant or "native")
-    print(f"wrote {path} ({os.path.getsize(path) / 1024:.0f} KiB, variant {args.variant or 'native'}) "
-          f"in {time.perf_counter() - started:.2f} s")
-    return 0

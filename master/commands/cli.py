@@ -6,8 +6,8 @@ import argparse
 import sys
 
 from components.component import ComponentError
-from master import experiment_command
-from master.errors import ConfigError, SimulationError
+from master.commands import experiment as experiment_command
+from master.cosim import ConfigError, SimulationError
 
 USER_ERRORS = (ConfigError, ComponentError)
 
@@ -22,7 +22,7 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--decoder", choices=("conv", "vae"), required=True)
     train.add_argument("--config", metavar="FILE")
     train.add_argument("--out", metavar="CKPT", required=True)
-    train.set_defaults(run=lambda args: __import__("master.train_command").train_command.run_train(args))
+    train.set_defaults(run=lambda args: __import__("master.commands.train", fromlist=["_"]).run_train(args))
 
     experiment = commands.add_parser("experiment", help="run the paper's rubber-hand protocol")
     experiment_command.add_arguments(experiment)
@@ -31,7 +31,7 @@ def build_parser() -> argparse.ArgumentParser:
     export = commands.add_parser("export-body", help="export the body plant as an FMI 2.0 FMU")
     export.add_argument("--variant", metavar="NAME", help="native (default: the pymunk plant) or kinematic")
     export.add_argument("--out", metavar="FILE.fmu", required=True)
-    export.set_defaults(run=lambda args: __import__("master.export_command").export_command.run_export(args))
+    export.set_defaults(run=lambda args: __import__("master.commands.export_body", fromlist=["_"]).run_export(args))
 
     sweep = commands.add_parser("sweep", help="run a parameter sweep, locally or on a Dask cluster")
     sweep.add_argument("--config", metavar="FILE", required=True, help="the sweep file (TOML, see README)")
@@ -39,7 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
                        help="a Dask scheduler, tcp://HOST:PORT (default: a process pool on this machine)")
     sweep.add_argument("--out", metavar="DIR", required=True)
     sweep.add_argument("--force", action="store_true", help="replace a different sweep in DIR")
-    sweep.set_defaults(run=lambda args: __import__("master.sweep_command").sweep_command.run_sweep(args))
+    sweep.set_defaults(run=lambda args: __import__("master.commands.sweep", fromlist=["_"]).run_sweep(args))
 
     bench = commands.add_parser("bench", help="measure speed")
     bench.add_argument("--json", action="store_true", help="print the results as JSON (for machines)")
@@ -48,7 +48,7 @@ def build_parser() -> argparse.ArgumentParser:
                        help="torch threads (default: all cores; 1 on a machine busy with other work)")
     bench.add_argument("--checkpoint", metavar="CKPT", default="",
                        help="trained conv decoder for the fast mode's drift error (default: the cached default)")
-    bench.set_defaults(run=lambda args: __import__("master.bench").bench.run_bench(args))
+    bench.set_defaults(run=lambda args: __import__("master.commands.bench", fromlist=["_"]).run_bench(args))
     return parser
 
 

@@ -8,8 +8,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from components.component import Status
-from master.errors import ConfigError, SimulationError
-from master.system import System, split
+from master.cosim.errors import ConfigError, SimulationError
+from master.cosim.system import System, split
 
 
 def step_count(start_time: float, stop_time: float, step_size: float) -> int:

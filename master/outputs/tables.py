@@ -7,45 +7,12 @@ from __future__ import annotations
 
 import csv
 import io
-import os
-import shutil
-import tempfile
-from pathlib import Path
-
 import numpy as np
 
-from master.errors import ConfigError
-from master.results import UMASK
 
 SUMMARY_COLUMNS = ["decoder", "condition", "stimulation", "n_trials", "drift_cm_mean", "drift_cm_sd",
                    "force_n_mean", "force_n_sd", "gamma_final_mean"]
 TRIAL_KEYS = ["decoder", "condition", "stimulation", "trial", "seed"]
-
-
-def staging_folder(out: str | os.PathLike, force: bool) -> Path:
-    """Check DIR can be written and return an empty staging folder beside it."""
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise ConfigError(f"output {out} exists and is not a folder")
-    if out.is_dir() and any(out.iterdir()) and not force:
-        raise ConfigError(f"output folder {out} exists and is not empty (use --force to replace it)")
-    parent = out.absolute().parent
-    if not parent.is_dir():
-        raise ConfigError(f"cannot write {out}: folder {parent} does not exist")
-    try:
-        staging = Path(tempfile.mkdtemp(dir=parent, prefix=f".{out.name}.", suffix=".partial"))
-    except OSError as error:
-        raise ConfigError(f"cannot write into {parent}: {error.strerror}") from None
-    staging.chmod(0o777 & ~UMASK)  # mkdtemp makes it private; the published folder is an ordinary one
-    return staging
-
-
-def publish(staging: Path, out: str | os.PathLike) -> None:
-    """Replace DIR by the finished staging folder."""
-    out = Path(out)
-    if out.exists():
-        shutil.rmtree(out)
-    os.replace(staging, out)
 
 
 def csv_text(header: list[str], rows) -> str:

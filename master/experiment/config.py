@@ -12,7 +12,7 @@ import tomllib
 from importlib import resources
 from pathlib import Path
 
-from master.errors import ConfigError
+from master.cosim import ConfigError
 
 OPEN_TABLES = ("conditions", "stimulations")  # users may add entries here (a new condition, say)
 

@@ -28,17 +28,12 @@ import hashlib
 import importlib
 import itertools
 import json
-import socket
-import time
-import traceback
-import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
-from master import config as configuration
-from master.errors import ConfigError
+from master.experiment import config as configuration
+from master.cosim import ConfigError
 from master import experiment
-from master.results import atomic_write
 
 DEFAULT_TASK = "master.experiment:trial_outcome"
 SWEEP_KEYS = ("trials", "quick", "task", "workers", "grid", "points")
@@ -180,61 +175,3 @@ def load(path: str | Path) -> Sweep:
     keys = list(dict.fromkeys(key for point in points for key in point))
     fingerprint = canonical_hash({"task": task, "configs": configs, "points": points})
     return Sweep(task, points, keys, configs, settings.get("workers"), trials, fingerprint)
-
-
-def run_trial(task, config: dict, trial: TrialSpec) -> dict:
-    """Runs on a worker. Never raises: a failure is a record with its error, so the rest continue."""
-    began = time.perf_counter()
-    try:
-        outcome = task(config, trial.decoder, trial.condition, trial.stimulation, trial.index)
-        record = {"status": "ok", "outcome": {key: plain(value) for key, value in outcome.items()}}
-    except Exception as error:  # noqa: BLE001: any failure of a trial is data, not a crash
-        record = failed(error, traceback.format_exc())
-    record.update(elapsed_s=round(time.perf_counter() - began, 6), host=socket.gethostname())
-    return record
-
-
-def plain(value):
-    """numpy scalars and arrays -> Python numbers and lists, so the record is plain JSON."""
-    return value.tolist() if hasattr(value, "tolist") else value
-
-
-def failed(error: BaseException, trace: str = "") -> dict:
-    message = " ".join(str(error).split()) or "(no message)"
-    return {"status": "failed", "error": f"{type(error).__name__}: {message}", "traceback": trace}
-
-
-def worker_check(module: str) -> None:
-    """Runs on each worker before the sweep: can it import the task's module? (ImportError if not)"""
-    importlib.import_module(module)
-
-
-def execute(sweep: Sweep, task, client, out: Path, done: set[str], on_record=None) -> list[dict]:
-    """Submit every trial not in ``done``; write each record to ``out/trials/ID.json`` as it arrives.
-
-    ``on_record(record)`` is called after each write (progress, index). Returns the new records.
-    """
-    from dask.distributed import as_completed
-
-    pending, token = {}, uuid.uuid4().hex[:8]
-    for trial in sweep.trials:
-        if trial.id not in done:
-            future = client.submit(run_trial, task, sweep.configs[trial.point], trial, pure=False,
-                                   key=f"rhi-trial-{trial.id}-{token}")
-            pending[future] = trial
-    records = []
-    for future in as_completed(list(pending)):
-        trial = pending.pop(future)
-        try:
-            result = future.result()
-        except Exception as error:  # noqa: BLE001: a lost worker or an unpicklable task fails one trial
-            result = failed(error)
-        record = {"id": trial.id, "point": trial.point, "parameters": sweep.points[trial.point],
-                  "decoder": trial.decoder, "condition": trial.condition, "stimulation": trial.stimulation,
-                  "trial": trial.index, "seed": trial.seed, **result}
-        atomic_write(out / "trials" / f"{trial.id}.json", json.dumps(record, indent=1, sort_keys=True) + "\n")
-        records.append(record)
-        future.release()
-        if on_record is not None:
-            on_record(record)
-    return records

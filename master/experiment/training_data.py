@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from components.body import camera, kinematics
-from master.errors import ConfigError
+from master.cosim import ConfigError
 
 HALF_RANGES = (40.0, 50.0)  # deg: shoulder, elbow, about the rest pose (DESIGN.md)
 CHUNK = 256                 # poses rendered per call (bounds memory at 256 x 256)

@@ -4,7 +4,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from components.component import Component
-from master.errors import ConfigError
+from master.cosim.errors import ConfigError
 
 SCHEMES = ("jacobi", "gauss-seidel")
 

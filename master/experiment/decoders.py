@@ -17,24 +17,13 @@ from pathlib import Path
 import numpy as np
 
 from components.body import kinematics
-from components.component import ComponentError
-from components.vision import training
 from components.vision.component import Decoder, GenerativeModel, jacobian_images
-from master.errors import ConfigError
-from master.train_command import load_decoder, train_decoder
+from master.cosim import ConfigError
+from master.experiment.training import load_decoder, train_decoder, train_settings
 
 
 def cache_folder() -> Path:
     return Path(os.environ.get("RHI_CACHE") or Path.home() / ".cache" / "rhi")
-
-
-def train_settings(config: dict) -> training.TrainSettings:
-    """TrainSettings from ``[train]``, at the experiment's resolution."""
-    try:
-        return training.TrainSettings(**{**config.get("train", {}),
-                                         "resolution": config["experiment"]["resolution"]})
-    except (TypeError, ComponentError) as error:  # TypeError: an unknown key
-        raise ConfigError(f"[train]: {error}") from None
 
 
 def checkpoint_path(kind: str, config: dict, must_exist: bool = False) -> str:

@@ -1,0 +1,30 @@
+"""`rhi bench [--json] [--quick] [--threads N] [--checkpoint CKPT]`: arguments in, the report printed."""
+from __future__ import annotations
+
+import json
+import os
+import sys
+from dataclasses import replace
+
+from master.bench.report import table
+from master.bench.suite import QUICK, BenchSettings, run_suite
+from master.cosim import ConfigError
+
+
+def run_bench(args) -> int:
+    """The ``rhi bench`` command: args.json, and optionally args.quick, args.threads."""
+    settings = QUICK if getattr(args, "quick", False) else BenchSettings()
+    threads = getattr(args, "threads", 0) or 0
+    if threads < 0:
+        raise ConfigError(f"--threads {threads} must be a positive number of threads (0: all cores)")
+    checkpoint = getattr(args, "checkpoint", "") or ""
+    if checkpoint and not os.path.isfile(checkpoint):
+        raise ConfigError(f"--checkpoint {checkpoint} does not exist")
+    settings = replace(settings, threads=threads, error_checkpoint=checkpoint)
+    report = run_suite(settings)
+    if getattr(args, "json", False):
+        json.dump(report, sys.stdout, indent=1, default=float)
+        print()
+    else:
+        print(table(report))
+    return 0

@@ -1,0 +1,44 @@
+"""`rhi experiment`: the paper's protocol end to end, into DIR (DESIGN.md, Command line contract)."""
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+from master.experiment import config as configuration
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--config", metavar="FILE", help="TOML file overriding master/defaults.toml")
+    parser.add_argument("--body", metavar="FMU", help="an FMI 2.0 co-simulation FMU to use as the body")
+    parser.add_argument("--quick", action="store_true", help="a small version, for smoke tests")
+    parser.add_argument("--out", metavar="DIR", required=True)
+    parser.add_argument("--force", action="store_true", help="replace DIR if it holds other content")
+    parser.add_argument("--trials", type=int, help="trials per decoder x condition x stimulation")
+    parser.add_argument("--steps", type=int, help="steps per trial")
+    parser.add_argument("--seed", type=int, help="master seed")
+    parser.add_argument("--resolution", type=int, help="camera and decoder resolution (pixels)")
+    parser.add_argument("--conv-checkpoint", metavar="CKPT", help="a trained conv decoder")
+    parser.add_argument("--vae-checkpoint", metavar="CKPT", help="a trained VAE decoder")
+
+
+def overrides(args) -> dict:
+    pairs = {"experiment.trials": args.trials, "experiment.steps": args.steps, "experiment.seed": args.seed,
+             "experiment.resolution": args.resolution, "decoder.conv_checkpoint": args.conv_checkpoint,
+             "decoder.vae_checkpoint": args.vae_checkpoint}
+    return {key: value for key, value in pairs.items() if value is not None}
+
+
+def run_experiment(args) -> int:
+    from master.experiment.publish import run_into
+
+    started = time.perf_counter()
+    config = configuration.load(args.config, overrides(args), quick=args.quick)
+    failures = run_into(args.out, config, body=args.body, force=args.force, progress=True)
+    print(f"wrote {args.out}: summary.csv, trials.csv, run.json, figures/ "
+          f"({time.perf_counter() - started:.0f} s)")
+    print((Path(args.out) / "summary.csv").read_text(), end="")
+    for trial, error in failures.items():
+        print(f"rhi experiment: trial failed and left out: {trial.decoder}/{trial.condition}/{trial.stimulation} "
+              f"trial {trial.index}: {error}", file=sys.stderr)
+    return 1 if failures else 0

@@ -1,0 +1,16 @@
+"""`rhi export-body [--variant NAME] --out FILE.fmu`: arguments in, the written file printed."""
+from __future__ import annotations
+
+import os
+import time
+
+from master.export.body import build_fmu
+
+
+def run_export(args) -> int:
+    """The ``rhi export-body`` command: args.variant (None: native), args.out."""
+    started = time.perf_counter()
+    path = build_fmu(args.out, args.variant or "native")
+    print(f"wrote {path} ({os.path.getsize(path) / 1024:.0f} KiB, variant {args.variant or 'native'}) "
+          f"in {time.perf_counter() - started:.2f} s")
+    return 0

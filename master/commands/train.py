@@ -1,0 +1,22 @@
+"""`rhi train --decoder {conv,vae} [--config FILE] --out CKPT`: arguments in, a summary printed."""
+from __future__ import annotations
+
+from master.experiment import config as configuration
+from master.experiment.training import train_decoder, train_settings
+
+
+def run_train(args) -> int:
+    """The body of `rhi train`: args has .decoder, .config, .out."""
+    settings = train_settings(configuration.load(args.config))
+    metadata = train_decoder(args.decoder, args.out, settings)
+    errors = metadata.get("hand_error", {})
+    print(f"{args.decoder} decoder ({settings.preset}, {settings.resolution} px) saved to {args.out}: "
+          f"validation MSE {metadata['validation_mse']:.3g} after {metadata['epochs_run']} epochs "
+          f"(best {metadata['best_epoch']}), {metadata['seconds']:.0f} s training + "
+          f"{metadata['data_seconds']:.0f} s data")
+    if errors:
+        print(f"hand error on {errors['poses']} held-out poses: read off the prediction "
+              f"{errors['read_off']['mean_cm']:.2f} cm mean ({errors['read_off']['max_cm']:.2f} max), "
+              f"visual-only inference {errors['inference']['mean_cm']:.2f} cm mean "
+              f"({errors['inference']['max_cm']:.2f} max)")
+    return 0

@@ -1,0 +1,55 @@
+"""The protocol: which trials run, and the seed and parameters that make each one differ.
+
+Per-trial seeds are hashes of (master seed, condition, stimulation, index), so both decoders
+see the same delays and the same master seed gives the same bytes.
+"""
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+
+from components.body import kinematics
+
+@dataclass(frozen=True)
+class Trial:
+    """One trial of the protocol and everything that makes it differ from the others."""
+
+    decoder: str
+    condition: str
+    stimulation: str
+    index: int
+    seed: int
+    offset_x: float
+    delay_min: float
+    delay_max: float
+
+
+def trial_seed(master_seed: int, condition: str, stimulation: str, index: int) -> int:
+    """A stable 63-bit seed per trial. Independent of the decoder, so both decoders see the same delays."""
+    digest = hashlib.sha256(f"{master_seed}/{condition}/{stimulation}/{index}".encode()).digest()
+    return int.from_bytes(digest[:8], "little") >> 1
+
+
+def make_trial(config: dict, decoder: str, condition: str, stimulation: str, index: int) -> Trial:
+    """The trial of this cell and repetition under ``config``: its seed, rubber-hand offset and delay law."""
+    delays = config["stimulations"][stimulation]
+    return Trial(decoder, condition, stimulation, index,
+                 trial_seed(config["experiment"]["seed"], condition, stimulation, index),
+                 float(config["conditions"][condition]), float(delays["delay_min"]), float(delays["delay_max"]))
+
+
+def plan(config: dict) -> list[Trial]:
+    """Every trial of the protocol, in a fixed order: decoder, condition, stimulation, index."""
+    experiment = config["experiment"]
+    return [make_trial(config, decoder, condition, stimulation, index)
+            for decoder in experiment["decoders"]
+            for condition in experiment["conditions"]
+            for stimulation in experiment["stimulations"]
+            for index in range(experiment["trials"])]
+
+
+def rubber_pose(offset_x: float, offset_y: float = 0.0) -> tuple[float, float]:
+    """Joint angles (deg) of the rubber arm whose hand is offset from the real resting hand."""
+    shoulder, elbow = kinematics.inverse(kinematics.REST_HAND[0] + offset_x, kinematics.REST_HAND[1] + offset_y)
+    return float(shoulder), float(elbow)
+

@@ -1,0 +1,80 @@
+"""Training a decoder for the experiment, and loading one checked against today's camera.
+
+Settings are ``[train]`` of the configuration (:func:`master.experiment.decoders.train_settings`),
+so `rhi train` and `rhi experiment` start from the same defaults. The training data are rendered
+once per (samples, resolution, seed) and cached beside the checkpoint, so conv and vae trained
+into the same folder share them.
+
+Example::
+
+    metadata = train_decoder("conv", "results/conv.pt", settings)
+    model = load_decoder("results/conv.pt", resolution=64)
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from components.body import kinematics
+from components.component import ComponentError
+from components.vision import checkpoint, training
+from components.vision.component import GenerativeModel
+from master.cosim import ConfigError
+from master.experiment import training_data
+from master.experiment.quality import hand_error
+
+SIGNATURE_TOLERANCE = 1e-3  # relative; the signature moves by far more when the camera changes
+
+
+def train_settings(config: dict) -> training.TrainSettings:
+    """TrainSettings from ``[train]``, at the experiment's resolution."""
+    try:
+        return training.TrainSettings(**{**config.get("train", {}),
+                                         "resolution": config["experiment"]["resolution"]})
+    except (TypeError, ComponentError) as error:  # TypeError: an unknown key
+        raise ConfigError(f"[train]: {error}") from None
+
+
+def data_path(folder: Path, settings: training.TrainSettings) -> Path:
+    return folder / f"decoder-data-r{settings.resolution}-n{settings.samples}-s{settings.seed}.npz"
+
+
+def train_decoder(kind: str, out: str | Path, settings: training.TrainSettings | None = None,
+                  progress: bool = True) -> dict:
+    """Train a decoder of ``kind`` and save it to ``out``; returns the checkpoint metadata."""
+    settings = settings or training.TrainSettings()
+    out = Path(out)
+    if not out.parent.is_dir():
+        raise ConfigError(f"--out {out}: folder {out.parent} does not exist")
+    started = time.perf_counter()
+    data = training_data.cached(data_path(out.parent, settings), settings.samples, settings.resolution,
+                                settings.seed, progress)
+    data_seconds = time.perf_counter() - started
+    model, report = training.train(kind, data.poses, data.images, data.rest_pose, data.half_ranges, settings,
+                                   progress)
+    metadata = training.checkpoint_metadata(kind, settings, data.rest_pose, data.half_ranges,
+                                            data.content_hash, report)
+    metadata["data_seconds"] = data_seconds
+    metadata["camera_signature"] = training_data.camera_signature(settings.resolution)
+    if settings.quality_poses:
+        began = time.perf_counter()
+        metadata["hand_error"] = hand_error(GenerativeModel(model.decoder, data.rest_pose, data.half_ranges),
+                                            settings.quality_poses)
+        metadata["quality_seconds"] = time.perf_counter() - began
+    checkpoint.save(out, model, metadata)
+    return metadata
+
+
+def load_decoder(path: str | Path, resolution: int) -> GenerativeModel:
+    """A trained decoder checked against today's camera at ``resolution`` and the body's rest pose and
+    training ranges: CheckpointError (a ValueError naming the file) on any mismatch."""
+    model = GenerativeModel.from_checkpoint(path, resolution, kinematics.REST_POSE, training_data.HALF_RANGES)
+    stored = model.metadata.get("camera_signature")
+    if stored is not None:
+        now = training_data.camera_signature(resolution)
+        if len(stored) != len(now) or not np.allclose(stored, now, rtol=SIGNATURE_TOLERANCE, atol=1e-6):
+            raise checkpoint.CheckpointError(f"{path}: trained on images of another camera (its field of view "
+                                             "or drawing changed since); retrain the decoder")
+    return model

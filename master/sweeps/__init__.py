@@ -1,0 +1,1 @@
+"""Parameter sweeps over Dask: the plan, the runner, the output folder, its tables and plots."""

@@ -1,0 +1,124 @@
+"""Running a sweep's trials on a dask.distributed Client: a local process pool or a remote cluster.
+
+Each trial is one task; its record is written to ``out/trials/ID.json`` the moment it arrives, on
+the client's machine, so the workers need no shared folder. A failing trial is a record, not a crash.
+"""
+from __future__ import annotations
+
+import importlib
+import json
+import logging
+import os
+import socket
+import sys
+import time
+import traceback
+import uuid
+from contextlib import contextmanager
+from pathlib import Path
+
+from master.cosim import ConfigError
+from master.outputs.files import atomic_write
+from master.sweeps.plan import DEFAULT_TASK, Sweep, TrialSpec
+
+
+@contextmanager
+def dask_client(scheduler: str | None, workers: int | None, debug: bool):
+    """A Client on the given scheduler, or on a local pool of single-threaded worker processes."""
+    from dask.distributed import Client, LocalCluster
+
+    if scheduler:
+        try:
+            client = Client(scheduler, timeout="10s")
+        except (OSError, ValueError, TimeoutError) as error:
+            raise ConfigError(f"cannot reach the Dask scheduler at {scheduler}: {error}") from None
+        with client:
+            yield client
+        return
+    quiet = False if debug else logging.ERROR
+    # Only this machine: listen on loopback; the scheduler's small HTTP server on any free port.
+    with LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
+                      host="127.0.0.1", dashboard_address=None, silence_logs=quiet,
+                      scheduler_kwargs={"dashboard_address": "127.0.0.1:0"}) as cluster, Client(cluster) as client:
+        yield client
+
+
+def check_workers(client, task: str) -> None:
+    """Every connected worker must import the task's module (this package, installed there)."""
+    if not client.scheduler_info().get("workers"):
+        print(f"rhi sweep: waiting for a Dask worker to connect to {client.scheduler.address}", file=sys.stderr)
+        client.wait_for_workers(1)
+    module = task.partition(":")[0]
+    for worker, answer in client.run(worker_check, module, on_error="return").items():
+        if isinstance(answer, BaseException):
+            raise ConfigError(f"Dask worker {worker} cannot import {module} ({answer}); "
+                              "install this package on every worker (see README, Sweeps)")
+
+
+def prepare_decoders(sweep: Sweep) -> None:
+    """The experiment's trials load trained decoders; train any missing default here, once, never on
+    the workers (a remote worker must see the same checkpoint paths, see README)."""
+    if sweep.task != DEFAULT_TASK:
+        return
+    from master.experiment.decoders import ensure_checkpoints
+
+    for config in sweep.configs:  # a checkpoint already there is not trained again
+        ensure_checkpoints(config)
+
+
+def run_trial(task, config: dict, trial: TrialSpec) -> dict:
+    """Runs on a worker. Never raises: a failure is a record with its error, so the rest continue."""
+    began = time.perf_counter()
+    try:
+        outcome = task(config, trial.decoder, trial.condition, trial.stimulation, trial.index)
+        record = {"status": "ok", "outcome": {key: plain(value) for key, value in outcome.items()}}
+    except Exception as error:  # noqa: BLE001: any failure of a trial is data, not a crash
+        record = failed(error, traceback.format_exc())
+    record.update(elapsed_s=round(time.perf_counter() - began, 6), host=socket.gethostname())
+    return record
+
+
+def plain(value):
+    """numpy scalars and arrays -> Python numbers and lists, so the record is plain JSON."""
+    return value.tolist() if hasattr(value, "tolist") else value
+
+
+def failed(error: BaseException, trace: str = "") -> dict:
+    message = " ".join(str(error).split()) or "(no message)"
+    return {"status": "failed", "error": f"{type(error).__name__}: {message}", "traceback": trace}
+
+
+def worker_check(module: str) -> None:
+    """Runs on each worker before the sweep: can it import the task's module? (ImportError if not)"""
+    importlib.import_module(module)
+
+
+def execute(sweep: Sweep, task, client, out: Path, done: set[str], on_record=None) -> list[dict]:
+    """Submit every trial not in ``done``; write each record to ``out/trials/ID.json`` as it arrives.
+
+    ``on_record(record)`` is called after each write (progress, index). Returns the new records.
+    """
+    from dask.distributed import as_completed
+
+    pending, token = {}, uuid.uuid4().hex[:8]
+    for trial in sweep.trials:
+        if trial.id not in done:
+            future = client.submit(run_trial, task, sweep.configs[trial.point], trial, pure=False,
+                                   key=f"rhi-trial-{trial.id}-{token}")
+            pending[future] = trial
+    records = []
+    for future in as_completed(list(pending)):
+        trial = pending.pop(future)
+        try:
+            result = future.result()
+        except Exception as error:  # noqa: BLE001: a lost worker or an unpicklable task fails one trial
+            result = failed(error)
+        record = {"id": trial.id, "point": trial.point, "parameters": sweep.points[trial.point],
+                  "decoder": trial.decoder, "condition": trial.condition, "stimulation": trial.stimulation,
+                  "trial": trial.index, "seed": trial.seed, **result}
+        atomic_write(out / "trials" / f"{trial.id}.json", json.dumps(record, indent=1, sort_keys=True) + "\n")
+        records.append(record)
+        future.release()
+        if on_record is not None:
+            on_record(record)
+    return records

@@ -1,0 +1,75 @@
+"""A sweep's tables: index.csv (one row per finished trial) and summary.csv (per point and cell)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from master.outputs.files import atomic_write
+from master.outputs.tables import csv_text, number
+from master.sweeps.plan import Sweep
+
+MEASURES = ("drift_cm", "force_n", "gamma_final")  # what summary.csv and the figures show
+NOT_MEASURES = ("seed",)  # numbers in an outcome that identify the trial rather than measure it
+
+
+def label(value) -> str:
+    return value if isinstance(value, str) else json.dumps(value)
+
+
+def index_rows(sweep: Sweep, records: dict[str, dict]) -> str:
+    header = ["id", "point", *sweep.keys, "decoder", "condition", "stimulation", "trial", "seed", "status",
+              *MEASURES, "elapsed_s", "error"]
+    rows = []
+    for trial in sweep.trials:
+        record = records.get(trial.id)
+        if record is None:
+            continue
+        outcome = record.get("outcome", {})
+        rows.append([trial.id, trial.point, *(label(sweep.points[trial.point].get(k, "")) for k in sweep.keys),
+                     trial.decoder, trial.condition, trial.stimulation, trial.index, trial.seed,
+                     record["status"], *(repr(outcome[m]) if m in outcome else "" for m in MEASURES),
+                     record.get("elapsed_s", ""), record.get("error", "")])
+    return csv_text(header, rows)
+
+
+def summarise(sweep: Sweep, records: dict[str, dict]) -> tuple[list[str], list[dict]]:
+    """Per point and decoder x condition x stimulation: counts, and mean and sample sd of each measure."""
+    groups: dict[tuple, list[dict]] = {}
+    for trial in sweep.trials:
+        groups.setdefault((trial.point, trial.decoder, trial.condition, trial.stimulation), []).append(
+            records.get(trial.id))
+    numeric = lambda v: isinstance(v, (int, float)) and not isinstance(v, bool)  # noqa: E731
+    found = [k for r in records.values() for k, v in r.get("outcome", {}).items()
+             if numeric(v) and k not in NOT_MEASURES]
+    # the paper's three measures when the task gives them (the rest stay in the trial files), else all
+    measures = [m for m in MEASURES if m in found] or list(dict.fromkeys(found))
+    summary = []
+    for (point, decoder, condition, stimulation), members in groups.items():
+        ok = [r["outcome"] for r in members if r is not None and r["status"] == "ok"]
+        row = {"point": point, "parameters": sweep.points[point], "decoder": decoder, "condition": condition,
+               "stimulation": stimulation, "n_trials": len(ok),
+               "n_failed": sum(r is not None and r["status"] != "ok" for r in members)}
+        for measure in measures:
+            values = np.array([o[measure] for o in ok if numeric(o.get(measure))], dtype=float)
+            row[f"{measure}_mean"] = float(values.mean()) if len(values) else None
+            row[f"{measure}_sd"] = float(values.std(ddof=1)) if len(values) > 1 else (0.0 if len(values) else None)
+        summary.append(row)
+    return measures, summary
+
+
+def summary_csv(sweep: Sweep, measures: list[str], summary: list[dict]) -> str:
+    stats = [f"{m}_{s}" for m in measures for s in ("mean", "sd")]
+    header = ["point", *sweep.keys, "decoder", "condition", "stimulation", "n_trials", "n_failed", *stats]
+    rows = [[row["point"], *(label(row["parameters"].get(k, "")) for k in sweep.keys), row["decoder"],
+             row["condition"], row["stimulation"], row["n_trials"], row["n_failed"],
+             *("" if row[s] is None else number(row[s]) for s in stats)] for row in summary]
+    return csv_text(header, rows)
+
+
+def write_tables(out: Path, sweep: Sweep, records: dict[str, dict]) -> list[dict]:
+    atomic_write(out / "index.csv", index_rows(sweep, records))
+    measures, summary = summarise(sweep, records)
+    atomic_write(out / "summary.csv", summary_csv(sweep, measures, summary))
+    return summary
