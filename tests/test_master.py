@@ -1,5 +1,4 @@
 """The master: analytic answers, Jacobi vs Gauss-Seidel, validation messages, failures, saving."""
-import json
 
 import numpy as np
 import pytest
@@ -8,7 +7,6 @@ from scipy.linalg import expm
 from components.component import Status
 from master import ConfigError, SimulationError, System, simulate
 from master.cosim.loop import step_count
-from master.outputs.files import save
 from tests.toys import Constant, FailsAt, FirstOrder, Gain, Image, ImageSink
 
 
@@ -151,29 +149,6 @@ def test_failed_step_names_component_time_and_reason():
                                               r"was told to fail here"):
         simulate(System([fragile], []), 1.0, 0.1)
     assert fragile.terminated
-
-
-def test_save_writes_csv_and_provenance(tmp_path):
-    system = System([Constant(), FirstOrder("integrator")], [("source.y", "integrator.u")])
-    result = simulate(system, 0.1, 0.05, batch_size=2, record=["integrator.x"],
-                      parameters={"source.value": [1.0, 2.0]})
-    csv_path, json_path = save(result, tmp_path, configuration={"what": "test"}, seeds={"trial": [1, 2]})
-    lines = csv_path.read_text().splitlines()
-    assert lines[0] == "time,trial,integrator.x"
-    assert lines[1:] == ["0.0,0,0.0", "0.0,1,0.0", "0.05,0,0.05", "0.05,1,0.1", "0.1,0,0.1", "0.1,1,0.2"]
-    provenance = json.loads(json_path.read_text())
-    assert provenance["configuration"] == {"what": "test"} and provenance["seeds"] == {"trial": [1, 2]}
-    assert provenance["steps"] == 2 and "numpy" in provenance["versions"]
-    assert provenance["timings"]["total_s"] > 0
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["results.csv", "results.json"]  # no temporaries
-
-
-def test_save_refuses_images_and_writes_nothing(tmp_path):
-    system = System([Image(size=16)], [])
-    result = simulate(system, 0.1, 0.05, record=["camera.image"])
-    with pytest.raises(ConfigError, match=r"cannot write camera\.image to CSV"):
-        save(result, tmp_path / "out", configuration={})
-    assert not any((tmp_path / "out").iterdir())
 
 
 def test_initialization_keeps_start_value_until_a_later_source_has_output():

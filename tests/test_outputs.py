@@ -85,3 +85,31 @@ def test_a_failing_trial_is_dropped_and_the_rest_rerun():
 
     with pytest.raises(SimulationError, match="out of memory"):
         without_failures(run_all_fail, trials)
+
+
+def test_atomic_write_is_whole_or_absent_and_ordinary(tmp_path):
+    target = tmp_path / "a.txt"
+    files.atomic_write(target, "é\n")
+    files.atomic_write(tmp_path / "b.bin", b"\x00\x01")
+    files.atomic_write(tmp_path / "c.bin", lambda file: file.write(b"written by a function"))
+    assert target.read_bytes() == "é\n".encode() and (tmp_path / "b.bin").read_bytes() == b"\x00\x01"
+    assert (tmp_path / "c.bin").read_bytes() == b"written by a function"
+    assert target.stat().st_mode & 0o777 == 0o666 & ~files.umask()  # not mkstemp's private 0600
+
+    def fails(file):
+        file.write(b"half")
+        raise OSError("disk full")
+
+    with pytest.raises(OSError, match="disk full"):
+        files.atomic_write(target, fails)
+    assert target.read_text() == "é\n"  # the old file, whole
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt", "b.bin", "c.bin"]  # no temporary left
+
+
+def test_cells_and_sample_sd_by_hand():
+    trials = [Trial("conv", c, "sync", i, i, 0.0, 0.0, 0.1) for c, i in (("left", 0), ("right", 0), ("left", 1))]
+    assert outputs.cells(trials) == {("conv", "left", "sync"): [0, 2], ("conv", "right", "sync"): [1]}
+    mean, sd = outputs.mean_sd(np.array([[1.0, 2.0], [3.0, 6.0]]), axis=1)
+    np.testing.assert_allclose(mean, [1.5, 4.5])
+    np.testing.assert_allclose(sd, [np.sqrt(0.5), np.sqrt(4.5)])  # ddof 1: (x - mean)^2 summed over n - 1
+    assert outputs.mean_sd([7.0]) == (7.0, 0.0) and outputs.mean_sd([]) == (None, None)

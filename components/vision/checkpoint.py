@@ -14,7 +14,8 @@ raises one :class:`CheckpointError` naming the file and what is wrong.
 
 Example::
 
-    save("conv.pt", model, metadata)
+    with open("conv.pt", "wb") as file:
+        write(file, model, metadata)
     model, metadata = load("conv.pt", resolution=64, rest_pose=(147.7, -91.2))
 """
 from __future__ import annotations
@@ -23,10 +24,9 @@ import json
 import math
 import os
 import pickle
-import tempfile
 import warnings
 import zipfile
-from pathlib import Path
+from typing import BinaryIO
 
 import torch
 
@@ -44,22 +44,17 @@ class CheckpointError(ComponentError):
     """A decoder checkpoint that cannot be used; the message names the file and the reason."""
 
 
-def save(path: str | os.PathLike, model: VisualModel, metadata: dict) -> None:
-    """Write ``model``'s weights and ``metadata`` (JSON-able) to ``path`` atomically."""
+def write(file: BinaryIO, model: VisualModel, metadata: dict) -> None:
+    """Write ``model``'s weights and ``metadata`` (JSON-able) into the open binary ``file``.
+
+    The caller makes the file whole or absent (the master writes through a temporary file and a rename).
+    """
     missing = [key for key in REQUIRED if key not in metadata]
     if missing:
         raise ValueError(f"checkpoint metadata lacks {', '.join(missing)}")
     payload = {"format": FORMAT, "metadata": json.dumps(metadata, sort_keys=True),
                "weights": {name: tensor.detach().cpu().clone() for name, tensor in model.state_dict().items()}}
-    path = Path(path)
-    handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(handle)
-    try:
-        torch.save(payload, temporary)
-        os.replace(temporary, path)
-    except BaseException:
-        os.unlink(temporary)
-        raise
+    torch.save(payload, file)
 
 
 def read_metadata(path: str | os.PathLike) -> dict:

@@ -24,6 +24,7 @@ from components.vision.component import GenerativeModel
 from master.cosim import ConfigError
 from master.experiment import training_data
 from master.experiment.quality import hand_error
+from master.outputs.files import atomic_write
 
 SIGNATURE_TOLERANCE = 1e-3  # relative; the signature moves by far more when the camera changes
 
@@ -63,7 +64,7 @@ def train_decoder(kind: str, out: str | Path, settings: training.TrainSettings |
         metadata["hand_error"] = hand_error(GenerativeModel(model.decoder, data.rest_pose, data.half_ranges),
                                             settings.quality_poses)
         metadata["quality_seconds"] = time.perf_counter() - began
-    checkpoint.save(out, model, metadata)
+    atomic_write(out, lambda file: checkpoint.write(file, model, metadata))
     return metadata
 
 

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import hashlib
 import os
-import tempfile
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,6 +25,7 @@ import numpy as np
 
 from components.body import camera, kinematics
 from master.cosim import ConfigError
+from master.outputs.files import atomic_write
 
 HALF_RANGES = (40.0, 50.0)  # deg: shoulder, elbow, about the rest pose (DESIGN.md)
 CHUNK = 256                 # poses rendered per call (bounds memory at 256 x 256)
@@ -76,17 +76,9 @@ def generate(samples: int, resolution: int, seed: int, progress: bool = False) -
 
 def save(path: str | os.PathLike, data: TrainingData) -> None:
     """Write ``data`` to ``path`` (.npz, uncompressed), atomically."""
-    path = Path(path)
-    handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".npz")
-    os.close(handle)
-    try:
-        np.savez(temporary, poses=data.poses, images=data.images, rest_pose=np.asarray(data.rest_pose),
-                 half_ranges=np.asarray(data.half_ranges), seed=np.int64(data.seed),
-                 content_hash=np.str_(data.content_hash))
-        os.replace(temporary, path)
-    except BaseException:
-        os.unlink(temporary)
-        raise
+    atomic_write(path, lambda file: np.savez(
+        file, poses=data.poses, images=data.images, rest_pose=np.asarray(data.rest_pose),
+        half_ranges=np.asarray(data.half_ranges), seed=np.int64(data.seed), content_hash=np.str_(data.content_hash)))
 
 
 def load(path: str | os.PathLike) -> TrainingData:

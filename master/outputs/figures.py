@@ -13,22 +13,16 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from master.outputs.tables import cells, mean_sd  # noqa: E402
+
 COLOURS = {"left": "tab:blue", "center": "tab:gray", "right": "tab:red"}
 STYLES = {"conv": "-", "vae": "--"}
 METADATA = {"Software": None}  # no version string in the file: same data, same bytes
 
 
-def groups(trials):
-    """(decoder, condition, stimulation) -> list of batch positions, in first-seen order."""
-    found: dict[tuple, list[int]] = {}
-    for position, trial in enumerate(trials):
-        found.setdefault((trial.decoder, trial.condition, trial.stimulation), []).append(position)
-    return found
-
-
 def final_bars(trials, values, ylabel, path):
     """Mean +/- sd of the end-of-trial value per decoder, condition and stimulation."""
-    found = groups(trials)
+    found = cells(trials)
     decoders = list(dict.fromkeys(k[0] for k in found))
     conditions = list(dict.fromkeys(k[1] for k in found))
     stimulations = list(dict.fromkeys(k[2] for k in found))
@@ -37,11 +31,8 @@ def final_bars(trials, values, ylabel, path):
     width = 0.8 / len(decoders)
     for axis, stimulation in zip(axes[0], stimulations):
         for d, decoder in enumerate(decoders):
-            means, sds = [], []
-            for condition in conditions:
-                final = values[-1, found[(decoder, condition, stimulation)]]
-                means.append(final.mean())
-                sds.append(final.std(ddof=1) if len(final) > 1 else 0.0)
+            means, sds = zip(*(mean_sd(values[-1, found[(decoder, condition, stimulation)]])
+                               for condition in conditions))
             axis.bar(np.arange(len(conditions)) + (d - (len(decoders) - 1) / 2) * width, means, width,
                      yerr=sds, capsize=3, label=decoder, color=[COLOURS.get(c, "k") for c in conditions],
                      alpha=0.9 if d == 0 else 0.5, edgecolor="k")
@@ -54,12 +45,12 @@ def final_bars(trials, values, ylabel, path):
 
 
 def over_time(trials, times, values, stimulation, ylabel, path):
-    """Mean over trials (line) +/- sd (band) per decoder and condition, one stimulation."""
+    """Mean over trials (line) +/- sample sd (band) per decoder and condition, one stimulation."""
     figure, axis = plt.subplots(figsize=(5.5, 3.6))
-    for (decoder, condition, stim), members in groups(trials).items():
+    for (decoder, condition, stim), members in cells(trials).items():
         if stim != stimulation:
             continue
-        mean, sd = values[:, members].mean(axis=1), values[:, members].std(axis=1)
+        mean, sd = mean_sd(values[:, members], axis=1)
         axis.plot(times, mean, STYLES.get(decoder, ":"), color=COLOURS.get(condition, "k"),
                   label=f"{decoder} {condition}")
         axis.fill_between(times, mean - sd, mean + sd, color=COLOURS.get(condition, "k"), alpha=0.12)
@@ -103,7 +94,7 @@ def write_all(folder: Path, trials, times, per_step: dict[str, np.ndarray], jaco
                   folder / f"{letter_force}_force_{stimulation}.png")
     figure, axes = plt.subplots(1, len(stimulations), figsize=(5 * len(stimulations), 3.4), squeeze=False)
     for axis, stimulation in zip(axes[0], stimulations):
-        for (decoder, condition, stim), members in groups(trials).items():
+        for (decoder, condition, stim), members in cells(trials).items():
             if stim == stimulation:
                 axis.plot(times, per_step["gamma"][:, members].mean(axis=1), STYLES.get(decoder, ":"),
                           color=COLOURS.get(condition, "k"), label=f"{decoder} {condition}")

@@ -1,14 +1,11 @@
-"""The experiment's files (DESIGN.md, "Command line contract"): summary.csv, trials.csv, run.json, figures/.
-
-A run writes into a staging folder beside DIR and renames it to DIR at the end,
-so DIR holds either a complete run or nothing from this one.
-"""
+"""The experiment's tables (DESIGN.md, "Command line contract"): summary.csv and trials.csv, and the
+statistics every table and figure shares: trials grouped by cell, mean and sample sd (ddof 1)."""
 from __future__ import annotations
 
 import csv
 import io
-import numpy as np
 
+import numpy as np
 
 SUMMARY_COLUMNS = ["decoder", "condition", "stimulation", "n_trials", "drift_cm_mean", "drift_cm_sd",
                    "force_n_mean", "force_n_sd", "gamma_final_mean"]
@@ -28,17 +25,33 @@ def number(value: float) -> str:
     return f"{value:.6g}"
 
 
+def cells(items, key=lambda item: (item.decoder, item.condition, item.stimulation)) -> dict[tuple, list[int]]:
+    """Positions of ``items`` grouped by ``key`` (by default the cell: decoder, condition, stimulation),
+    in first-seen order."""
+    groups: dict[tuple, list[int]] = {}
+    for position, item in enumerate(items):
+        groups.setdefault(key(item), []).append(position)
+    return groups
+
+
+def mean_sd(values, axis: int = 0):
+    """Mean and sample standard deviation (ddof 1; 0 for a single value) along ``axis``; (None, None) if empty."""
+    values = np.asarray(values, dtype=float)
+    count = values.shape[axis]
+    if count == 0:
+        return None, None
+    sd = values.std(axis=axis, ddof=1) if count > 1 else np.zeros_like(values.mean(axis=axis))
+    return values.mean(axis=axis), sd
+
+
 def summary(trials, final: dict[str, np.ndarray]) -> list[list]:
     """One row per decoder x condition x stimulation, from end-of-trial values (``final[key][trial]``)."""
-    groups: dict[tuple, list[int]] = {}
-    for position, trial in enumerate(trials):
-        groups.setdefault((trial.decoder, trial.condition, trial.stimulation), []).append(position)
     rows = []
-    for (decoder, condition, stimulation), members in groups.items():
-        drift, force, gamma = (final[key][members] for key in ("drift_cm", "force_x_n", "gamma"))
-        sd = lambda x: float(np.std(x, ddof=1)) if len(x) > 1 else 0.0  # noqa: E731
-        rows.append([decoder, condition, stimulation, len(members), number(drift.mean()), number(sd(drift)),
-                     number(force.mean()), number(sd(force)), number(gamma.mean())])
+    for (decoder, condition, stimulation), members in cells(trials).items():
+        (drift, drift_sd), (force, force_sd), (gamma, _) = (mean_sd(final[key][members])
+                                                            for key in ("drift_cm", "force_x_n", "gamma"))
+        rows.append([decoder, condition, stimulation, len(members), number(drift), number(drift_sd),
+                     number(force), number(force_sd), number(gamma)])
     return rows
 
 

@@ -4,10 +4,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import numpy as np
-
 from master.outputs.files import atomic_write
-from master.outputs.tables import csv_text, number
+from master.outputs.tables import cells, csv_text, mean_sd, number
 from master.sweeps.plan import Sweep
 
 MEASURES = ("drift_cm", "force_n", "gamma_final")  # what summary.csv and the figures show
@@ -36,25 +34,22 @@ def index_rows(sweep: Sweep, records: dict[str, dict]) -> str:
 
 def summarise(sweep: Sweep, records: dict[str, dict]) -> tuple[list[str], list[dict]]:
     """Per point and decoder x condition x stimulation: counts, and mean and sample sd of each measure."""
-    groups: dict[tuple, list[dict]] = {}
-    for trial in sweep.trials:
-        groups.setdefault((trial.point, trial.decoder, trial.condition, trial.stimulation), []).append(
-            records.get(trial.id))
+    groups = cells(sweep.trials, key=lambda t: (t.point, t.decoder, t.condition, t.stimulation))
     numeric = lambda v: isinstance(v, (int, float)) and not isinstance(v, bool)  # noqa: E731
     found = [k for r in records.values() for k, v in r.get("outcome", {}).items()
              if numeric(v) and k not in NOT_MEASURES]
     # the paper's three measures when the task gives them (the rest stay in the trial files), else all
     measures = [m for m in MEASURES if m in found] or list(dict.fromkeys(found))
     summary = []
-    for (point, decoder, condition, stimulation), members in groups.items():
+    for (point, decoder, condition, stimulation), positions in groups.items():
+        members = [records.get(sweep.trials[position].id) for position in positions]
         ok = [r["outcome"] for r in members if r is not None and r["status"] == "ok"]
         row = {"point": point, "parameters": sweep.points[point], "decoder": decoder, "condition": condition,
                "stimulation": stimulation, "n_trials": len(ok),
                "n_failed": sum(r is not None and r["status"] != "ok" for r in members)}
         for measure in measures:
-            values = np.array([o[measure] for o in ok if numeric(o.get(measure))], dtype=float)
-            row[f"{measure}_mean"] = float(values.mean()) if len(values) else None
-            row[f"{measure}_sd"] = float(values.std(ddof=1)) if len(values) > 1 else (0.0 if len(values) else None)
+            mean, sd = mean_sd([o[measure] for o in ok if numeric(o.get(measure))])
+            row[f"{measure}_mean"], row[f"{measure}_sd"] = (None, None) if mean is None else (float(mean), float(sd))
         summary.append(row)
     return measures, summary
 
