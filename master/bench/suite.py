@@ -18,7 +18,7 @@ also counts the JVP step), the achieved FLOP/s against a measured fp32 matmul pe
 component's share of the step, the master's per-step time against fmpy.simulate_fmu on the
 same body FMU (both set the inputs and read the outputs every step), the whole paper protocol
 in fast mode (in a child process, for its peak memory), and the fast mode's drift error against
-the exact integrator with a trained default decoder when one is cached. About 3 minutes on 2 cores.
+the exact integrator with a trained default decoder when one is cached (README, Performance).
 """
 from __future__ import annotations
 
