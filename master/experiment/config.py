@@ -127,6 +127,9 @@ def validate(config: dict) -> None:
         raise ConfigError(f"brain.proprioceptive_variance must be positive, got {brain['proprioceptive_variance']}")
     if not 0 < brain["gamma0"] <= 1:
         raise ConfigError(f"brain.gamma0 must be in (0, 1], got {brain['gamma0']}")
+    for key in ("blur", "ball_radius"):
+        if not config["camera"][key] >= 0:
+            raise ConfigError(f"camera.{key} must be >= 0 m, got {config['camera'][key]}")
     if config["decoder"]["visual_variance"] <= 0:
         raise ConfigError(f"decoder.visual_variance must be positive, got {config['decoder']['visual_variance']}")
     if not config["decoder"]["relinearise_tolerance"] >= 0:
