@@ -83,9 +83,11 @@ def test_256_works_and_64_renders_thousands_per_minute():
     assert per_minute > 2000, per_minute
 
 
-def run_camera(poses_per_step, balls_per_step, resolution=32):
+def run_camera(poses_per_step, balls_per_step, resolution=32, **parameters):
     component = Camera(resolution=resolution)
     component.instantiate(len(poses_per_step[0]))
+    for name, value in parameters.items():
+        component.set(name, value)
     component.enter_initialization_mode()
     component.set("arm_pose", poses_per_step[0])
     component.set("ball", balls_per_step[0])
@@ -164,3 +166,45 @@ def test_the_ball_window_equals_drawing_and_blurring_the_whole_frame(ball):
     windowed = np.zeros_like(full)
     windowed[rows, columns] = patch
     assert full.sum() > 1 and np.abs(windowed - full).max() < 1e-6
+
+
+def test_blur_and_ball_radius_are_parameters_with_the_constants_as_defaults():
+    poses = np.array([REST_POSE, inverse(-0.45, 0.5)])
+    balls = np.array([[-0.3, 0.6], [-0.45, 0.55]])
+    default = render(poses, 32, balls)
+    assert render(poses, 32, balls, blur=camera.BLUR_SIGMA, ball_radius=camera.BALL_RADIUS).tobytes() == \
+        default.tobytes()
+    declared = Camera(resolution=32).variables
+    assert (declared["blur"].start, declared["ball_radius"].start) == (camera.BLUR_SIGMA, camera.BALL_RADIUS)
+    assert declared["blur"].unit == declared["ball_radius"].unit == "m"
+    sharper, bigger = render(poses, 32, balls, blur=0.005), render(poses, 32, balls, ball_radius=0.06)
+    assert not np.array_equal(sharper, default) and not np.array_equal(bigger, default)
+    assert sharper.max() > default.max()  # less blur, brighter peaks (the hand's disc)
+    area = lambda radius: camera.ball_alpha(balls[0], 32, ball_radius=radius)[2].sum()  # noqa: E731, in px
+    assert area(0.06) / area(camera.BALL_RADIUS) == pytest.approx((0.06 / camera.BALL_RADIUS) ** 2, rel=0.05)
+    again = render(poses.copy(), 32, balls.copy(), blur=0.005, ball_radius=0.06)
+    assert again.tobytes() == render(poses, 32, balls, blur=0.005, ball_radius=0.06).tobytes()
+
+
+def test_the_component_draws_with_its_blur_and_ball_radius():
+    """Set before initialization, the parameters give render's bytes, the kept arm layers included."""
+    rubber, rest = inverse(-0.45, 0.5), np.array(REST_POSE)
+    poses = [np.array([rubber, rest])] * 3
+    balls = [np.array([[-0.45, 0.7 - 0.05 * k], [-0.30, 0.6]]) for k in range(3)]
+    images = run_camera(poses, balls, blur=0.025, ball_radius=0.05)
+    for step in range(3):
+        assert images[step].tobytes() == render(poses[step], 32, balls[step], blur=0.025, ball_radius=0.05).tobytes()
+        assert images[step].tobytes() != render(poses[step], 32, balls[step]).tobytes()
+
+
+@pytest.mark.parametrize("name", ["blur", "ball_radius"])
+def test_per_trial_blur_or_ball_radius_is_refused_naming_it(name):
+    poses, balls = [np.array([REST_POSE, REST_POSE])], [np.full((2, 2), np.nan)]
+    with pytest.raises(ComponentError, match=rf"camera\.{name} = \[.*\] must be the same for every trial"):
+        run_camera(poses, balls, **{name: [0.01, 0.02]})
+
+
+@pytest.mark.parametrize("name, value", [("blur", -0.01), ("ball_radius", float("nan")), ("blur", "wide")])
+def test_bad_blur_or_ball_radius_is_one_clear_error(name, value):
+    with pytest.raises(ComponentError, match=name):
+        render(np.array([REST_POSE]), 32, **{name: value})

@@ -32,6 +32,16 @@ def test_unknown_key_is_named_with_the_closest(tmp_path):
         config.load(overrides={"expriment.trials": 1})
 
 
+def test_one_unknown_key_message_for_configs_and_sweeps():
+    assert str(config.unknown_key("brain.gama0", ["gamma0", "sync_sd"])) == \
+        "unknown config key brain.gama0 (did you mean brain.gamma0?)"
+    assert str(config.unknown_key("expriment", ["experiment", "brain"])) == \
+        "unknown config key expriment (did you mean experiment?)"
+    assert str(config.unknown_key("sweep.trails", ["trials", "quick"], "sweep")) == \
+        "unknown sweep key sweep.trails (did you mean sweep.trials?)"
+    assert str(config.unknown_key("brain.zzz", ["gamma0"])) == "unknown config key brain.zzz"
+
+
 def test_new_conditions_may_be_added(tmp_path):
     path = tmp_path / "far.toml"
     path.write_text("[experiment]\nconditions = ['far']\n[conditions]\nfar = -0.3\n")
@@ -46,6 +56,7 @@ def test_new_conditions_may_be_added(tmp_path):
     ("[experiment]\nconditions = ['up']\n", r"experiment\.conditions: 'up' is not defined in \[conditions\]"),
     ("[experiment]\ndecoders = ['gan']\n", r"experiment\.decoders: unknown decoder 'gan'"),
     ("[decoder]\nvisual_variance = -1.0\n", r"decoder\.visual_variance must be positive"),
+    ("[camera]\nblur = -0.01\n", r"camera\.blur must be >= 0 m, got -0\.01"),
     ("experiment = 3\n", r"config key experiment must be a table"),
 ])
 def test_bad_values_are_named(tmp_path, text, message):

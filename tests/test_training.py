@@ -74,6 +74,9 @@ def test_cached_data_are_reused_only_when_made_with_the_same_settings(tmp_path, 
     assert training_data.cached(path, 5, 16, seed=4).content_hash == first.content_hash
     monkeypatch.undo()
     assert training_data.cached(path, 5, 16, seed=5).content_hash != first.content_hash
+    blurred = training_data.cached(path, 5, 16, seed=5, blur=0.03)  # the camera's blur changed: new images
+    np.testing.assert_array_equal(blurred.images, camera.render(blurred.poses, 16, None, blur=0.03))
+    assert not np.array_equal(blurred.images, training_data.generate(5, 16, seed=5).images)
 
 
 def test_tiny_decoder_validation_loss_falls_tenfold(tiny_conv):
@@ -164,11 +167,43 @@ def test_rhi_train_writes_a_checkpoint_that_loads_and_checks_the_camera(tmp_path
     assert metadata["data_hash"] == data.content_hash and metadata["resolution"] == 16
     assert metadata["half_ranges"] == [40.0, 50.0] and metadata["hand_error"]["poses"] == 3
     assert model.metadata["validation_mse"] > 0 and metadata["seconds"] > 0
+    assert metadata["camera_blur"] == camera.BLUR_SIGMA
     with pytest.raises(checkpoint.CheckpointError, match="camera renders 32 px"):
         load_decoder(out, 32)
+    with pytest.raises(checkpoint.CheckpointError, match=re.escape(f"{out}: trained on camera images blurred by "
+                                                                   f"{camera.BLUR_SIGMA} m, but camera.blur is 0.02 m")):
+        load_decoder(out, 16, blur=0.02)
     signature = training_data.camera_signature(16)
-    monkeypatch.setattr(training_data, "camera_signature", lambda resolution: [v * 1.01 for v in signature])
+    monkeypatch.setattr(training_data, "camera_signature", lambda resolution, blur: [v * 1.01 for v in signature])
     with pytest.raises(checkpoint.CheckpointError, match=re.escape(f"{out}: trained on images of another camera")):
         load_decoder(out, 16)
     with pytest.raises(ConfigError, match="does not exist"):
         run_train(argparse.Namespace(decoder="vae", config=config, out=str(tmp_path / "no" / "vae.pt")))
+
+
+def test_rhi_train_renders_with_the_configured_camera_blur(tmp_path):
+    config = write(tmp_path / "t.toml", "[experiment]\nresolution = 16\n[camera]\nblur = 0.02\n[train]\nsamples = 40\n"
+                                        "epochs = 1\npreset = 'tiny'\nbatch_size = 16\nquality_poses = 0\nthreads = 1\n")
+    out = tmp_path / "conv.pt"
+    assert run_train(argparse.Namespace(decoder="conv", config=config, out=str(out))) == 0
+    data = training_data.load(tmp_path / "decoder-data-r16-n40-s0-b0.02.npz")  # its own file beside the default's
+    np.testing.assert_array_equal(data.images, camera.render(data.poses, 16, None, blur=0.02))
+    assert checkpoint.read_metadata(out)["camera_blur"] == 0.02
+    assert load_decoder(out, 16, blur=0.02).resolution == 16
+    with pytest.raises(checkpoint.CheckpointError, match="blurred by 0.02 m, but camera.blur is 0.015 m"):
+        load_decoder(out, 16)
+
+
+def test_the_cached_decoder_s_name_changes_with_the_camera_blur_only(tmp_path, monkeypatch):
+    """A changed blur trains a new default decoder; the default blur keeps the name it always had."""
+    import hashlib
+    import json
+    from master.experiment.decoders import checkpoint_path
+    monkeypatch.setenv("RHI_CACHE", str(tmp_path))
+    config = configuration.load(quick=True)
+    settings = train_settings(config).as_dict()
+    before = hashlib.sha256(json.dumps(["conv", settings], sort_keys=True).encode()).hexdigest()[:16]
+    assert checkpoint_path("conv", config).endswith(f"conv-r32-tiny-{before}.pt")
+    blurred = checkpoint_path("conv", configuration.load(overrides={"camera.blur": 0.02}, quick=True))
+    radius = checkpoint_path("conv", configuration.load(overrides={"camera.ball_radius": 0.05}, quick=True))
+    assert blurred != checkpoint_path("conv", config) and radius == checkpoint_path("conv", config)

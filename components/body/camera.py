@@ -3,17 +3,19 @@
 Pillow fills the shapes on a supersampled 8-bit canvas (about 1024 px wide, so one canvas
 pixel is about 1.1 mm; a 0.1 degree pose change moves the forearm's edges by 0.6-1.3 mm);
 the canvas is box-averaged down to the output resolution in exact integer arithmetic, then
-blurred with a Gaussian of fixed width in metres. Same inputs give the same bytes. What is
-left of the rasterisation is edge quantisation at the canvas pixel: finite differences of
-the image over 0.1 degree are within about 25-45 % of the true derivative, over 0.4 degree
-much closer. The brain never differentiates the renderer (it follows the decoder's smooth
-g(mu)), so this only adds a little pixel noise to the decoder's training images.
+blurred with a Gaussian whose width is given in metres (``blur``, default BLUR_SIGMA). Same
+inputs give the same bytes. What is left of the rasterisation is edge quantisation at the
+canvas pixel: finite differences of the image over 0.1 degree are within about 25-45 % of
+the true derivative, over 0.4 degree much closer. The brain never differentiates the
+renderer (it follows the decoder's smooth g(mu)), so this only adds a little pixel noise to
+the decoder's training images.
 
 What is drawn (background black): upper arm and forearm as capsules LIMB_WIDTH wide at
-LIMB_LEVEL, the hand as a disc at HAND_LEVEL, the ball as a gray disc at BALL_LEVEL drawn
-on top. Limbs are wide and soft so that a rubber arm displaced 15 cm still overlaps the
-arm the decoder predicts (the shoulder is shared, the forearms overlap near the elbow): at
-64 x 64 the Left and Right rubber arms have a cosine overlap of 0.47 and 0.43 with the real arm.
+LIMB_LEVEL, the hand as a disc at HAND_LEVEL, the ball as a gray disc of radius ``ball_radius``
+(default BALL_RADIUS) at BALL_LEVEL drawn on top. Limbs are wide and soft so that a rubber arm
+displaced 15 cm still overlaps the arm the decoder predicts (the shoulder is shared, the
+forearms overlap near the elbow): at 64 x 64 the Left and Right rubber arms have a cosine
+overlap of 0.47 and 0.43 with the real arm.
 
 The camera component keeps the arm layer of each pose in use (the rubber arm is still within
 a trial, and trials of one condition share it), so a step redraws only the ball, in a window
@@ -43,8 +45,8 @@ FIELD_X = (-0.99, 0.17)
 FIELD_Y = (-0.19, 0.97)
 LIMB_WIDTH = 0.08      # m, width of upper arm and forearm
 HAND_RADIUS = 0.05     # m
-BALL_RADIUS = 0.035    # m
-BLUR_SIGMA = 0.015     # m, soft edges (about 0.9 px at 64 x 64)
+BALL_RADIUS = 0.035    # m, default of the ball_radius parameter
+BLUR_SIGMA = 0.015     # m, default of the blur parameter: soft edges (about 0.9 px at 64 x 64)
 LIMB_LEVEL, HAND_LEVEL, BALL_LEVEL = 0.7, 1.0, 0.4
 CANVAS_TARGET = 1024   # supersampled canvas width the renderer aims at (px)
 
@@ -88,14 +90,22 @@ def _reduce(canvas: Image.Image, factor: int) -> np.ndarray:
     return (sums / (255.0 * factor * factor)).astype(np.float32)
 
 
-def _blur(layer: np.ndarray, resolution: int) -> np.ndarray:
-    """Gaussian blur of BLUR_SIGMA metres; zero outside the layer (black beyond the field of view)."""
-    sigma = BLUR_SIGMA / (FIELD_X[1] - FIELD_X[0]) * resolution
+def _check_length(name: str, value) -> float:
+    """A finite length >= 0 in metres (the blur, the ball radius), as a float."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+            or not math.isfinite(value) or value < 0:
+        raise ComponentError(f"camera {name} must be a finite length >= 0 m, got {value!r}")
+    return float(value)
+
+
+def _blur(layer: np.ndarray, resolution: int, blur: float = BLUR_SIGMA) -> np.ndarray:
+    """Gaussian blur of ``blur`` metres (sd); zero outside the layer (black beyond the field of view)."""
+    sigma = blur / (FIELD_X[1] - FIELD_X[0]) * resolution
     return gaussian_filter(layer, sigma, mode="constant", truncate=3.0).astype(np.float32)
 
 
-def arm_layer(pose_deg, resolution: int) -> np.ndarray:
-    """The blurred image (res, res) float32 of one arm at ``pose_deg`` = (shoulder, elbow) deg."""
+def arm_layer(pose_deg, resolution: int, blur: float = BLUR_SIGMA) -> np.ndarray:
+    """The blurred image (res, res) float32 of one arm at ``pose_deg`` = (shoulder, elbow) deg; blur in m."""
     factor = supersampling(resolution)
     scale = resolution * factor
     shoulder, elbow = np.radians(pose_deg[0]), np.radians(pose_deg[0] + pose_deg[1])
@@ -110,15 +120,15 @@ def arm_layer(pose_deg, resolution: int) -> np.ndarray:
     radius = HAND_RADIUS * metre
     draw.ellipse([points[2][0] - radius, points[2][1] - radius, points[2][0] + radius, points[2][1] + radius],
                  fill=round(255 * HAND_LEVEL))
-    return _blur(_reduce(canvas, factor), resolution)
+    return _blur(_reduce(canvas, factor), resolution, blur)
 
 
-def _blur_radius(resolution: int) -> int:
+def _blur_radius(resolution: int, blur: float = BLUR_SIGMA) -> int:
     """Support of the blur kernel in output pixels (scipy's radius for truncate=3)."""
-    return int(3.0 * BLUR_SIGMA / (FIELD_X[1] - FIELD_X[0]) * resolution + 0.5)
+    return int(3.0 * blur / (FIELD_X[1] - FIELD_X[0]) * resolution + 0.5)
 
 
-def ball_alpha(ball_xy, resolution: int):
+def ball_alpha(ball_xy, resolution: int, blur: float = BLUR_SIGMA, ball_radius: float = BALL_RADIUS):
     """The ball's blurred coverage as (rows, columns, patch), or None if no ball (NaN) or out of view.
 
     Only a window of output pixels around the ball (disc plus blur support) is rasterised
@@ -130,16 +140,16 @@ def ball_alpha(ball_xy, resolution: int):
     factor = supersampling(resolution)
     pixel = (FIELD_X[1] - FIELD_X[0]) / resolution
     u, v = _to_canvas(ball_xy[0], ball_xy[1], resolution)
-    reach = BALL_RADIUS / pixel + 1 + _blur_radius(resolution)
+    reach = ball_radius / pixel + 1 + _blur_radius(resolution, blur)
     c0, c1 = max(0, math.floor(u - reach)), min(resolution, math.ceil(u + reach) + 1)
     r0, r1 = max(0, math.floor(v - reach)), min(resolution, math.ceil(v + reach) + 1)
     if c0 >= c1 or r0 >= r1:
         return None
     canvas = Image.new("L", ((c1 - c0) * factor, (r1 - r0) * factor), 0)
     cx, cy = _to_canvas(ball_xy[0], ball_xy[1], resolution * factor, (c0 * factor, r0 * factor))
-    radius = BALL_RADIUS / pixel * factor
+    radius = ball_radius / pixel * factor
     ImageDraw.Draw(canvas).ellipse([cx - radius, cy - radius, cx + radius, cy + radius], fill=255)
-    return slice(r0, r1), slice(c0, c1), _blur(_reduce(canvas, factor), resolution)
+    return slice(r0, r1), slice(c0, c1), _blur(_reduce(canvas, factor), resolution, blur)
 
 
 def composite(arm: np.ndarray, alpha, out: np.ndarray | None = None) -> np.ndarray:
@@ -155,12 +165,15 @@ def composite(arm: np.ndarray, alpha, out: np.ndarray | None = None) -> np.ndarr
     return image
 
 
-def render(poses_deg, resolution: int = 64, balls=None) -> np.ndarray:
+def render(poses_deg, resolution: int = 64, balls=None, blur: float = BLUR_SIGMA,
+           ball_radius: float = BALL_RADIUS) -> np.ndarray:
     """Images (N, res, res) float32 in [0, 1] of arms at ``poses_deg`` (N, 2) deg, with balls (N, 2) m or None.
 
-    A ball row of NaN draws no ball. Decoder training data is ``render(poses, res, None)``.
+    A ball row of NaN draws no ball. blur: sd of the Gaussian blur, m; ball_radius: m.
+    Decoder training data is ``render(poses, res, None, blur=...)``.
     """
     resolution = _check_resolution(resolution)
+    blur, ball_radius = _check_length("blur", blur), _check_length("ball_radius", ball_radius)
     poses = np.asarray(poses_deg, dtype=np.float64)
     if poses.ndim != 2 or poses.shape[1] != 2 or not np.all(np.isfinite(poses)):
         raise ComponentError(f"camera poses_deg must be finite with shape (N, 2), got shape {poses.shape}")
@@ -170,8 +183,8 @@ def render(poses_deg, resolution: int = 64, balls=None) -> np.ndarray:
             raise ComponentError(f"camera balls must have the shape of poses_deg {poses.shape}, got {balls.shape}")
     images = np.empty((len(poses), resolution, resolution), np.float32)
     for index, pose in enumerate(poses):
-        alpha = None if balls is None else ball_alpha(balls[index], resolution)
-        images[index] = composite(arm_layer(pose, resolution), alpha)
+        alpha = None if balls is None else ball_alpha(balls[index], resolution, blur, ball_radius)
+        images[index] = composite(arm_layer(pose, resolution, blur), alpha)
     return images
 
 
@@ -181,6 +194,9 @@ class Camera(Component):
     The arm layer of each pose in use is kept (the rubber arm does not move within a trial,
     and trials of one condition share it), so a step redraws only the ball; trials whose
     pose and ball are the same bytes share one drawing (the image is a function of them).
+    The kept layers are dropped at every initialization, so a run with another ``blur`` never
+    reuses them. ``blur`` and ``ball_radius`` are one value for the whole batch (the trials
+    share drawings); differing per-trial values are a ComponentError naming the variable.
     """
 
     def __init__(self, name: str = "camera", resolution: int = 64):
@@ -188,6 +204,10 @@ class Camera(Component):
         super().__init__(name, [
             Variable("resolution", "parameter", "Integer", start=self.resolution, unit="1", min=self.resolution,
                      max=self.resolution, description="image side, pixels (structural: fixed by the constructor)"),
+            Variable("blur", "parameter", start=BLUR_SIGMA, unit="m", min=0.0,
+                     description="sd of the Gaussian blur of the image (one value for every trial)"),
+            Variable("ball_radius", "parameter", start=BALL_RADIUS, unit="m", min=0.0,
+                     description="radius of the ball's disc (one value for every trial)"),
             Variable("arm_pose", "input", "Array", shape=(2,), start=REST_POSE, unit="deg",
                      description="pose of the arm in view: shoulder (from +x), elbow (relative)"),
             Variable("ball", "input", "Array", shape=(2,), start=np.nan, unit="m",
@@ -196,11 +216,21 @@ class Camera(Component):
                      start=None, unit="1", min=0.0, max=1.0, depends_on=("arm_pose", "ball"),
                      description="overhead grayscale image s_v, black background"),
         ])
-        self._arm_layers: dict[bytes, np.ndarray] = {}  # pose bytes -> arm layer
+        self._arm_layers: dict[bytes, np.ndarray] = {}  # pose bytes -> arm layer, at self._blur_sigma
+        self._blur_sigma, self._ball_radius = BLUR_SIGMA, BALL_RADIUS
 
     def initialize(self):
-        self._arm_layers = {}
+        self._blur_sigma, self._ball_radius = (self._shared(name) for name in ("blur", "ball_radius"))
+        self._arm_layers = {}  # drawn with this run's blur only
         self._draw()
+
+    def _shared(self, name: str) -> float:
+        """The batch's one value of parameter ``name``; a ComponentError if the trials differ."""
+        values = self.values[name]
+        if np.any(values != values[0]):
+            raise ComponentError(f"{self.name}.{name} = {values.tolist()} must be the same for every trial "
+                                 "(the trials share one drawing of each pose)")
+        return float(values[0])
 
     def step(self, t, h):
         self._draw()
@@ -220,7 +250,9 @@ class Camera(Component):
                 continue
             if pose not in arm_layers:
                 known = self._arm_layers.get(pose)
-                arm_layers[pose] = known if known is not None else arm_layer(poses[trial], self.resolution)
-            composite(arm_layers[pose], ball_alpha(balls[trial], self.resolution), out=images[trial])
+                arm_layers[pose] = known if known is not None else arm_layer(poses[trial], self.resolution,
+                                                                              self._blur_sigma)
+            alpha = ball_alpha(balls[trial], self.resolution, self._blur_sigma, self._ball_radius)
+            composite(arm_layers[pose], alpha, out=images[trial])
         self._arm_layers = arm_layers  # only the poses of this step: the rest are gone for good
         self.values["image"] = images

@@ -1,4 +1,6 @@
-"""`rhi train --decoder {conv,vae} [--config FILE] --out CKPT`: arguments in, a summary printed."""
+"""`rhi train --decoder {conv,vae} [--config FILE] --out CKPT`: arguments in, a summary printed.
+
+It reads the configuration like `rhi experiment`: ``[train]`` and the camera's ``[camera] blur``."""
 from __future__ import annotations
 
 from master.experiment import config as configuration
@@ -7,8 +9,9 @@ from master.experiment.training import train_decoder, train_settings
 
 def run_train(args) -> int:
     """The body of `rhi train`: args has .decoder, .config, .out."""
-    settings = train_settings(configuration.load(args.config))
-    metadata = train_decoder(args.decoder, args.out, settings)
+    config = configuration.load(args.config)
+    settings = train_settings(config)
+    metadata = train_decoder(args.decoder, args.out, settings, blur=config["camera"]["blur"])
     errors = metadata.get("hand_error", {})
     print(f"{args.decoder} decoder ({settings.preset}, {settings.resolution} px) saved to {args.out}: "
           f"validation MSE {metadata['validation_mse']:.3g} after {metadata['epochs_run']} epochs "

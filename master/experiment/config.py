@@ -32,6 +32,18 @@ def read_toml(path: str | Path) -> dict:
         raise ConfigError(f"config file {path} cannot be read: {error}") from None
 
 
+def unknown_key(path: str, known, kind: str = "config") -> ConfigError:
+    """The error for an unknown key: ``unknown config key brain.gama0 (did you mean brain.gamma0?)``.
+
+    path: the dotted key as written; known: the keys valid beside its last part; kind: what
+    the key belongs to ("config", "sweep"). The suggestion is the closest known key, if any.
+    """
+    where, _, key = path.rpartition(".")
+    close = difflib.get_close_matches(key, list(known), n=1)
+    hint = f" (did you mean {where + '.' if where else ''}{close[0]}?)" if close else ""
+    return ConfigError(f"unknown {kind} key {path}{hint}")
+
+
 def merge(base: dict, overrides: dict, where: str = "") -> dict:
     """``base`` updated by ``overrides``; unknown keys and wrong types are ConfigErrors naming the key."""
     merged = copy.deepcopy(base)
@@ -43,9 +55,7 @@ def merge(base: dict, overrides: dict, where: str = "") -> dict:
                 merged[key] = merge(template, value, f"{path}.") if isinstance(template, dict) and \
                     isinstance(value, dict) else copy.deepcopy(value)
                 continue
-            close = difflib.get_close_matches(key, list(base), n=1)
-            hint = f" (did you mean {where}{close[0]}?)" if close else ""
-            raise ConfigError(f"unknown config key {path}{hint}")
+            raise unknown_key(path, base)
         default = base[key]
         if isinstance(default, dict):
             if not isinstance(value, dict):
@@ -127,6 +137,9 @@ def validate(config: dict) -> None:
         raise ConfigError(f"brain.proprioceptive_variance must be positive, got {brain['proprioceptive_variance']}")
     if not 0 < brain["gamma0"] <= 1:
         raise ConfigError(f"brain.gamma0 must be in (0, 1], got {brain['gamma0']}")
+    for key in ("blur", "ball_radius"):
+        if not config["camera"][key] >= 0:
+            raise ConfigError(f"camera.{key} must be >= 0 m, got {config['camera'][key]}")
     if config["decoder"]["visual_variance"] <= 0:
         raise ConfigError(f"decoder.visual_variance must be positive, got {config['decoder']['visual_variance']}")
     if not config["decoder"]["relinearise_tolerance"] >= 0:

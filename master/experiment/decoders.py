@@ -1,9 +1,11 @@
 """The experiment's decoders: which checkpoint each uses, training the defaults once, the component.
 
 A checkpoint named in ``[decoder]`` is used as given. Otherwise the default decoder
-is trained once with the ``[train]`` settings at the experiment's resolution and
-cached under ``$RHI_CACHE`` (default ``~/.cache/rhi``), named by a hash of those
-settings, so a changed setting trains a new one and an unchanged one is reused.
+is trained once with the ``[train]`` settings at the experiment's resolution on the
+camera's images at ``[camera] blur`` and cached under ``$RHI_CACHE`` (default
+``~/.cache/rhi``), named by a hash of what made it (the settings, and the blur when it is
+not the default), so a changed setting trains a new one and an unchanged one is reused.
+Either way a loaded checkpoint is checked against the camera at the configured blur.
 """
 from __future__ import annotations
 
@@ -16,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from components.body import kinematics
+from components.body import camera, kinematics
 from components.vision.component import Decoder, GenerativeModel, jacobian_images
 from master.cosim import ConfigError
 from master.experiment.training import load_decoder, train_decoder, train_settings
@@ -34,7 +36,12 @@ def checkpoint_path(kind: str, config: dict, must_exist: bool = False) -> str:
             raise ConfigError(f"decoder.{kind}_checkpoint: {given} does not exist")
         return given
     settings = train_settings(config).as_dict()
-    key = hashlib.sha256(json.dumps([kind, settings], sort_keys=True).encode()).hexdigest()[:16]
+    blur = config["camera"]["blur"]
+    # What changes the trained decoder: the [train] settings, and the camera's blur (the training images
+    # have no ball, so ball_radius does not count). The default blur adds nothing, so the key of every
+    # decoder cached before the blur was a parameter is unchanged.
+    identity = [kind, settings] + ([{"camera_blur": blur}] if blur != camera.BLUR_SIGMA else [])
+    key = hashlib.sha256(json.dumps(identity, sort_keys=True).encode()).hexdigest()[:16]
     path = cache_folder() / f"{kind}-r{settings['resolution']}-{settings['preset']}-{key}.pt"
     if must_exist and not path.is_file():
         raise ConfigError(f"no trained {kind} decoder for these settings at {path}: run `rhi experiment` "
@@ -50,25 +57,26 @@ def ensure_checkpoints(config: dict, progress: bool = True) -> tuple[dict[str, s
         if not Path(paths[kind]).is_file():
             Path(paths[kind]).parent.mkdir(parents=True, exist_ok=True)
             began = time.perf_counter()
-            train_decoder(kind, paths[kind], train_settings(config), progress=progress)
+            train_decoder(kind, paths[kind], train_settings(config), progress=progress,
+                          blur=config["camera"]["blur"])
             seconds[kind] = time.perf_counter() - began
     return paths, seconds
 
 
-def loaded(path: str, resolution: int) -> GenerativeModel:
-    """:func:`load_decoder`, once per file version in this process (each load also renders the camera
-    signature); the components never change the model, and the optimised copy is a deep copy."""
-    return _loaded(path, os.stat(path).st_mtime_ns, resolution)
+def loaded(path: str, resolution: int, blur: float = camera.BLUR_SIGMA) -> GenerativeModel:
+    """:func:`load_decoder`, once per file version and camera in this process (each load also renders the
+    camera signature); the components never change the model, and the optimised copy is a deep copy."""
+    return _loaded(path, os.stat(path).st_mtime_ns, resolution, blur)
 
 
 @functools.lru_cache(maxsize=4)
-def _loaded(path: str, version: int, resolution: int) -> GenerativeModel:
-    return load_decoder(path, resolution)
+def _loaded(path: str, version: int, resolution: int, blur: float) -> GenerativeModel:
+    return load_decoder(path, resolution, blur)
 
 
 def decoder_component(kind: str, path: str, config: dict) -> Decoder:
     """The exact decoder, or the linearised one of the fast mode when ``decoder.fast`` is true."""
-    model = loaded(path, config["experiment"]["resolution"])
+    model = loaded(path, config["experiment"]["resolution"], config["camera"]["blur"])
     if config["decoder"]["fast"]:
         from components.vision.fast import LinearisedDecoder
         return LinearisedDecoder(model, name="decoder", relinearise_tolerance=config["decoder"]["relinearise_tolerance"])
@@ -77,5 +85,5 @@ def decoder_component(kind: str, path: str, config: dict) -> Decoder:
 
 def jacobian_pair(kind: str, path: str, config: dict) -> np.ndarray:
     """dg/d(shoulder) and dg/d(elbow) at the rest pose: (2, R, R), 1/deg."""
-    model = loaded(path, config["experiment"]["resolution"])
+    model = loaded(path, config["experiment"]["resolution"], config["camera"]["blur"])
     return jacobian_images(model, np.array([kinematics.REST_POSE]))[0]

@@ -17,19 +17,20 @@ from components.vision.component import GenerativeModel
 QUALITY_SEED = 12345        # held-out poses for the hand error, distinct from any training seed
 
 
-def fit_camera(images: np.ndarray, start_deg: np.ndarray, iterations: int = 6, delta: float = 0.5) -> np.ndarray:
-    """Angles (N, 2) deg whose camera rendering best matches ``images`` (least squares, Gauss-Newton
-    with central differences of ``delta`` deg, started at ``start_deg``)."""
+def fit_camera(images: np.ndarray, start_deg: np.ndarray, iterations: int = 6, delta: float = 0.5,
+               blur: float = camera.BLUR_SIGMA) -> np.ndarray:
+    """Angles (N, 2) deg whose camera rendering (blurred by ``blur`` m) best matches ``images`` (least
+    squares, Gauss-Newton with central differences of ``delta`` deg, started at ``start_deg``)."""
     resolution = images.shape[-1]
     angles = np.array(start_deg, dtype=np.float64)
     for _ in range(iterations):
-        residual = (camera.render(angles, resolution) - images).reshape(len(angles), -1)
+        residual = (camera.render(angles, resolution, blur=blur) - images).reshape(len(angles), -1)
         columns = []
         for joint in range(2):
             step = np.zeros(2)
             step[joint] = delta
-            plus = camera.render(angles + step, resolution).reshape(len(angles), -1)
-            minus = camera.render(angles - step, resolution).reshape(len(angles), -1)
+            plus = camera.render(angles + step, resolution, blur=blur).reshape(len(angles), -1)
+            minus = camera.render(angles - step, resolution, blur=blur).reshape(len(angles), -1)
             columns.append((plus - minus) / (2 * delta))
         angles = angles + _gauss_newton_step(np.stack(columns, axis=2), residual)
     return angles
@@ -57,20 +58,22 @@ def _gauss_newton_step(jacobian: np.ndarray, residual: np.ndarray, max_step: flo
 
 
 def hand_error(model: GenerativeModel, samples: int = 100, seed: int = QUALITY_SEED,
-               fraction: float = 0.9) -> dict:
-    """Hand-position errors (cm) of a decoder on held-out poses uniform over ``fraction`` of its ranges.
+               fraction: float = 0.9, blur: float = camera.BLUR_SIGMA) -> dict:
+    """Hand-position errors (cm) of a decoder on held-out poses uniform over ``fraction`` of its ranges,
+    against the camera at ``blur`` m (the one the decoder was trained on).
 
     read_off: hand of the camera pose fitted to the predicted image g(true pose);
     inference: hand of the decoder pose fitted to the true image. Each: mean, 95th percentile, max.
     The image MSE of the predictions on these poses is included.
     """
     poses = model.rest_pose + fraction * np.random.default_rng(seed).uniform(-1.0, 1.0, (samples, 2)) * model.half_ranges
-    truth = camera.render(poses, model.resolution)
+    truth = camera.render(poses, model.resolution, blur=blur)
     with torch.no_grad():
         predicted = model(torch.from_numpy(poses.astype(np.float32))).numpy()
     true_hand = np.stack(kinematics.forward(poses[:, 0], poses[:, 1]), axis=1)
     result = {"poses": samples, "image_mse": float(np.mean((predicted - truth) ** 2))}
-    for name, fitted in (("read_off", fit_camera(predicted, poses)), ("inference", fit_decoder(model, truth, poses))):
+    for name, fitted in (("read_off", fit_camera(predicted, poses, blur=blur)),
+                         ("inference", fit_decoder(model, truth, poses))):
         error = 100 * np.linalg.norm(np.stack(kinematics.forward(fitted[:, 0], fitted[:, 1]), axis=1) - true_hand,
                                      axis=1)
         result[name] = {"mean_cm": float(error.mean()), "p95_cm": float(np.percentile(error, 95)),

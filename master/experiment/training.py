@@ -1,13 +1,13 @@
 """Training a decoder for the experiment, and loading one checked against today's camera.
 
-Settings are ``[train]`` of the configuration (:func:`master.experiment.decoders.train_settings`),
-so `rhi train` and `rhi experiment` start from the same defaults. The training data are rendered
-once per (samples, resolution, seed) and cached beside the checkpoint, so conv and vae trained
-into the same folder share them.
+Settings are ``[train]`` of the configuration (:func:`train_settings`), and the images are the
+camera's at ``[camera] blur``, so `rhi train` and `rhi experiment` start from the same defaults.
+The training data are rendered once per (samples, resolution, seed, blur) and cached beside the
+checkpoint, so conv and vae trained into the same folder share them.
 
 Example::
 
-    metadata = train_decoder("conv", "results/conv.pt", settings)
+    metadata = train_decoder("conv", "results/conv.pt", settings)            # blur=camera.BLUR_SIGMA
     model = load_decoder("results/conv.pt", resolution=64)
 """
 from __future__ import annotations
@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from components.body import kinematics
+from components.body import camera, kinematics
 from components.component import ComponentError
 from components.vision import checkpoint, training
 from components.vision.component import GenerativeModel
@@ -38,43 +38,53 @@ def train_settings(config: dict) -> training.TrainSettings:
         raise ConfigError(f"[train]: {error}") from None
 
 
-def data_path(folder: Path, settings: training.TrainSettings) -> Path:
-    return folder / f"decoder-data-r{settings.resolution}-n{settings.samples}-s{settings.seed}.npz"
+def data_path(folder: Path, settings: training.TrainSettings, blur: float = camera.BLUR_SIGMA) -> Path:
+    """The cached data set's file: the default camera's name has no blur in it (files made before the
+    blur was a parameter stay valid); another blur has its own file."""
+    blurred = "" if blur == camera.BLUR_SIGMA else f"-b{blur!r}"
+    return folder / f"decoder-data-r{settings.resolution}-n{settings.samples}-s{settings.seed}{blurred}.npz"
 
 
 def train_decoder(kind: str, out: str | Path, settings: training.TrainSettings | None = None,
-                  progress: bool = True) -> dict:
-    """Train a decoder of ``kind`` and save it to ``out``; returns the checkpoint metadata."""
+                  progress: bool = True, blur: float = camera.BLUR_SIGMA) -> dict:
+    """Train a decoder of ``kind`` on camera images blurred by ``blur`` m and save it to ``out``;
+    returns the checkpoint metadata (with the camera's blur and signature)."""
     settings = settings or training.TrainSettings()
     out = Path(out)
     if not out.parent.is_dir():
         raise ConfigError(f"--out {out}: folder {out.parent} does not exist")
     started = time.perf_counter()
-    data = training_data.cached(data_path(out.parent, settings), settings.samples, settings.resolution,
-                                settings.seed, progress)
+    data = training_data.cached(data_path(out.parent, settings, blur), settings.samples, settings.resolution,
+                                settings.seed, progress, blur)
     data_seconds = time.perf_counter() - started
     model, report = training.train(kind, data.poses, data.images, data.rest_pose, data.half_ranges, settings,
                                    progress)
     metadata = training.checkpoint_metadata(kind, settings, data.rest_pose, data.half_ranges,
                                             data.content_hash, report)
     metadata["data_seconds"] = data_seconds
-    metadata["camera_signature"] = training_data.camera_signature(settings.resolution)
+    metadata["camera_blur"] = float(blur)
+    metadata["camera_signature"] = training_data.camera_signature(settings.resolution, blur)
     if settings.quality_poses:
         began = time.perf_counter()
         metadata["hand_error"] = hand_error(GenerativeModel(model.decoder, data.rest_pose, data.half_ranges),
-                                            settings.quality_poses)
+                                            settings.quality_poses, blur=blur)
         metadata["quality_seconds"] = time.perf_counter() - began
     atomic_write(out, lambda file: checkpoint.write(file, model, metadata))
     return metadata
 
 
-def load_decoder(path: str | Path, resolution: int) -> GenerativeModel:
-    """A trained decoder checked against today's camera at ``resolution`` and the body's rest pose and
-    training ranges: CheckpointError (a ValueError naming the file) on any mismatch."""
+def load_decoder(path: str | Path, resolution: int, blur: float = camera.BLUR_SIGMA) -> GenerativeModel:
+    """A trained decoder checked against today's camera at ``resolution`` and ``blur`` (m) and the body's
+    rest pose and training ranges: CheckpointError (a ValueError naming the file) on any mismatch.
+    A checkpoint without a stored camera_blur was trained before the blur was a parameter, at the default."""
     model = GenerativeModel.from_checkpoint(path, resolution, kinematics.REST_POSE, training_data.HALF_RANGES)
+    trained_blur = model.metadata.get("camera_blur", camera.BLUR_SIGMA)
+    if trained_blur != blur:
+        raise checkpoint.CheckpointError(f"{path}: trained on camera images blurred by {trained_blur} m, but "
+                                         f"camera.blur is {blur} m; retrain the decoder or set camera.blur")
     stored = model.metadata.get("camera_signature")
     if stored is not None:
-        now = training_data.camera_signature(resolution)
+        now = training_data.camera_signature(resolution, blur)
         if len(stored) != len(now) or not np.allclose(stored, now, rtol=SIGNATURE_TOLERANCE, atol=1e-6):
             raise checkpoint.CheckpointError(f"{path}: trained on images of another camera (its field of view "
                                              "or drawing changed since); retrain the decoder")

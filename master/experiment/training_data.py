@@ -2,8 +2,8 @@
 
 This is wiring (it needs the body's camera and kinematics and serves the vision
 component), so it lives in master/. Poses are uniform over the rest pose +- 40 deg
-(shoulder) and +- 50 deg (elbow); images are ``camera.render(poses, resolution, None)``:
-the real arm alone, no ball. A data set is written to ``.npz`` with its ranges,
+(shoulder) and +- 50 deg (elbow); images are ``camera.render(poses, resolution, None, blur=blur)``:
+the real arm alone, no ball, at the camera blur of the configuration (``[camera] blur``). A data set is written to ``.npz`` with its ranges,
 resolution, seed and a content hash (sha256 of the arrays), and is checked against
 that hash when read back.
 
@@ -60,8 +60,9 @@ def sample_poses(samples: int, seed: int, rest_pose=kinematics.REST_POSE, half_r
     return np.asarray(rest_pose) + rng.uniform(-1.0, 1.0, (samples, 2)) * np.asarray(half_ranges)
 
 
-def generate(samples: int, resolution: int, seed: int, progress: bool = False) -> TrainingData:
-    """Render ``samples`` seeded (angles, image) pairs at ``resolution`` with the real camera."""
+def generate(samples: int, resolution: int, seed: int, progress: bool = False,
+             blur: float = camera.BLUR_SIGMA) -> TrainingData:
+    """Render ``samples`` seeded (angles, image) pairs at ``resolution`` with the real camera (blur in m)."""
     poses = sample_poses(samples, seed)
     images = np.empty((samples, resolution, resolution), np.float32)
     chunks = range(0, samples, CHUNK)
@@ -69,7 +70,7 @@ def generate(samples: int, resolution: int, seed: int, progress: bool = False) -
         from tqdm import tqdm
         chunks = tqdm(chunks, desc="render", unit="chunk", leave=False)
     for start in chunks:
-        images[start:start + CHUNK] = camera.render(poses[start:start + CHUNK], resolution, None)
+        images[start:start + CHUNK] = camera.render(poses[start:start + CHUNK], resolution, None, blur=blur)
     return TrainingData(poses, images, tuple(kinematics.REST_POSE), HALF_RANGES, seed,
                         content_hash(poses, images))
 
@@ -101,10 +102,11 @@ def load(path: str | os.PathLike) -> TrainingData:
                         tuple(map(float, fields["half_ranges"])), int(fields["seed"]), stored)
 
 
-def cached(path: str | os.PathLike, samples: int, resolution: int, seed: int, progress: bool = False) -> TrainingData:
+def cached(path: str | os.PathLike, samples: int, resolution: int, seed: int, progress: bool = False,
+           blur: float = camera.BLUR_SIGMA) -> TrainingData:
     """The data set at ``path`` if it was made with these settings and today's ranges, else a new one, saved.
 
-    A cached file is also checked against a fresh rendering of its first pose, so a
+    A cached file is also checked against a fresh rendering of its first pose (at ``blur``), so a
     camera that changed since the file was written is never trained on stale images.
     """
     if Path(path).exists():
@@ -116,18 +118,19 @@ def cached(path: str | os.PathLike, samples: int, resolution: int, seed: int, pr
                 and data.seed == seed and np.allclose(data.rest_pose, kinematics.REST_POSE, atol=1e-9)
                 and np.allclose(data.half_ranges, HALF_RANGES) and np.array_equal(
                     data.poses, sample_poses(samples, seed))
-                and np.array_equal(camera.render(data.poses[:1], resolution, None), data.images[:1])):
+                and np.array_equal(camera.render(data.poses[:1], resolution, None, blur=blur), data.images[:1])):
             return data
-    data = generate(samples, resolution, seed, progress)
+    data = generate(samples, resolution, seed, progress, blur)
     save(path, data)
     return data
 
 
-def camera_signature(resolution: int) -> list[float]:
+def camera_signature(resolution: int, blur: float = camera.BLUR_SIGMA) -> list[float]:
     """A few numbers that change if the camera's geometry or drawing changes: the image sum and
-    brightness-weighted centroid (px) of the rest pose and two poses at the range's corners."""
+    brightness-weighted centroid (px) of the rest pose and two poses at the range's corners, rendered
+    at ``blur`` m. (A blur barely moves them: the checkpoint's stored camera_blur is checked too.)"""
     poses = np.asarray(kinematics.REST_POSE) + np.array([[0.0, 0.0], [1.0, 1.0], [-1.0, -1.0]]) * np.asarray(HALF_RANGES) * 0.75
-    images = camera.render(poses, resolution, None)
+    images = camera.render(poses, resolution, None, blur=blur)
     rows, columns = np.mgrid[:resolution, :resolution]
     signature = []
     for image in images.astype(np.float64):

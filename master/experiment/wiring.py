@@ -1,5 +1,12 @@
-"""The rubber-hand system: its components, their connections in step order, and their parameters."""
+"""The rubber-hand system: its components, their connections in step order, and their parameters.
+
+:data:`PARAMETER_SOURCES` says, for every parameter of every component, where its value comes
+from; :func:`parameters` follows it, and tests/test_defaults.py checks that it covers every
+component parameter and that each plain key of ``defaults.toml`` equals the component's start value.
+"""
 from __future__ import annotations
+
+import re
 
 import numpy as np
 
@@ -37,6 +44,69 @@ RECORD = ["brain.mu", "brain.gamma", "brain.u_shoulder", "brain.u_elbow", "brain
           "decoder.visual_error", "stimulus.ball"]
 
 
+# component.parameter -> where its value comes from. A source is one of:
+#   "table.key"                  a key of defaults.toml (or the user's config), passed as is by parameters();
+#   "table.<name>... (per trial)" the trial's own value, from the [conditions]/[stimulations] entry it runs;
+#   "table.key (... )"           the key, used otherwise (hashed per trial, or given to the constructor);
+#   "derived: reason"            not a configuration key: parameters() passes the value DERIVED gives.
+PARAMETER_SOURCES = {
+    "rubber_arm.offset_x": "conditions.<condition> (per trial: the trial's condition)",
+    "rubber_arm.offset_y": "derived: 0 m; the protocol's conditions displace the rubber hand along x only "
+                           "(DESIGN.md: Left/Center/Right at y = 0.50 like the real hand), so [conditions] "
+                           "holds offset_x alone",
+    "stimulus.period": "stimulus.period",
+    "stimulus.delay_min": "stimulations.<stimulation>.delay_min (per trial: the trial's stimulation)",
+    "stimulus.delay_max": "stimulations.<stimulation>.delay_max (per trial: the trial's stimulation)",
+    "stimulus.seed": "experiment.seed (hashed per trial: protocol.trial_seed of seed, condition, stimulation, "
+                     "index)",
+    "stimulus.ball_distance": "stimulus.ball_distance",
+    "camera.resolution": "experiment.resolution (structural: build_system gives it to Camera(resolution=...))",
+    "camera.blur": "camera.blur",
+    "camera.ball_radius": "camera.ball_radius",
+    "decoder.visual_variance": "decoder.visual_variance",
+    "decoder.relinearise_tolerance": "decoder.relinearise_tolerance (fast mode only: decoders.decoder_component "
+                                     "gives it to LinearisedDecoder(relinearise_tolerance=...))",
+    "brain.proprioceptive_variance": "brain.proprioceptive_variance",
+    "brain.gamma0": "brain.gamma0",
+    "brain.mu0": "derived: the rest pose, components.body.kinematics.REST_POSE; the belief starts where the "
+                 "real arm rests (DESIGN.md fixes the geometry; the decoders are trained around it)",
+    "brain.sync_sd": "brain.sync_sd",
+    "brain.async_density": "brain.async_density",
+    "brain.decay_rate": "brain.decay_rate",
+    "brain.action_limit": "brain.action_limit",
+    "body.held": "body.held",
+    "body.q0_shoulder": "derived: the rest pose's shoulder, components.body.kinematics.REST_POSE[0]; the real arm "
+                        "starts at rest (DESIGN.md fixes the geometry; the decoders are trained around it)",
+    "body.q0_elbow": "derived: the rest pose's elbow, components.body.kinematics.REST_POSE[1]; the real arm "
+                     "starts at rest (DESIGN.md fixes the geometry; the decoders are trained around it)",
+    "body.substeps": "body.substeps",
+    "body.servo_gain": "body.servo_gain",
+    "body.torque_limit": "body.torque_limit",
+    "body.upper_arm_mass": "body.upper_arm_mass",
+    "body.forearm_mass": "body.forearm_mass",
+    "body.clamp_stiffness": "body.clamp_stiffness",
+    "body.clamp_damping": "body.clamp_damping",
+}
+
+# The values of the "derived:" sources, and the trial field of the per-trial ones.
+DERIVED = {
+    "rubber_arm.offset_y": lambda: 0.0,
+    "brain.mu0": lambda: np.array(kinematics.REST_POSE, dtype=float),
+    "body.q0_shoulder": lambda: kinematics.REST_POSE[0],
+    "body.q0_elbow": lambda: kinematics.REST_POSE[1],
+}
+PER_TRIAL = {"rubber_arm.offset_x": "offset_x", "stimulus.delay_min": "delay_min",
+             "stimulus.delay_max": "delay_max", "stimulus.seed": "seed"}
+CONSTRUCTED = ("camera.resolution", "decoder.relinearise_tolerance")  # given to the constructors instead
+
+_PLAIN_KEY = re.compile(r"[a-z_]+\.[a-z_0-9]+")
+
+
+def config_key(source: str) -> str | None:
+    """The configuration key a plain source names (``"brain.gamma0"``), else None."""
+    return source if _PLAIN_KEY.fullmatch(source) else None
+
+
 def build_system(decoder, config: dict, body=None) -> System:
     """The rubber-hand system around a decoder component; ``body`` defaults to the native pymunk plant."""
     resolution = config["experiment"]["resolution"]
@@ -46,25 +116,21 @@ def build_system(decoder, config: dict, body=None) -> System:
 
 
 def parameters(trials: list[Trial], config: dict) -> dict:
-    """Per-trial and shared parameters, as ``component.variable`` paths."""
-    column = lambda attribute: np.array([getattr(t, attribute) for t in trials])  # noqa: E731
-    brain, body = config["brain"], config["body"]
-    return {
-        "rubber_arm.offset_x": column("offset_x"),
-        "stimulus.period": config["stimulus"]["period"],
-        "stimulus.delay_min": column("delay_min"),
-        "stimulus.delay_max": column("delay_max"),
-        "stimulus.seed": column("seed").astype(np.int64),
-        "decoder.visual_variance": config["decoder"]["visual_variance"],
-        "brain.mu0": np.array(kinematics.REST_POSE, dtype=float),
-        "brain.proprioceptive_variance": brain["proprioceptive_variance"],
-        "brain.gamma0": brain["gamma0"],
-        "brain.sync_sd": brain["sync_sd"],
-        "brain.async_density": brain["async_density"],
-        "brain.decay_rate": brain["decay_rate"],
-        "body.held": bool(body["held"]),
-        "body.substeps": int(body["substeps"]),
-    }
+    """Per-trial and shared parameters, as ``component.variable`` paths, as PARAMETER_SOURCES says:
+    every parameter but the CONSTRUCTED ones (fixed when the components are built)."""
+    given = {}
+    for path, source in PARAMETER_SOURCES.items():
+        if path in CONSTRUCTED:
+            continue
+        if path in PER_TRIAL:
+            values = np.array([getattr(t, PER_TRIAL[path]) for t in trials])
+            given[path] = values.astype(np.int64) if path == "stimulus.seed" else values
+        elif path in DERIVED:
+            given[path] = DERIVED[path]()
+        else:
+            table, key = config_key(source).split(".")
+            given[path] = config[table][key]
+    return given
 
 
 def run_batch(decoder, trials: list[Trial], config: dict, body=None, progress=None):

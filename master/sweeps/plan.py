@@ -23,7 +23,6 @@ pool or a remote cluster) and writes each record as soon as it arrives, on the c
 """
 from __future__ import annotations
 
-import difflib
 import hashlib
 import importlib
 import itertools
@@ -111,9 +110,7 @@ def resolve_task(name: str):
 def check_settings(settings: dict) -> None:
     for key in settings:
         if key not in SWEEP_KEYS:
-            close = difflib.get_close_matches(key, SWEEP_KEYS, n=1)
-            hint = f" (did you mean sweep.{close[0]}?)" if close else ""
-            raise ConfigError(f"unknown sweep key sweep.{key}{hint}")
+            raise configuration.unknown_key(f"sweep.{key}", SWEEP_KEYS, "sweep")
     for key in ("trials", "workers"):
         value = settings.get(key, 1)
         if not isinstance(value, int) or isinstance(value, bool) or value < 1:
