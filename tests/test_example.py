@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import torch
+
 from master.experiment import config as configuration
 from master.experiment.decoders import decoder_component
 from master.experiment.measures import measures
@@ -28,7 +30,8 @@ def test_example_uses_only_the_engine_the_export_and_the_components():
 
 
 def test_example_runs_and_its_drift_is_the_experiments(tmp_path):
-    env = {**os.environ, "RHI_CACHE": str(tmp_path / "cache")}
+    # One torch thread: quicker on a shared machine, and the decoder's sums depend on the thread count.
+    env = {**os.environ, "RHI_CACHE": str(tmp_path / "cache"), "OMP_NUM_THREADS": "1"}
     done = subprocess.run([sys.executable, str(SCRIPT), "--tiny", "--steps", str(STEPS), "--resolution",
                            str(RESOLUTION)], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
@@ -44,5 +47,9 @@ def test_example_runs_and_its_drift_is_the_experiments(tmp_path):
     assert config["decoder"]["visual_variance"] == 20.0 and not config["decoder"]["fast"]
     trial = Trial("conv", "left", "sync", 0, SEED, -0.15, 0.0, 0.1)
     decoder = decoder_component("conv", str(tmp_path / "tiny_decoder.pt"), config)
-    expected = measures(run_batch(decoder, [trial], config))["drift_cm"][-1, 0]
+    decoder.threads, threads = 1, torch.get_num_threads()  # as in the script's process
+    try:
+        expected = measures(run_batch(decoder, [trial], config))["drift_cm"][-1, 0]
+    finally:
+        torch.set_num_threads(threads)
     assert abs(drifts["native"] - expected) < 1e-9, (drifts["native"], expected)
