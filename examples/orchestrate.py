@@ -4,7 +4,7 @@ One synchronous Left trial: the rubber hand 15 cm left of the real one, each tou
 it is seen. The drift is where the brain believes the hand is minus where it is (x, cm).
 
     python examples/orchestrate.py --checkpoint conv.pt     # a trained decoder at --resolution
-    python examples/orchestrate.py --tiny                   # trains a tiny one first (seconds)
+    python examples/orchestrate.py --tiny --resolution 16   # trains a tiny one first (seconds)
 """
 import argparse
 import sys
