@@ -163,3 +163,21 @@ def test_input_without_start_whose_source_comes_later_is_named():
     system = System([ImageSink(), Image()], [("camera.image", "decoder.image")])
     with pytest.raises(ConfigError, match=r"input decoder\.image has no value at initialization"):
         simulate(system, 0.2, 0.1)
+
+
+def test_components_step_at_the_integer_tick_times_and_rows_are_copies():
+    """t_n = start + (stop - start) * n / N exactly, h = t_(n+1) - t_n; a recorded row is a copy, and a
+    path recorded twice is one column."""
+    seen = []
+
+    class Clock(Constant):
+        def step(self, t, h):
+            seen.append((t, h))
+            self.values["y"][:] = t + h  # in place (components should not): only copies keep the history
+
+    start, stop, steps = 0.1, 0.4, 3  # 0.1 + 0.3 * n / 3 is not 0.1 + n * 0.1 in floating point
+    result = simulate(System([Clock()], []), stop, 0.1, start_time=start, record=["source.y", "source.y"])
+    ticks = [start + (stop - start) * n / steps for n in range(steps + 1)]
+    assert seen == [(ticks[n], ticks[n + 1] - ticks[n]) for n in range(steps)]
+    assert result.times.tolist() == ticks and all(type(t) is float and type(h) is float for t, h in seen)
+    assert result.values["source.y"][:, 0].tolist() == [1.0, *ticks[1:]]

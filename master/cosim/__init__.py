@@ -2,9 +2,18 @@
 
 A :class:`System` is components plus connections (output -> input), validated before it runs;
 :func:`simulate` runs it at a fixed step, Jacobi or Gauss-Seidel, and returns a :class:`Result`.
+
+Modules, each one job: ``system`` (components, connections, validation), ``links`` (connections
+resolved into per-component input setters), ``initialization`` (the FMI initialization sequence),
+``recorder`` (recorded outputs per tick), ``loop`` (:func:`simulate`: validate, initialize, then per
+tick set inputs, step, check the status, record; terminate in any case), ``errors``.
 """
 from master.cosim.errors import ConfigError, SimulationError
-from master.cosim.loop import Result, simulate, step_count
+from master.cosim.initialization import initialize
+from master.cosim.links import Inputs, Links
+from master.cosim.loop import Result, simulate, step_count, tick_times
+from master.cosim.recorder import Recorder
 from master.cosim.system import Connection, System
 
-__all__ = ["System", "Connection", "simulate", "step_count", "Result", "ConfigError", "SimulationError"]
+__all__ = ["System", "Connection", "simulate", "step_count", "tick_times", "Result", "ConfigError",
+           "SimulationError", "Links", "Inputs", "Recorder", "initialize"]

@@ -12,7 +12,21 @@ class ConfigError(ValueError):
 
 
 class SimulationError(RuntimeError):
-    """A component failed a step (status discard, error or fatal)."""
+    """A component failed a step (status discard, error or fatal), or its initialization.
+
+    Parameters
+    ----------
+    component : str
+        The component's name.
+    time : float
+        Seconds: the start of the failed step (the start time for initialization).
+    reason : str
+        The component's reason.
+    status : str
+        ``discard``, ``error``, ``fatal`` or ``initialization``.
+    trials : tuple of int
+        Batch positions the component blamed; () means the whole batch.
+    """
 
     def __init__(self, component: str, time: float, reason: str, status: str = "error", trials=()):
         super().__init__(f"{component} failed the step at t = {time:.6g} s ({status}): {reason}")

@@ -11,7 +11,13 @@ SCHEMES = ("jacobi", "gauss-seidel")
 
 @dataclass(frozen=True)
 class Connection:
-    """``source`` output feeds ``target`` input; both written ``component.variable``."""
+    """One link: the ``source`` output feeds the ``target`` input.
+
+    Attributes
+    ----------
+    source, target : str
+        ``component.variable`` paths.
+    """
 
     source: str
     target: str
@@ -21,6 +27,7 @@ class Connection:
 
 
 def split(path: str) -> tuple[str, str]:
+    """``"component.variable"`` -> ``("component", "variable")``; ConfigError if it is not of that form."""
     component, dot, variable = path.partition(".")
     if not dot or not component or not variable:
         raise ConfigError(f"{path!r} is not of the form component.variable")
@@ -30,10 +37,15 @@ def split(path: str) -> tuple[str, str]:
 class System:
     """Components and the connections between them.
 
-    components: in Gauss-Seidel order (each component reads the newest outputs of
-        those before it in the same step, and the previous step's outputs of
-        those after it).
-    connections: ``(source, target)`` pairs or :class:`Connection` objects.
+    Verbs: :meth:`validate`, :meth:`variable`, :meth:`feeds`, :meth:`algebraic_loop`.
+
+    Parameters
+    ----------
+    components : list of Component
+        In Gauss-Seidel order: each component reads the newest outputs of those before it in the
+        same step, and the previous step's outputs of those after it. Names must be unique.
+    connections : iterable
+        ``(source, target)`` pairs of ``component.variable`` paths, or :class:`Connection` objects.
 
     Example::
 
@@ -49,7 +61,18 @@ class System:
         self.connections = [c if isinstance(c, Connection) else Connection(*c) for c in connections]
 
     def variable(self, path: str):
-        """The declared Variable at ``component.variable``; ConfigError naming it if unknown."""
+        """The declared variable at ``path``.
+
+        Parameters
+        ----------
+        path : str
+            ``component.variable``.
+
+        Returns
+        -------
+        Variable
+            Its declaration; ConfigError naming the component or variable if there is none.
+        """
         name, variable = split(path)
         if name not in self.components:
             raise ConfigError(f"{path}: no component named {name!r} (have: {', '.join(self.components)})")
@@ -59,11 +82,30 @@ class System:
         return component.variables[variable]
 
     def feeds(self) -> dict[str, str]:
-        """target input path -> source output path."""
+        """The connections as a mapping.
+
+        Returns
+        -------
+        dict
+            Target input path -> source output path, in connection order.
+        """
         return {c.target: c.source for c in self.connections}
 
     def validate(self, scheme: str = "gauss-seidel") -> None:
-        """Raise ConfigError listing every problem found, each naming its variable or connection."""
+        """Check the system before it runs.
+
+        Parameters
+        ----------
+        scheme : str
+            ``"gauss-seidel"`` (algebraic loops are errors) or ``"jacobi"``.
+
+        Raises
+        ------
+        ConfigError
+            Listing every problem found, each naming its variable or connection: unknown names,
+            causality, type, shape or unit mismatches, an input fed twice, an unconnected input
+            without a start value, an algebraic loop.
+        """
         if scheme not in SCHEMES:
             raise ConfigError(f"scheme {scheme!r} is not one of {', '.join(SCHEMES)}")
         problems = []
@@ -106,6 +148,11 @@ class System:
 
         Edges: each connection (output -> input) and, inside a component, each
         input -> output it feeds through directly (``Variable.depends_on``).
+
+        Returns
+        -------
+        list of str or None
+            The cycle as paths, first and last the same; None if there is none.
         """
         edges: dict[str, list[str]] = {}
         for connection in self.connections:

@@ -1,0 +1,175 @@
+"""Imports go one way: the rule table below, checked on every .py file under master/ and components/.
+
+Every ``import x`` and ``from x import y`` counts, at any depth (a lazy import inside a function too);
+a relative import is resolved against the file's package. README "Layout" mirrors the table.
+"""
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# -- the rules, as data --------------------------------------------------------------------------
+# master's sub-packages by layer, top first. A sub-package may import itself and any lower layer;
+# never a higher layer, nor another member of its own layer (sweeps/bench, experiment/export).
+MASTER_LAYERS = [("commands",), ("sweeps", "bench"), ("experiment", "export"), ("outputs",), ("cosim",)]
+# master's own files outside the sub-packages, and the sub-packages each may import.
+MASTER_FILES = {"master/__init__.py": ("cosim",), "master/__main__.py": ("commands",)}
+# ``from master import X`` (not a sub-package) reaches master/__init__.py, which re-exports this one:
+MASTER_ROOT_IS = "cosim"
+# Only these import master.commands (a folder ends with /).
+COMMANDS_IMPORTERS = ("master/__main__.py", "master/commands/")
+# Of this project, the engine imports only these modules (and the packages above them).
+COSIM_MAY_IMPORT = ("master.cosim", "components.component", "components.variables")
+COSIM_FORBIDDEN_WORDS = ("decoder", "drift", "gamma", "rubber", "brain")
+# components/ never imports master. A component folder imports the core and itself, no other folder;
+# a module directly in components/ (stimulus, fmu_adapter, the core) imports the core only.
+COMPONENT_CORE = ("components.component", "components.variables", "components.model_description")
+COMPONENT_FOLDERS = ("body", "vision", "brain")
+PROJECT = ("master", "components")  # top-level packages whose imports are checked
+
+
+def within(module: str, prefixes) -> bool:
+    """``module`` is one of ``prefixes`` or inside one (dotted boundaries)."""
+    return any(module == p or module.startswith(p + ".") for p in prefixes)
+
+
+def imports(relative: str, source: str):
+    """(line, what the import names, the module path it reaches) for every project import in a file."""
+    parts = relative[:-3].split("/")
+    package = parts[:-1]  # a module and a package's __init__ both live in their folder's package
+    for node in ast.walk(ast.parse(source, relative)):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                yield node.lineno, f"import {alias.name}", alias.name
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:  # relative: from the file's package, one level up per extra dot
+                anchor = package[:len(package) - node.level + 1]
+                base = ".".join(anchor + ([base] if base else []))
+            for alias in node.names:
+                target = base if alias.name == "*" else f"{base}.{alias.name}"
+                yield node.lineno, f"from {'.' * node.level}{node.module or ''} import {alias.name}", target
+
+
+def rank(layer: str) -> int:
+    return next(i for i, members in enumerate(MASTER_LAYERS) if layer in members)
+
+
+def master_layer(module: str) -> str:
+    """The sub-package of master that ``module`` (inside master) reaches."""
+    parts = module.split(".")
+    known = [member for members in MASTER_LAYERS for member in members]
+    return parts[1] if len(parts) > 1 and parts[1] in known else MASTER_ROOT_IS
+
+
+def master_problem(relative: str, module: str) -> str | None:
+    """Why a file of master/ may not import ``module`` (a project module), or None."""
+    parts = relative.split("/")
+    if module.split(".")[0] == "components":
+        if parts[1] == "cosim" and not within(module, COSIM_MAY_IMPORT):
+            return f"master/cosim imports from components only {', '.join(COSIM_MAY_IMPORT[1:])}"
+        return None
+    if parts[1] == "cosim" and not within(module, COSIM_MAY_IMPORT):
+        return "master/cosim imports nothing of master outside master/cosim"
+    target = master_layer(module)
+    if target == "commands" and not (relative in COMMANDS_IMPORTERS or relative.startswith(COMMANDS_IMPORTERS[1])):
+        return "only master/__main__.py and master/commands import master.commands"
+    if relative in MASTER_FILES:
+        allowed = MASTER_FILES[relative]
+        return None if target in allowed else f"{relative} imports only master.{', master.'.join(allowed)}"
+    source = parts[1]
+    if target == source or rank(target) > rank(source):
+        return None
+    side = "beside" if rank(target) == rank(source) else "above"
+    return f"master/{source} may not import master/{target}, a layer {side} it"
+
+
+def component_problem(relative: str, module: str) -> str | None:
+    """Why a file of components/ may not import ``module`` (a project module), or None."""
+    if module.split(".")[0] == "master":
+        return "components never import master"
+    parts = relative.split("/")
+    folder = parts[1] if len(parts) > 2 else None
+    own = (f"components.{folder}",) if folder else ()
+    if within(module, COMPONENT_CORE + own):
+        return None
+    where = f"components/{folder}" if folder else relative
+    return f"{where} imports of components only the core ({', '.join(COMPONENT_CORE)}){' and itself' * bool(folder)}"
+
+
+def violations(relative: str, source: str) -> list[str]:
+    """Every broken rule in one file, as ``file:line: import: rule``."""
+    parts = relative.split("/")
+    if parts[0] == "master" and len(parts) == 2 and relative not in MASTER_FILES:
+        return [f"{relative}:1: a module of master outside the layer table"]
+    if parts[0] == "master" and len(parts) > 2 and not any(parts[1] in members for members in MASTER_LAYERS):
+        return [f"{relative}:1: master/{parts[1]} is not in the layer table"]
+    if parts[0] == "components" and len(parts) > 2 and parts[1] not in COMPONENT_FOLDERS:
+        return [f"{relative}:1: components/{parts[1]} is not in the rule table"]
+    found = []
+    for line, statement, module in imports(relative, source):
+        if module.split(".")[0] not in PROJECT:
+            continue
+        problem = (master_problem if parts[0] == "master" else component_problem)(relative, module)
+        if problem:
+            found.append(f"{relative}:{line}: {statement}: {problem}")
+    return found
+
+
+def python_files(*folders):
+    return sorted(p for folder in folders for p in (ROOT / folder).rglob("*.py") if "__pycache__" not in p.parts)
+
+
+def test_imports_follow_the_rule_table():
+    files = python_files("master", "components")
+    assert len(files) > 40 and any(p.parent.name == "cosim" for p in files)
+    found = [v for path in files for v in violations(path.relative_to(ROOT).as_posix(), path.read_text())]
+    assert not found, "\n".join(found)
+
+
+def test_engine_knows_no_rubber_hand_words():
+    found = []
+    for path in python_files("master/cosim"):
+        for number, line in enumerate(path.read_text().splitlines(), 1):
+            found += [f"{path.relative_to(ROOT)}:{number}: {word!r}: {line.strip()}"
+                      for word in COSIM_FORBIDDEN_WORDS if word in line.lower()]
+    assert not found, "\n".join(found)
+
+
+@pytest.mark.parametrize("relative, source, expected", [
+    ("master/cosim/loop.py", "def f():\n    from master.experiment import wiring\n", "loop.py:2:"),
+    ("master/cosim/loop.py", "import master\n", "master/cosim imports nothing"),
+    ("master/cosim/loop.py", "from ..outputs import files\n", "master/cosim imports nothing"),
+    ("master/cosim/loop.py", "from components.body import plant\n", "from components only"),
+    ("master/cosim/loop.py", "import components.fmu_adapter\n", "from components only"),
+    ("master/outputs/files.py", "from master.experiment.measures import measures\n", "a layer above it"),
+    ("master/experiment/wiring.py", "from master.export import body\n", "a layer beside it"),
+    ("master/sweeps/plan.py", "import master.bench.suite\n", "a layer beside it"),
+    ("master/bench/suite.py", "from master.commands import cli\n", "only master/__main__.py"),
+    ("master/__init__.py", "from master.experiment import wiring\n", "imports only master.cosim"),
+    ("master/extra.py", "", "outside the layer table"),
+    ("components/stimulus.py", "from master.cosim import System\n", "never import master"),
+    ("components/body/camera.py", "from components.vision.component import Decoder\n", "only the core"),
+    ("components/brain/integrator.py", "from components import stimulus\n", "only the core"),
+    ("components/fmu_adapter.py", "from components.body.plant import ArmPlant\n", "only the core"),
+    ("components/vision/fast.py", "from .. import fmu_adapter\n", "only the core"),
+])
+def test_the_checker_catches_each_kind_of_violation(relative, source, expected):
+    found = violations(relative, source)
+    assert len(found) == 1 and expected in found[0], found
+
+
+@pytest.mark.parametrize("relative, source", [
+    ("master/cosim/loop.py", "from master.cosim.system import System\nfrom components.component import Status\n"),
+    ("master/cosim/links.py", "from .system import split\n"),
+    ("master/commands/cli.py", "from master.sweeps import plan\nfrom master.commands import bench\n"),
+    ("master/sweeps/runner.py", "from master.experiment import runner\nfrom master import ConfigError\n"),
+    ("master/export/body.py", "from master.cosim import ConfigError\nimport numpy\n"),
+    ("master/__main__.py", "from master.commands.cli import main\n"),
+    ("components/body/variants.py", "from components.body.plant import ArmPlant\nfrom .kinematics import forward\n"),
+    ("components/vision/component.py", "from components.model_description import to_xml\n"),
+])
+def test_the_checker_allows_what_the_table_allows(relative, source):
+    assert violations(relative, source) == []
