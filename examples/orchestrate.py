@@ -7,24 +7,22 @@ it is seen. The drift is where the brain believes the hand is minus where it is 
     python examples/orchestrate.py --tiny --resolution 16   # trains a tiny one first (seconds)
 """
 import argparse
-import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's packages, installed or not
-from components.body import kinematics  # noqa: E402
-from components.body.camera import Camera, render  # noqa: E402
-from components.body.plant import ArmPlant  # noqa: E402
-from components.body.rubber_arm import RubberArm  # noqa: E402
-from components.brain.integrator import Brain  # noqa: E402
-from components.fmu_adapter import FMUComponent  # noqa: E402
-from components.stimulus import Stimulus  # noqa: E402
-from components.vision import checkpoint, training  # noqa: E402
-from components.vision.component import Decoder  # noqa: E402
-from master.cosim import System, simulate  # noqa: E402
-from master.export.body import build_fmu  # noqa: E402
+from components.body import kinematics
+from components.body.camera import Camera, render
+from components.body.plant import ArmPlant
+from components.body.rubber_arm import RubberArm
+from components.brain.integrator import Brain
+from components.fmu_adapter import FMUComponent
+from components.stimulus import Stimulus
+from components.vision import checkpoint, training
+from components.vision.component import Decoder
+from master.cosim import System, simulate
+from master.export.body import build_fmu
 
 # Output -> input. simulate steps the components in the order the System lists them (Gauss-Seidel):
 # the decoder reads this step's image and the belief mu of time t, the brain then integrates,
@@ -55,8 +53,9 @@ def tiny_checkpoint(path, resolution):
                                       quality_poses=0)
     model, report = training.train("conv", poses, render(poses, resolution), kinematics.REST_POSE, half_ranges,
                                    settings, progress=False)
-    checkpoint.save(path, model, training.checkpoint_metadata("conv", settings, kinematics.REST_POSE, half_ranges,
-                                                              "tiny example data", report))
+    with open(path, "wb") as file:
+        checkpoint.write(file, model, training.checkpoint_metadata("conv", settings, kinematics.REST_POSE,
+                                                                   half_ranges, "tiny example data", report))
     return path
 
 
