@@ -306,3 +306,16 @@ def test_parameter_range_and_unconnected_proprioception_are_named():
     with pytest.raises(SimulationError, match=r"brain failed the step at t = 0 s \(error\): q_elbow is not "
                                               r"finite \(nan\) in trial 0"):
         simulate(System([Brain(), Constant("shoulder", unit="deg")], [("shoulder.y", "brain.q_shoulder")]), 0.1, H)
+
+
+def test_belief_and_gamma_are_readable_in_initialization_mode():
+    """The decoder, before the brain in the order, reads mu0 while the brain is in initialization mode."""
+    brain = Brain()
+    brain.instantiate(2)
+    brain.set("mu0", [[140.0, -90.0], [150.0, -80.0]])
+    brain.set("gamma0", 0.2)
+    brain.setup_experiment(0.0)
+    brain.enter_initialization_mode()
+    np.testing.assert_array_equal(brain.get("mu"), [[140.0, -90.0], [150.0, -80.0]])
+    np.testing.assert_array_equal(brain.get("gamma"), [0.2, 0.2])
+    assert np.isnan(brain.get("free_energy")).all() and not brain.get("u_shoulder").any()

@@ -97,9 +97,8 @@ class ArmPlant(Component):
         self._cells: list[tuple[pymunk.DampedSpring, pymunk.DampedSpring] | None] = []
 
     # -- set-up ------------------------------------------------------------------------------
-    def enter_initialization_mode(self):
-        """Publish the initial pose as soon as the parameters are in (the brain reads it first)."""
-        super().enter_initialization_mode()
+    def publish_initial(self):
+        """The initial pose, as soon as the parameters are in (the brain reads it first)."""
         q0 = self.values["q0_shoulder"], self.values["q0_elbow"]
         hand_x, hand_y = forward(*q0)
         self.values.update(q_shoulder=q0[0].copy(), q_elbow=q0[1].copy(), hand_x=hand_x, hand_y=hand_y)

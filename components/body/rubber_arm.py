@@ -30,9 +30,8 @@ class RubberArm(Component):
                      description="rubber hand position (x, y), where the ball touches"),
         ])
 
-    def enter_initialization_mode(self):
+    def publish_initial(self):
         """Pose the arm as soon as the parameters are in: components earlier in the step order read it."""
-        super().enter_initialization_mode()
         self.initialize()
 
     def initialize(self):

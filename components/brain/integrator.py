@@ -127,18 +127,9 @@ class Brain(Component):
                      description="sum (s_p - mu)^2 / (2 Sigma_p) + gamma * visual_error, at the step's start mu"),
         ])
 
-    # -- initial state: outputs follow the parameters from instantiation on, so a component
-    # stepping before the brain (the decoder) reads mu0 during initialization.
-    def instantiate(self, batch_size: int = 1) -> None:
-        super().instantiate(batch_size)
-        self._reset_state()
-
-    def set(self, name: str, value) -> None:
-        super().set(name, value)
-        if name in ("mu0", "gamma0"):
-            self._reset_state()
-
-    def _reset_state(self):
+    def publish_initial(self):
+        """mu = mu0, gamma = gamma0, a = a_dot = 0, free energy NaN, no events seen: the decoder,
+        earlier in the step order, reads mu0 in initialization mode."""
         batch = self.batch_size
         self.values["mu"] = self.values["mu0"].copy()
         self.values["gamma"] = self.values["gamma0"].copy()
@@ -174,9 +165,8 @@ class Brain(Component):
         order, and the brain would see its start value), so row 0 of a recorded F is NaN.
         """
         self._check_parameters()
-        self._reset_state()
+        self.publish_initial()  # again: parameters may have been set in initialization mode
         self._sensed(proprioception=False)
-        self.values["free_energy"] = np.full(self.batch_size, np.nan)
 
     def step(self, t, h):
         v = self.values
