@@ -102,9 +102,9 @@ def test_drive_is_j_transpose_error_over_variance_with_autograd_jacobian_and_fin
         mine = jacobian_images(component.model, mu[trial:trial + 1])[0]
         np.testing.assert_allclose(mine, finite, rtol=1e-4, atol=1e-4 * abs(finite).max())
         assert abs(finite).max() > 1e-4  # the check is not vacuous
-        # error and stiffness: sum of squares and the largest eigenvalue of J^T J, both weighted
+        # error and stiffness: half the sum of squares and the largest eigenvalue of J^T J, both weighted
         np.testing.assert_allclose(component.get("visual_error")[trial],
-                                   float((error ** 2).sum()) * scale / variance, rtol=1e-5)
+                                   0.5 * float((error ** 2).sum()) * scale / variance, rtol=1e-5)
         gram = np.einsum("hwk,hwl->kl", jacobian.numpy(), jacobian.numpy()) * scale / variance
         np.testing.assert_allclose(component.get("visual_stiffness")[trial], np.linalg.eigvalsh(gram)[-1], rtol=1e-5)
 

@@ -17,9 +17,10 @@ rate (1 deg^2/s per unit of F), so 1/Sigma_p reads as a rate in 1/s.
 Free energy per step (output ``free_energy``, dimensionless):
     F = sum_j (s_p - mu)_j^2 / (2 Sigma_p) + gamma * visual_error,
 with mu the belief the step started from (the one the decoder evaluated), gamma this step's
-value, and visual_error the decoder's precision-weighted squared error (1/2 e^T e / Sigma_v,
-so that -dF/dmu is the mu_dot above). It is NaN at initialization (row 0 of a recording):
-s_p may not have arrived yet, since the body steps after the brain.
+value, and visual_error the decoder's 1/2 e^T Sigma_v^-1 e (e = s_v - g(mu), Sigma_v per
+pixel at the 256x256 reference), whose gradient is -visual_drive: so -dF/dmu is exactly the
+mu_dot above. It is NaN at initialization (row 0 of a recording): s_p may not have arrived
+yet, since the body steps after the brain.
 
 Time of the events: under Gauss-Seidel the stimulus has already advanced to t + h when the
 brain steps from t, so the decay of eq. 9 measures t + h minus the last tactile event time.
@@ -110,7 +111,7 @@ class Brain(Component):
             Variable("visual_drive", "input", start=(0.0, 0.0), unit="deg/s", **joint,
                      description="J^T (s_v - g(mu)) / Sigma_v from the decoder, at this step's mu"),
             Variable("visual_error", "input", start=0.0, unit="1", min=0.0,
-                     description="decoder's precision-weighted squared error, 1/2 e^T e / Sigma_v"),
+                     description="1/2 e^T Sigma_v^-1 e from the decoder, e = s_v - g(mu), at this step's mu"),
             Variable("visual_stiffness", "input", start=0.0, unit="1/s", min=0.0,
                      description="largest eigenvalue of J^T J / Sigma_v, for the stability guard"),
             Variable("visual_time", "input", start=-np.inf, unit="s",

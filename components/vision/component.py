@@ -111,9 +111,14 @@ def visual_drive(jacobian: torch.Tensor, error: torch.Tensor, precision: torch.T
     return torch.einsum("bkhw,bhw->bk", jacobian, error) * precision[:, None]
 
 
-def visual_error(error: torch.Tensor, precision: torch.Tensor) -> torch.Tensor:
-    """Precision-weighted squared error e_v^T Sigma_v^-1 e_v, (B,); the free energy holds half of it."""
-    return error.square().sum(dim=(1, 2)) * precision
+def visual_error(squared_error: torch.Tensor, precision: torch.Tensor) -> torch.Tensor:
+    """The free energy's visual term without gamma: 1/2 e_v^T Sigma_v^-1 e_v, (B,).
+
+    squared_error: |e_v|^2 = |s_v - g(mu)|^2 summed over the pixels (B,); precision (B,):
+    resolution weight / visual variance. Its gradient is minus the visual drive,
+    d/dmu = -J^T Sigma_v^-1 e_v, so the brain's F descends along mu_dot (eq. 6).
+    """
+    return 0.5 * squared_error * precision
 
 
 def visual_stiffness(jacobian: torch.Tensor, precision: torch.Tensor) -> torch.Tensor:
@@ -165,7 +170,8 @@ class Decoder(Component):
             Variable("prediction", "output", "Array", shape=image, element="float32", start=None, unit="1",
                      description="g(mu): the image the belief predicts", depends_on=("mu",)),
             Variable("visual_error", "output", start=None, unit="1", min=0.0,
-                     description="(s_v - g)^T (s_v - g) * 256^2/(H W) / visual_variance",
+                     description="1/2 (s_v - g)^T (s_v - g) * 256^2/(H W) / visual_variance: F's visual "
+                                 "term without gamma",
                      depends_on=("mu", "image")),
             Variable("visual_stiffness", "output", start=None, unit="1/s", min=0.0,
                      description="largest eigenvalue of J^T J * 256^2/(H W) / visual_variance",
@@ -198,6 +204,6 @@ class Decoder(Component):
             prediction, jacobian = self.model.predict_with_jacobian(torch.from_numpy(mu.astype(np.float32)))
             error = sensed - prediction
             self.values["visual_drive"] = visual_drive(jacobian, error, precision).double().numpy()
-            self.values["visual_error"] = visual_error(error, precision).double().numpy()
+            self.values["visual_error"] = visual_error(error.square().sum(dim=(1, 2)), precision).double().numpy()
             self.values["visual_stiffness"] = visual_stiffness(jacobian, precision).double().numpy()
         self.values["prediction"] = prediction.numpy()  # a new tensor each step, shared with numpy

@@ -33,14 +33,14 @@ import torch.nn.functional as F
 
 from components.component import Deferred
 from components.variables import Variable
-from components.vision.component import Decoder, jacobian_gram, largest_eigenvalue
+from components.vision.component import Decoder, jacobian_gram, largest_eigenvalue, visual_error
 from components.vision.optimised import optimised
 
 DEFAULT_TOLERANCE = 0.01  # deg: final drift within 0.1 % of the exact integrator's (measured 0.06 %: README, fast mode)
 
 
 def linearised_terms(projected, squared, gram, step):
-    """J^T e (B, 2) and e^T e (B,) of eqs. 4 and 6 (before the precision) for g(mu) ~ g0 + J0 d, J ~ J0.
+    """J^T e (B, 2) and |e|^2 (B,) of eqs. 4 and 6 (before the precision) for g(mu) ~ g0 + J0 d, J ~ J0.
 
     With e = s_v - g0 - J0 d and d = mu - mu0 (B, 2), from projected = J0^T (s_v - g0) (B, 2),
     squared = |s_v - g0|^2 (B,) and gram = J0^T J0 (B, 2, 2), all float64:
@@ -175,7 +175,7 @@ class LinearisedDecoder(Decoder):
         drive, error = linearised_terms(projected.double(), squared.double(), gram, torch.from_numpy(step))
         weight = precision.double()
         self.values["visual_drive"] = (drive * weight[:, None]).numpy()
-        self.values["visual_error"] = (error * weight).numpy()
+        self.values["visual_error"] = visual_error(error, weight).numpy()
         self.values["visual_stiffness"] = largest_eigenvalue(gram * weight[:, None, None]).numpy()
         self.values["prediction"] = Deferred(self._prediction_of(slots, step, side))
 
