@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from components.brain.causal_inference import update_gamma
+from components.brain.causal_inference import observe_events, update_gamma
 from components.component import Component, ComponentError, StepFailure
 from components.variables import Variable
 
@@ -56,6 +56,19 @@ def action_rate(s_p, mu, proprioceptive_variance):
     The paper's extra factor dt (from ds/da = dt) is left out, as in the released agent.
     """
     return -(s_p - mu) / proprioceptive_variance[:, None]
+
+
+def euler_step(mu, action, s_p, gamma, visual_drive, proprioceptive_variance, action_limit, h):
+    """One explicit Euler step of eqs. 6 and 7 in the released agent's order; returns (new_mu, a_dot, new_action).
+
+    mu <- mu + h * mu_dot (:func:`belief_rate`); a_dot from the UPDATED mu (:func:`action_rate`);
+    a <- clip(a + h * a_dot, -action_limit, action_limit). mu, action, s_p, visual_drive: (B, 2);
+    gamma, proprioceptive_variance, action_limit: (B,).
+    """
+    new_mu = mu + h * belief_rate(s_p, mu, gamma, visual_drive, proprioceptive_variance)
+    a_dot = action_rate(s_p, new_mu, proprioceptive_variance)
+    limit = action_limit[:, None]
+    return new_mu, a_dot, np.clip(action + h * a_dot, -limit, limit)
 
 
 def free_energy(s_p, mu, gamma, visual_error, proprioceptive_variance):
@@ -137,9 +150,8 @@ class Brain(Component):
         self.values["u_shoulder"], self.values["u_elbow"] = np.zeros(batch), np.zeros(batch)
         self.values["action_rate"] = np.zeros((batch, 2))
         self.values["free_energy"] = np.full(batch, np.nan)
-        # Event bookkeeping: last seen times, and events seen since the last Bayes update.
-        self._seen_visual, self._seen_tactile = np.full(batch, -np.inf), np.full(batch, -np.inf)
-        self._pending_visual, self._pending_tactile = np.zeros(batch, bool), np.zeros(batch, bool)
+        # Event bookkeeping (observe_events): last seen times, and events seen since the last Bayes update.
+        self._events = (np.full(batch, -np.inf), np.full(batch, -np.inf), np.zeros(batch, bool), np.zeros(batch, bool))
 
     def _check_parameters(self):
         for name in ("proprioceptive_variance", "sync_sd", "async_density", "action_limit"):
@@ -175,9 +187,7 @@ class Brain(Component):
         visual_time, tactile_time = v["visual_time"], v["tactile_time"]
 
         # 1. gamma: Bayes once a new visual and a new tactile event have both been seen.
-        pending_visual = self._pending_visual | ((visual_time != self._seen_visual) & np.isfinite(visual_time))
-        pending_tactile = self._pending_tactile | ((tactile_time != self._seen_tactile) & np.isfinite(tactile_time))
-        pair = pending_visual & pending_tactile
+        pair, *events = observe_events(*self._events, visual_time, tactile_time)
         gamma = update_gamma(v["gamma"], pair, visual_time, tactile_time, t + h, h, v["gamma0"],
                              v["sync_sd"], v["async_density"], v["decay_rate"])
 
@@ -192,17 +202,13 @@ class Brain(Component):
 
         # 2. belief, 3. action from the updated belief (released agent's order).
         with np.errstate(over="ignore", invalid="ignore"):  # overflow is caught just below, by name
-            new_mu = mu + h * belief_rate(s_p, mu, gamma, v["visual_drive"], variance)
-            a_dot = action_rate(s_p, new_mu, variance)
-            limit = v["action_limit"][:, None]
-            action = np.stack([v["u_shoulder"], v["u_elbow"]], axis=1)
-            action = np.clip(action + h * a_dot, -limit, limit)
+            new_mu, a_dot, action = euler_step(mu, np.stack([v["u_shoulder"], v["u_elbow"]], axis=1), s_p, gamma,
+                                               v["visual_drive"], variance, v["action_limit"], h)
             energy = free_energy(s_p, mu, gamma, v["visual_error"], variance)
         for name, value in (("mu", new_mu), ("action_rate", a_dot), ("free_energy", energy)):
             _require_finite(name, value)
 
         # Commit only after every check passed: a failed step leaves the state as it was.
-        self._seen_visual, self._seen_tactile = visual_time.copy(), tactile_time.copy()
-        self._pending_visual, self._pending_tactile = pending_visual & ~pair, pending_tactile & ~pair
+        self._events = tuple(events)
         v["mu"], v["gamma"], v["action_rate"], v["free_energy"] = new_mu, gamma, a_dot, energy
         v["u_shoulder"], v["u_elbow"] = action[:, 0].copy(), action[:, 1].copy()
