@@ -9,13 +9,17 @@ import pytest
 from components.component import ComponentError, Status
 from components.vision import checkpoint
 from components.vision.component import Decoder, GenerativeModel, jacobian_images
-from components.vision.networks import PRESETS, build, parameter_count
+from components.vision.networks import PRESETS, build
 import torch  # after components.vision, which configures torch's threads
 from master import System, simulate
 from tests.toys import Image
 
 REST, HALF = (147.7, -91.2), (40.0, 50.0)
 RES = 16
+
+
+def parameter_count(module: torch.nn.Module) -> int:
+    return sum(p.numel() for p in module.parameters())
 
 
 def random_model(kind="conv", seed=0, resolution=RES):

@@ -12,8 +12,6 @@ from components.body.kinematics import REST_HAND, REST_POSE, inverse
 from components.component import Component, ComponentError
 from components.variables import Variable
 
-CONDITION_OFFSETS = {"left": -0.15, "center": 0.0, "right": 0.15}  # m, offset_x of each condition
-
 
 class RubberArm(Component):
     """Parameters offset_x, offset_y (m, per trial); outputs pose (deg) and hand (m)."""
