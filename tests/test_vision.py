@@ -5,12 +5,12 @@ import re
 
 import numpy as np
 import pytest
+import torch
 
 from components.component import ComponentError, Status
 from components.vision import checkpoint
 from components.vision.component import Decoder, GenerativeModel, jacobian_images
 from components.vision.networks import PRESETS, build
-import torch  # after components.vision, which configures torch's threads
 from master import System, simulate
 from tests.toys import Image
 
