@@ -1,14 +1,26 @@
 """The component model: FMI 2.0 co-simulation semantics, in Python.
 
 A component declares its variables (:class:`~components.variables.Variable`) and
-implements two hooks, :meth:`Component.initialize` and :meth:`Component.step`.
-The base class owns the lifecycle, the checked get/set by name, and the step
-status, so that every component, and an FMU wrapped by an adapter, looks the same
-to the master:
+implements the hooks it needs; the base class owns the lifecycle, the checked
+get/set by name, and the step status, so that every component, and an FMU wrapped
+by an adapter, looks the same to the master:
 
     instantiate(batch_size) -> set parameters -> setup_experiment(start, stop)
     -> enter_initialization_mode() -> exit_initialization_mode()
     -> do_step(t, h) ... -> terminate()
+
+Hooks, each called by the lifecycle verb named:
+
+- :meth:`Component.publish_initial` (by ``enter_initialization_mode``, after the
+  parameters are set): the outputs that follow from parameters and start values
+  alone. FMI lets a master read outputs in initialization mode, and the master
+  enters initialization mode on every component before it exits any, so a
+  component earlier in the order reads them (the decoder reads the brain's mu0).
+  Default: nothing.
+- :meth:`Component.initialize` (by ``exit_initialization_mode``, with the inputs
+  set): state and initial outputs.
+- :meth:`Component.step` (by ``do_step``): advance one communication step.
+- :meth:`Component.terminate_hook` (by ``terminate``): release resources.
 
 Values live in ``self.values`` as arrays with a leading batch dimension. A
 component replaces its output arrays in ``step``; it never mutates them in
@@ -118,6 +130,13 @@ class Component:
         self.stop_time: float | None = None
 
     # -- hooks for subclasses -------------------------------------------------
+    def publish_initial(self) -> None:
+        """Outputs that follow from parameters and start values alone, readable in initialization mode
+        (before exit_initialization_mode); default: nothing.
+
+        Parameters set later, in initialization mode, take effect in :meth:`initialize`.
+        """
+
     def initialize(self) -> None:
         """Compute state and initial outputs from parameters and start values."""
 
@@ -147,6 +166,7 @@ class Component:
     def enter_initialization_mode(self) -> None:
         self._require(INSTANTIATED, "enter_initialization_mode")
         self.state = INITIALIZATION
+        self.publish_initial()
 
     def exit_initialization_mode(self) -> None:
         self._require(INITIALIZATION, "exit_initialization_mode")

@@ -295,10 +295,9 @@ class FMUComponent(Component):
                                            Status(max(error.status, Status.DISCARD)), trials=(trial,))
                 raise self.failure from None
 
-    def enter_initialization_mode(self) -> None:
+    def publish_initial(self) -> None:
         """Enter the FMUs' initialization mode and publish their initial outputs, as the native plant does
         (the master feeds components earlier in the order before this one initializes)."""
-        super().enter_initialization_mode()
         t0, stop = self.start_time, self.stop_time
         try:
             self._set("parameter", "input")

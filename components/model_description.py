@@ -43,12 +43,61 @@ def _format(value) -> str:
     return str(value)
 
 
+def unit_definitions(units) -> ET.Element | None:
+    """``UnitDefinitions`` for ``units`` (sorted, each once) with their SI base units; None if there are none.
+
+    A unit missing from BASE_UNITS is declared by name only.
+    """
+    units = sorted(set(units))
+    if not units:
+        return None
+    definitions = ET.Element("UnitDefinitions")
+    for unit in units:
+        element = ET.SubElement(definitions, "Unit", {"name": unit})
+        if unit in BASE_UNITS:
+            exponents, factor = BASE_UNITS[unit]
+            attributes = {k: str(e) for k, e in exponents.items()}
+            if factor != 1.0:
+                attributes["factor"] = repr(factor)
+            ET.SubElement(element, "BaseUnit", attributes)
+    return definitions
+
+
+def typed_attributes(variable) -> dict:
+    """The unit (of a Real) and the range (of a Real or an Integer) on a scalar's typed element."""
+    attributes = {"unit": variable.unit} if variable.type == "Real" and variable.unit else {}
+    cast = {"Real": float, "Integer": int}.get(variable.type)
+    for bound in ("min", "max"):
+        if getattr(variable, bound) is not None and cast is not None:
+            attributes[bound] = _format(cast(getattr(variable, bound)))
+    return attributes
+
+
+def model_structure(scalars) -> ET.Element:
+    """``ModelStructure``: each scalar output with the scalar inputs it depends on directly, and as an
+    initial unknown. ``scalars``: the scalar variables in value-reference order (index = position + 1)."""
+    structure = ET.Element("ModelStructure")
+    index = {v.name: i + 1 for i, v in enumerate(scalars)}  # FMI indices are 1-based
+    outputs = [v for v in scalars if v.causality == "output"]
+    inputs = [v.name for v in scalars if v.causality == "input"]
+    if outputs:
+        section = ET.SubElement(structure, "Outputs")
+        for v in outputs:
+            # None means every input; only scalar inputs have an index to name.
+            sources = inputs if v.depends_on is None else v.depends_on
+            ET.SubElement(section, "Unknown", {
+                "index": str(index[v.name]), "dependencies": " ".join(str(index[n]) for n in sources if n in index)})
+        initial = ET.SubElement(structure, "InitialUnknowns")
+        for v in outputs:
+            ET.SubElement(initial, "Unknown", {"index": str(index[v.name])})
+    return structure
+
+
 def to_xml(component) -> str:
     """Return the FMI 2.0 co-simulation model description of ``component``."""
     variables = list(component.variables.values())
     scalars = [v for v in variables if v.type != "Array"]
     arrays = [v for v in variables if v.type == "Array"]
-    index = {v.name: i + 1 for i, v in enumerate(scalars)}  # FMI indices are 1-based
 
     root = ET.Element("fmiModelDescription", {
         "fmiVersion": "2.0",
@@ -62,17 +111,9 @@ def to_xml(component) -> str:
     })
     ET.SubElement(root, "CoSimulation", {"modelIdentifier": component.name,
                                          "canHandleVariableCommunicationStepSize": "true"})
-    units = sorted({v.unit for v in variables if v.unit})
-    if units:
-        definitions = ET.SubElement(root, "UnitDefinitions")
-        for unit in units:
-            element = ET.SubElement(definitions, "Unit", {"name": unit})
-            if unit in BASE_UNITS:
-                exponents, factor = BASE_UNITS[unit]
-                attributes = {k: str(e) for k, e in exponents.items()}
-                if factor != 1.0:
-                    attributes["factor"] = repr(factor)
-                ET.SubElement(element, "BaseUnit", attributes)
+    definitions = unit_definitions(v.unit for v in variables if v.unit)
+    if definitions is not None:
+        root.append(definitions)
     if arrays:
         tool = ET.SubElement(ET.SubElement(root, "VendorAnnotations"), "Tool", {"name": "rhi"})
         holder = ET.SubElement(tool, "Arrays")  # the schema allows one element inside a Tool
@@ -97,27 +138,10 @@ def to_xml(component) -> str:
             if v.causality == "parameter":
                 attributes["initial"] = "exact"
             typed["start"] = _format(v.start.item() if hasattr(v.start, "item") else v.start)
-        if v.type == "Real" and v.unit:
-            typed["unit"] = v.unit
-        for bound in ("min", "max"):
-            if getattr(v, bound) is not None and v.type != "Boolean":
-                typed[bound] = _format(getattr(v, bound))
+        typed.update(typed_attributes(v))
         element = ET.SubElement(model_variables, "ScalarVariable", attributes)
         ET.SubElement(element, v.type, typed)
 
-    structure = ET.SubElement(root, "ModelStructure")
-    outputs = [v for v in scalars if v.causality == "output"]
-    inputs = [v.name for v in variables if v.causality == "input"]
-    if outputs:
-        section = ET.SubElement(structure, "Outputs")
-        for v in outputs:
-            # None means every input; only scalar inputs have an index to name.
-            sources = inputs if v.depends_on is None else v.depends_on
-            attributes = {"index": str(index[v.name]),
-                          "dependencies": " ".join(str(index[n]) for n in sources if n in index)}
-            ET.SubElement(section, "Unknown", attributes)
-        initial = ET.SubElement(structure, "InitialUnknowns")
-        for v in outputs:
-            ET.SubElement(initial, "Unknown", {"index": str(index[v.name])})
+    root.append(model_structure(scalars))
     ET.indent(root)
     return '<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"

@@ -79,8 +79,3 @@ class Variable:
     def kind(self) -> str:
         """``Real``, or ``Array[8, 8] float32``: the type as error messages name it."""
         return f"Array{list(self.shape)} {self.element}" if self.type == "Array" else self.type
-
-    def describe(self) -> str:
-        """``name [unit]: description``, as shown in error messages and --help."""
-        unit = f" [{self.unit}]" if self.unit else ""
-        return f"{self.name}{unit}: {self.description}"

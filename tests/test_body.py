@@ -4,11 +4,11 @@ import math
 import numpy as np
 import pytest
 
-from components.body.kinematics import (FOREARM, REST_HAND, REST_POSE, SHOULDER, UPPER_ARM, elbow_position,
-                                        forward, inverse, jacobian)
+from components.body.kinematics import FOREARM, REST_HAND, REST_POSE, SHOULDER, UPPER_ARM, forward, inverse, jacobian
 from components.body.plant import ArmPlant
-from components.body.rubber_arm import CONDITION_OFFSETS, RubberArm
+from components.body.rubber_arm import RubberArm
 from components.component import ComponentError, Status
+from master.experiment.config import defaults
 
 # Poses whose hand positions are sums of the segment lengths, worked out by hand.
 HAND_COMPUTED = [
@@ -29,7 +29,6 @@ def test_forward_and_inverse_match_hand_computed_values(pose, hand):
 def test_rest_pose_and_round_trip_on_a_grid():
     assert REST_POSE == pytest.approx((147.7, -91.2), abs=0.05)
     assert np.allclose(forward(*REST_POSE), REST_HAND, atol=1e-12)
-    assert np.allclose(elbow_position(90.0), (-0.20, 0.3595), atol=1e-12)
     radius, angle = np.meshgrid(np.linspace(0.02, 0.72, 15), np.radians(np.linspace(5, 175, 18)))
     x, y = SHOULDER[0] + radius * np.cos(angle), SHOULDER[1] + radius * np.sin(angle)
     shoulder, elbow = inverse(x, y)
@@ -65,7 +64,7 @@ def start(component, batch_size, **parameters):
 
 
 def test_rubber_hands_land_15_cm_left_and_right_of_the_real_hand():
-    offsets = list(CONDITION_OFFSETS.values())
+    offsets = list(defaults()["conditions"].values())  # left, center, right
     arm = start(RubberArm(), 3, offset_x=offsets)
     hand, pose = arm.get("hand"), arm.get("pose")
     assert np.allclose(hand[:, 0] - REST_HAND[0], [-0.15, 0.0, 0.15], atol=1e-12)

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from components.brain import Brain
-from components.brain.causal_inference import decayed, posterior_common_cause, update_gamma
+from components.brain.causal_inference import decayed, observe_events, posterior_common_cause, update_gamma
+from components.brain.integrator import euler_step
 from components.component import ComponentError, Status
 from master import SimulationError, System, simulate
 from tests.linear_decoder import LinearDecoder
@@ -306,3 +307,43 @@ def test_parameter_range_and_unconnected_proprioception_are_named():
     with pytest.raises(SimulationError, match=r"brain failed the step at t = 0 s \(error\): q_elbow is not "
                                               r"finite \(nan\) in trial 0"):
         simulate(System([Brain(), Constant("shoulder", unit="deg")], [("shoulder.y", "brain.q_shoulder")]), 0.1, H)
+
+
+def test_belief_and_gamma_are_readable_in_initialization_mode():
+    """The decoder, before the brain in the order, reads mu0 while the brain is in initialization mode."""
+    brain = Brain()
+    brain.instantiate(2)
+    brain.set("mu0", [[140.0, -90.0], [150.0, -80.0]])
+    brain.set("gamma0", 0.2)
+    brain.setup_experiment(0.0)
+    brain.enter_initialization_mode()
+    np.testing.assert_array_equal(brain.get("mu"), [[140.0, -90.0], [150.0, -80.0]])
+    np.testing.assert_array_equal(brain.get("gamma"), [0.2, 0.2])
+    assert np.isnan(brain.get("free_energy")).all() and not brain.get("u_shoulder").any()
+
+
+def test_event_bookkeeping_fires_bayes_once_per_new_pair():
+    """A pair is a new visual and a new tactile event since the last Bayes update, in either order and on
+    different steps; an event seen again (same time) is not new, and none fires before any event."""
+    state = (np.full(2, -np.inf), np.full(2, -np.inf), np.zeros(2, bool), np.zeros(2, bool))
+    times = [([-np.inf, -np.inf], [-np.inf, -np.inf]),  # nothing yet
+             ([2.0, -np.inf], [-np.inf, 0.5]),          # trial 0: visual; trial 1: tactile first
+             ([2.0, -np.inf], [-np.inf, 0.5]),          # the same times again: nothing new
+             ([2.0, 2.0], [2.05, 0.5]),                 # both trials complete their pair
+             ([2.0, 2.0], [2.05, 0.5]),                 # seen: no second Bayes update
+             ([4.0, 4.0], [2.05, 4.3])]                 # trial 0: a visual alone; trial 1: both at once
+    fired = []
+    for visual, tactile in times:
+        pair, *state = observe_events(*state, np.array(visual), np.array(tactile))
+        fired.append(pair.tolist())
+    assert fired == [[False, False], [False, False], [False, False], [True, True], [False, False], [False, True]]
+    assert state[2].tolist() == [True, False] and not state[3].any()  # trial 0 waits for a touch
+
+
+def test_euler_step_updates_the_belief_then_the_action_from_it_and_clips():
+    mu, s_p, drive = np.array([[10.0, 20.0]]), np.array([[10.5, 19.0]]), np.array([[3.0, -4.0]])
+    one = np.ones(1)
+    new_mu, a_dot, action = euler_step(mu, np.array([[-0.995, -0.2]]), s_p, 0.5 * one, drive, 2.0 * one, one, 0.1)
+    np.testing.assert_allclose(new_mu, mu + 0.1 * ((s_p - mu) / 2.0 + 0.5 * drive), rtol=1e-15)
+    np.testing.assert_allclose(a_dot, -(s_p - new_mu) / 2.0, rtol=1e-15)
+    np.testing.assert_allclose(action, [[-1.0, -0.2 + 0.1 * a_dot[0, 1]]], rtol=1e-15)  # shoulder clipped at -1

@@ -8,7 +8,7 @@ from PIL import Image
 
 from components.body import camera
 from components.body.camera import Camera, render
-from components.body.kinematics import REST_HAND, REST_POSE, elbow_position, forward, inverse
+from components.body.kinematics import REST_HAND, REST_POSE, SHOULDER, UPPER_ARM, forward, inverse
 from components.component import ComponentError
 
 PICTURES = Path(__file__).parent / "pictures"
@@ -59,7 +59,9 @@ def test_each_condition_is_drawn_where_the_kinematics_put_it_and_saved_as_a_pict
     real = render(np.array([REST_POSE]), resolution, None)[0]
     Image.fromarray(np.round(real * 255).astype(np.uint8)).save(PICTURES / "camera_real_arm.png")
     # The middle of the forearm is limb-bright (not the hand's 1.0), the shoulder is inside the limb.
-    mid_forearm = np.add(elbow_position(REST_POSE[0]), forward(*REST_POSE)) / 2
+    shoulder = np.radians(REST_POSE[0])
+    elbow = np.add(SHOULDER, UPPER_ARM * np.array([np.cos(shoulder), np.sin(shoulder)]))
+    mid_forearm = (elbow + forward(*REST_POSE)) / 2
     assert real[pixel_of(*mid_forearm, resolution)] == pytest.approx(camera.LIMB_LEVEL, abs=0.05)
     assert real[pixel_of(-0.3, 0.62, resolution)] == 0  # no ball, and black background
 

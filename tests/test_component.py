@@ -115,3 +115,26 @@ def test_model_description_feedthrough_and_arrays(tmp_path):
     assert '<Array name="image" causality="input" shape="4 4" element="float32"' in xml
     path.write_text(xml)
     assert [v.name for v in read_model_description(str(path)).modelVariables] == ["mean"]
+
+
+class PublishesEarly(FirstOrder):
+    """FirstOrder whose state is readable in initialization mode, from x0 alone."""
+
+    def publish_initial(self):
+        self.values["x"] = self.values["x0"].copy()
+
+
+def test_initial_outputs_are_published_on_entering_initialization_mode():
+    """publish_initial runs once the parameters are set, so the outputs are readable before initialization
+    ends; the base hook publishes nothing (the output keeps its start value until initialize)."""
+    early, plain = PublishesEarly(), FirstOrder()
+    for component in (early, plain):
+        component.instantiate(2)
+        component.set("x0", [1.5, -2.0])
+        component.setup_experiment(0.0, 1.0)
+        component.enter_initialization_mode()
+    np.testing.assert_array_equal(early.get("x"), [1.5, -2.0])
+    np.testing.assert_array_equal(plain.get("x"), [0.0, 0.0])  # the start value
+    for component in (early, plain):
+        component.exit_initialization_mode()
+        np.testing.assert_array_equal(component.get("x"), [1.5, -2.0])

@@ -143,7 +143,7 @@ def test_one_step_against_finite_differences_and_numpy():
     precision = resolution_weight(32, 32) / 2.0
     drive = np.tensordot(jacobian, image[0] - predicted, axes=([1, 2], [0, 1])) * precision
     np.testing.assert_allclose(decoder.values["visual_drive"][0], drive, rtol=1e-3)  # float32 sums
-    error = ((image[0] - predicted) ** 2).sum() * precision
+    error = 0.5 * ((image[0] - predicted) ** 2).sum() * precision
     np.testing.assert_allclose(decoder.values["visual_error"][0], error, rtol=1e-4)
     np.testing.assert_allclose(decoder.values["prediction"][1], g(mu0[1] + step[1]), rtol=0, atol=1e-6)
 

@@ -6,12 +6,12 @@ import re
 import numpy as np
 import pytest
 from scipy import stats
+import torch
 
 from components.body import camera, kinematics
 from components.vision import checkpoint
 from components.vision.component import GenerativeModel
 from components.vision.training import TrainSettings, kl_to_prior, train
-import torch  # after components.vision, which configures torch's threads
 from master.experiment import training_data
 from master.cosim import ConfigError
 from master.commands.train import run_train

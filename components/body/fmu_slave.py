@@ -1,6 +1,6 @@
 """The pythonfmu slave: a native component (the arm plant) behind the FMI 2.0 co-simulation API.
 
-This file is the FMU's main script. ``master/export_command.py`` bundles it with
+This file is the FMU's main script. ``master/export/body.py`` bundles it with
 a copy of the ``components`` package and a one-line resource file,
 ``rhi_component.txt``, that names the model and the component class to wrap
 (``ArmBody components.body.plant:ArmPlant``): one slave class serves every body
@@ -21,11 +21,6 @@ from pythonfmu import Boolean, Fmi2Causality, Fmi2Slave, Fmi2Variability, Intege
 from pythonfmu.enums import Fmi2Status
 
 COMPONENT_FILE = "rhi_component.txt"  # "<model name> <module>:<class>", in the FMU's resources
-# SI exponents of the units the plant uses beyond components.model_description.BASE_UNITS.
-EXTRA_UNITS = {
-    "kg": ({"kg": 1}, 1.0), "N.m": ({"kg": 1, "m": 2, "s": -2}, 1.0), "N/m": ({"kg": 1, "s": -2}, 1.0),
-    "N.s/m": ({"kg": 1, "s": -1}, 1.0), "N.m.s/rad": ({"kg": 1, "m": 2, "s": -1, "rad": -1}, 1.0),
-}
 FMI_TYPES = {"Real": Real, "Integer": Integer, "Boolean": Boolean}
 PYTHON_TYPES = {"Real": float, "Integer": int, "Boolean": bool}
 
@@ -124,43 +119,19 @@ class ComponentSlave(Fmi2Slave):
     # -- model description ----------------------------------------------------------------
     def to_xml(self, model_options=None):
         """pythonfmu's description plus what it leaves out: units, ranges, exact start values,
-        output dependencies and initial unknowns (so masters see the outputs are state)."""
-        from components.model_description import BASE_UNITS
+        output dependencies and initial unknowns (so masters see the outputs are state), written
+        by the functions that write a component's own model description."""
+        from components.model_description import model_structure, typed_attributes, unit_definitions
         root = super().to_xml(model_options or {})
-        index = {v.name: i + 1 for i, v in enumerate(self.scalars)}  # = value reference + 1
         for element, variable in zip(root.iterfind("ModelVariables/ScalarVariable"), self.scalars):
             typed = element[0]
             if variable.type == "Real" and typed.get("start") is not None:
                 typed.set("start", repr(float(self.component.values[variable.name][0])))  # 17 digits
-            if variable.type == "Real" and variable.unit:
-                typed.set("unit", variable.unit)
-            for bound in ("min", "max"):
-                if getattr(variable, bound) is not None and variable.type != "Boolean":
-                    typed.set(bound, repr(PYTHON_TYPES[variable.type](getattr(variable, bound))))
-        units = sorted({v.unit for v in self.scalars if v.type == "Real" and v.unit})
-        if units:
-            definitions = root.makeelement("UnitDefinitions", {})
-            for unit in units:
-                element = definitions.makeelement("Unit", {"name": unit})
-                known = BASE_UNITS.get(unit) or EXTRA_UNITS.get(unit)
-                if known:  # an unknown unit is declared by name only
-                    base = {key: str(exponent) for key, exponent in known[0].items()}
-                    if known[1] != 1.0:
-                        base["factor"] = repr(known[1])
-                    element.append(element.makeelement("BaseUnit", base))
-                definitions.append(element)
+            for key, value in typed_attributes(variable).items():
+                typed.set(key, value)
+        definitions = unit_definitions(v.unit for v in self.scalars if v.type == "Real" and v.unit)
+        if definitions is not None:
             root.insert(list(root).index(root.find("CoSimulation")) + 1, definitions)
         structure = root.find("ModelStructure")
-        for child in list(structure):
-            structure.remove(child)
-        outputs = [v for v in self.scalars if v.causality == "output"]
-        inputs = [v.name for v in self.scalars if v.causality == "input"]
-        if outputs:
-            section, initial = structure.makeelement("Outputs", {}), structure.makeelement("InitialUnknowns", {})
-            for v in outputs:
-                sources = inputs if v.depends_on is None else [n for n in v.depends_on if n in index]
-                section.append(section.makeelement("Unknown", {
-                    "index": str(index[v.name]), "dependencies": " ".join(str(index[n]) for n in sources)}))
-                initial.append(initial.makeelement("Unknown", {"index": str(index[v.name])}))
-            structure.extend([section, initial])
+        root[list(root).index(structure)] = model_structure(self.scalars)
         return root

@@ -26,12 +26,6 @@ _REACH_MAX = UPPER_ARM + FOREARM
 _REACH_MIN = abs(UPPER_ARM - FOREARM)
 
 
-def elbow_position(shoulder_deg):
-    """Elbow joint position (x, y) in m for the shoulder angle(s) in degrees."""
-    shoulder = np.radians(np.asarray(shoulder_deg, dtype=np.float64))
-    return SHOULDER[0] + UPPER_ARM * np.cos(shoulder), SHOULDER[1] + UPPER_ARM * np.sin(shoulder)
-
-
 def forward(shoulder_deg, elbow_deg):
     """Hand position (x, y) in m for joint angles in degrees (broadcast together)."""
     shoulder = np.radians(np.asarray(shoulder_deg, dtype=np.float64))

@@ -97,9 +97,8 @@ class ArmPlant(Component):
         self._cells: list[tuple[pymunk.DampedSpring, pymunk.DampedSpring] | None] = []
 
     # -- set-up ------------------------------------------------------------------------------
-    def enter_initialization_mode(self):
-        """Publish the initial pose as soon as the parameters are in (the brain reads it first)."""
-        super().enter_initialization_mode()
+    def publish_initial(self):
+        """The initial pose, as soon as the parameters are in (the brain reads it first)."""
         q0 = self.values["q0_shoulder"], self.values["q0_elbow"]
         hand_x, hand_y = forward(*q0)
         self.values.update(q_shoulder=q0[0].copy(), q_elbow=q0[1].copy(), hand_x=hand_x, hand_y=hand_y)
@@ -158,9 +157,9 @@ class ArmPlant(Component):
             raise StepFailure(f"{self.name}.substeps = {substeps} is too few for servo_gain: a sub-step of "
                               f"{dt:.3g} s exceeds the servo time constant {1 / rate.max():.3g} s; "
                               f"use substeps >= {math.ceil(h * rate.max())}")
-        # The hot loop runs B x substeps times: plain Python floats (numpy scalars are several times
-        # slower) and Chipmunk's own getters and setters, which pymunk's properties wrap at about
-        # 1 us a call (measured: the loop 3x faster, the same numbers bit for bit).
+        # The hot loop runs B x substeps times: plain Python floats (numpy scalars are much slower) and
+        # Chipmunk's own getters and setters, without the per-call overhead of pymunk's properties that
+        # wrap them (the same numbers bit for bit, the loop several times faster).
         get_speed, set_torque = chipmunk.cpBodyGetAngularVelocity, chipmunk.cpBodySetTorque
         get_impulse = chipmunk.cpConstraintGetImpulse
         servos = [(upper._body, forearm._body, want[0], want[1], k, cap) for (upper, forearm), want, k, cap

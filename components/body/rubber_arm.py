@@ -12,8 +12,6 @@ from components.body.kinematics import REST_HAND, REST_POSE, inverse
 from components.component import Component, ComponentError
 from components.variables import Variable
 
-CONDITION_OFFSETS = {"left": -0.15, "center": 0.0, "right": 0.15}  # m, offset_x of each condition
-
 
 class RubberArm(Component):
     """Parameters offset_x, offset_y (m, per trial); outputs pose (deg) and hand (m)."""
@@ -30,9 +28,8 @@ class RubberArm(Component):
                      description="rubber hand position (x, y), where the ball touches"),
         ])
 
-    def enter_initialization_mode(self):
+    def publish_initial(self):
         """Pose the arm as soon as the parameters are in: components earlier in the step order read it."""
-        super().enter_initialization_mode()
         self.initialize()
 
     def initialize(self):

@@ -46,9 +46,8 @@ class KinematicArm(Component):
         declared = ArmPlant().variables
         super().__init__(name, [declared[n] for n in SHARED])
 
-    def enter_initialization_mode(self):
-        """Publish the initial pose as soon as the parameters are in, as the pymunk plant does."""
-        super().enter_initialization_mode()
+    def publish_initial(self):
+        """The initial pose as soon as the parameters are in, as the pymunk plant publishes it."""
         self._publish(self.values["q0_shoulder"].copy(), self.values["q0_elbow"].copy(),
                       np.zeros((self.batch_size, 2)))
 

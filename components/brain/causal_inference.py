@@ -56,12 +56,31 @@ def decayed(gamma, time, tactile_time, step, decay_rate):
     return np.where(touched, gamma * np.exp(-(since ** 2 / (1.0 / step)) * decay_rate), gamma)
 
 
+def observe_events(seen_visual, seen_tactile, pending_visual, pending_tactile, visual_time, tactile_time):
+    """Which trials have a new pair of events, the trigger of Bayes' rule in eq. 9, and the bookkeeping after it.
+
+    seen_visual, seen_tactile: the event times observed at the previous step (-inf: none yet).
+    pending_visual, pending_tactile: (B,) bool, a new event of that kind observed since the last
+        Bayes update. visual_time, tactile_time: the last event times observed now.
+    An event is new when its time differs from the one seen before (and is finite). Returns
+    ``(pair, seen_visual, seen_tactile, pending_visual, pending_tactile)``: pair (B,) bool, a new
+    visual and a new tactile event both observed since the last Bayes update; then the state for
+    the next step, the pending flags cleared where a pair fired. Pure: the caller commits it.
+    """
+    pending_visual = pending_visual | ((visual_time != seen_visual) & np.isfinite(visual_time))
+    pending_tactile = pending_tactile | ((tactile_time != seen_tactile) & np.isfinite(tactile_time))
+    pair = pending_visual & pending_tactile
+    return (pair, np.array(visual_time, dtype=float), np.array(tactile_time, dtype=float),
+            pending_visual & ~pair, pending_tactile & ~pair)
+
+
 def update_gamma(gamma, new_pair, visual_time, tactile_time, time, step, gamma0,
                  sync_sd=0.2, async_density=0.5, decay_rate=1.0 / 80.0):
     """One step of paper eq. 9 for each trial, then the clamp to [gamma0, 1].
 
     new_pair: (B,) bool, a new visual and a new tactile event have both been observed since
-        the last Bayes update of that trial; Bayes' rule there, the decay elsewhere.
+        the last Bayes update of that trial (:func:`observe_events`); Bayes' rule there, the
+        decay elsewhere.
     visual_time, tactile_time: the last observed event times, s (-inf before any).
     time: the time the inputs describe, s; step: the communication step dt, s.
     """

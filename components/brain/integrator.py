@@ -17,9 +17,10 @@ rate (1 deg^2/s per unit of F), so 1/Sigma_p reads as a rate in 1/s.
 Free energy per step (output ``free_energy``, dimensionless):
     F = sum_j (s_p - mu)_j^2 / (2 Sigma_p) + gamma * visual_error,
 with mu the belief the step started from (the one the decoder evaluated), gamma this step's
-value, and visual_error the decoder's precision-weighted squared error (1/2 e^T e / Sigma_v,
-so that -dF/dmu is the mu_dot above). It is NaN at initialization (row 0 of a recording):
-s_p may not have arrived yet, since the body steps after the brain.
+value, and visual_error the decoder's 1/2 e^T Sigma_v^-1 e (e = s_v - g(mu), Sigma_v per
+pixel at the 256x256 reference), whose gradient is -visual_drive: so -dF/dmu is exactly the
+mu_dot above. It is NaN at initialization (row 0 of a recording): s_p may not have arrived
+yet, since the body steps after the brain.
 
 Time of the events: under Gauss-Seidel the stimulus has already advanced to t + h when the
 brain steps from t, so the decay of eq. 9 measures t + h minus the last tactile event time.
@@ -33,7 +34,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from components.brain.causal_inference import update_gamma
+from components.brain.causal_inference import observe_events, update_gamma
 from components.component import Component, ComponentError, StepFailure
 from components.variables import Variable
 
@@ -55,6 +56,19 @@ def action_rate(s_p, mu, proprioceptive_variance):
     The paper's extra factor dt (from ds/da = dt) is left out, as in the released agent.
     """
     return -(s_p - mu) / proprioceptive_variance[:, None]
+
+
+def euler_step(mu, action, s_p, gamma, visual_drive, proprioceptive_variance, action_limit, h):
+    """One explicit Euler step of eqs. 6 and 7 in the released agent's order; returns (new_mu, a_dot, new_action).
+
+    mu <- mu + h * mu_dot (:func:`belief_rate`); a_dot from the UPDATED mu (:func:`action_rate`);
+    a <- clip(a + h * a_dot, -action_limit, action_limit). mu, action, s_p, visual_drive: (B, 2);
+    gamma, proprioceptive_variance, action_limit: (B,).
+    """
+    new_mu = mu + h * belief_rate(s_p, mu, gamma, visual_drive, proprioceptive_variance)
+    a_dot = action_rate(s_p, new_mu, proprioceptive_variance)
+    limit = action_limit[:, None]
+    return new_mu, a_dot, np.clip(action + h * a_dot, -limit, limit)
 
 
 def free_energy(s_p, mu, gamma, visual_error, proprioceptive_variance):
@@ -110,7 +124,7 @@ class Brain(Component):
             Variable("visual_drive", "input", start=(0.0, 0.0), unit="deg/s", **joint,
                      description="J^T (s_v - g(mu)) / Sigma_v from the decoder, at this step's mu"),
             Variable("visual_error", "input", start=0.0, unit="1", min=0.0,
-                     description="decoder's precision-weighted squared error, 1/2 e^T e / Sigma_v"),
+                     description="1/2 e^T Sigma_v^-1 e from the decoder, e = s_v - g(mu), at this step's mu"),
             Variable("visual_stiffness", "input", start=0.0, unit="1/s", min=0.0,
                      description="largest eigenvalue of J^T J / Sigma_v, for the stability guard"),
             Variable("visual_time", "input", start=-np.inf, unit="s",
@@ -127,27 +141,17 @@ class Brain(Component):
                      description="sum (s_p - mu)^2 / (2 Sigma_p) + gamma * visual_error, at the step's start mu"),
         ])
 
-    # -- initial state: outputs follow the parameters from instantiation on, so a component
-    # stepping before the brain (the decoder) reads mu0 during initialization.
-    def instantiate(self, batch_size: int = 1) -> None:
-        super().instantiate(batch_size)
-        self._reset_state()
-
-    def set(self, name: str, value) -> None:
-        super().set(name, value)
-        if name in ("mu0", "gamma0"):
-            self._reset_state()
-
-    def _reset_state(self):
+    def publish_initial(self):
+        """mu = mu0, gamma = gamma0, a = a_dot = 0, free energy NaN, no events seen: the decoder,
+        earlier in the step order, reads mu0 in initialization mode."""
         batch = self.batch_size
         self.values["mu"] = self.values["mu0"].copy()
         self.values["gamma"] = self.values["gamma0"].copy()
         self.values["u_shoulder"], self.values["u_elbow"] = np.zeros(batch), np.zeros(batch)
         self.values["action_rate"] = np.zeros((batch, 2))
         self.values["free_energy"] = np.full(batch, np.nan)
-        # Event bookkeeping: last seen times, and events seen since the last Bayes update.
-        self._seen_visual, self._seen_tactile = np.full(batch, -np.inf), np.full(batch, -np.inf)
-        self._pending_visual, self._pending_tactile = np.zeros(batch, bool), np.zeros(batch, bool)
+        # Event bookkeeping (observe_events): last seen times, and events seen since the last Bayes update.
+        self._events = (np.full(batch, -np.inf), np.full(batch, -np.inf), np.zeros(batch, bool), np.zeros(batch, bool))
 
     def _check_parameters(self):
         for name in ("proprioceptive_variance", "sync_sd", "async_density", "action_limit"):
@@ -174,9 +178,8 @@ class Brain(Component):
         order, and the brain would see its start value), so row 0 of a recorded F is NaN.
         """
         self._check_parameters()
-        self._reset_state()
+        self.publish_initial()  # again: parameters may have been set in initialization mode
         self._sensed(proprioception=False)
-        self.values["free_energy"] = np.full(self.batch_size, np.nan)
 
     def step(self, t, h):
         v = self.values
@@ -184,9 +187,7 @@ class Brain(Component):
         visual_time, tactile_time = v["visual_time"], v["tactile_time"]
 
         # 1. gamma: Bayes once a new visual and a new tactile event have both been seen.
-        pending_visual = self._pending_visual | ((visual_time != self._seen_visual) & np.isfinite(visual_time))
-        pending_tactile = self._pending_tactile | ((tactile_time != self._seen_tactile) & np.isfinite(tactile_time))
-        pair = pending_visual & pending_tactile
+        pair, *events = observe_events(*self._events, visual_time, tactile_time)
         gamma = update_gamma(v["gamma"], pair, visual_time, tactile_time, t + h, h, v["gamma0"],
                              v["sync_sd"], v["async_density"], v["decay_rate"])
 
@@ -201,17 +202,13 @@ class Brain(Component):
 
         # 2. belief, 3. action from the updated belief (released agent's order).
         with np.errstate(over="ignore", invalid="ignore"):  # overflow is caught just below, by name
-            new_mu = mu + h * belief_rate(s_p, mu, gamma, v["visual_drive"], variance)
-            a_dot = action_rate(s_p, new_mu, variance)
-            limit = v["action_limit"][:, None]
-            action = np.stack([v["u_shoulder"], v["u_elbow"]], axis=1)
-            action = np.clip(action + h * a_dot, -limit, limit)
+            new_mu, a_dot, action = euler_step(mu, np.stack([v["u_shoulder"], v["u_elbow"]], axis=1), s_p, gamma,
+                                               v["visual_drive"], variance, v["action_limit"], h)
             energy = free_energy(s_p, mu, gamma, v["visual_error"], variance)
         for name, value in (("mu", new_mu), ("action_rate", a_dot), ("free_energy", energy)):
             _require_finite(name, value)
 
         # Commit only after every check passed: a failed step leaves the state as it was.
-        self._seen_visual, self._seen_tactile = visual_time.copy(), tactile_time.copy()
-        self._pending_visual, self._pending_tactile = pending_visual & ~pair, pending_tactile & ~pair
+        self._events = tuple(events)
         v["mu"], v["gamma"], v["action_rate"], v["free_energy"] = new_mu, gamma, a_dot, energy
         v["u_shoulder"], v["u_elbow"] = action[:, 0].copy(), action[:, 1].copy()

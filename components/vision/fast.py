@@ -10,9 +10,9 @@ takes a new point: the nearest stored point within the tolerance of its mu if th
 one, else mu itself; either way |mu - mu0| <= tolerance after every step. Points are
 shared between trials and kept (up to ``memory_mb``, the least recently used dropped
 first), so trials moving along similar paths (the protocol's repetitions of a cell) share
-decoder evaluations (measured: 14.7 points per trial instead of 73 at 0.01 deg, five
-trials per cell), and all new points of a step are evaluated in one batched call. Tolerance 0 takes a new point every step mu changes: the
-outputs are then the exact decoder's (to float rounding).
+decoder evaluations, several times fewer than each trial alone would need, and all new
+points of a step are evaluated in one batched call. Tolerance 0 takes a new point every
+step mu changes: the outputs are then the exact decoder's (to float rounding).
 
 A step costs one pass over each trial's image and one over each point in use, for
 J0^T (s - g0) and |s - g0|^2 per trial; the terms in d = mu - mu0 follow in float64
@@ -33,14 +33,14 @@ import torch.nn.functional as F
 
 from components.component import Deferred
 from components.variables import Variable
-from components.vision.component import Decoder, jacobian_gram, largest_eigenvalue
+from components.vision.component import Decoder, jacobian_gram, largest_eigenvalue, visual_error
 from components.vision.optimised import optimised
 
-DEFAULT_TOLERANCE = 0.01  # deg: final drift within 0.1 % of the exact integrator's (measured 0.06 %: README, fast mode)
+DEFAULT_TOLERANCE = 0.01  # deg: final drift within 0.1 % of the exact integrator's (README, fast mode)
 
 
 def linearised_terms(projected, squared, gram, step):
-    """J^T e (B, 2) and e^T e (B,) of eqs. 4 and 6 (before the precision) for g(mu) ~ g0 + J0 d, J ~ J0.
+    """J^T e (B, 2) and |e|^2 (B,) of eqs. 4 and 6 (before the precision) for g(mu) ~ g0 + J0 d, J ~ J0.
 
     With e = s_v - g0 - J0 d and d = mu - mu0 (B, 2), from projected = J0^T (s_v - g0) (B, 2),
     squared = |s_v - g0|^2 (B,) and gram = J0^T J0 (B, 2, 2), all float64:
@@ -175,7 +175,7 @@ class LinearisedDecoder(Decoder):
         drive, error = linearised_terms(projected.double(), squared.double(), gram, torch.from_numpy(step))
         weight = precision.double()
         self.values["visual_drive"] = (drive * weight[:, None]).numpy()
-        self.values["visual_error"] = (error * weight).numpy()
+        self.values["visual_error"] = visual_error(error, weight).numpy()
         self.values["visual_stiffness"] = largest_eigenvalue(gram * weight[:, None, None]).numpy()
         self.values["prediction"] = Deferred(self._prediction_of(slots, step, side))
 

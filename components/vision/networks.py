@@ -157,7 +157,3 @@ def normalise(mu_deg, rest_pose, half_ranges):
     component (whose Jacobian goes through it by the chain rule).
     """
     return (mu_deg - rest_pose) / half_ranges
-
-
-def parameter_count(module: nn.Module) -> int:
-    return sum(p.numel() for p in module.parameters())

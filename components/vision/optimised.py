@@ -1,8 +1,8 @@
 """A faster copy of a decoder for CPUs: g(mu) and its Jacobian with the work halved and the kernels well used.
 
 :func:`optimised` copies a :class:`GenerativeModel` into a :class:`TangentModel`, the same
-function to float rounding (tested against torch.func.jvp). Each speed-up below was measured
-on the 2-core AMD EPYC of the README's performance section:
+function to float rounding (tested against torch.func.jvp). Each change below was kept because
+it made the step faster on a CPU (the README's performance section has the numbers):
 
 - forward-mode JVPs written out layer by layer, the primal and both tangents as one batch
   (half the FLOPs of two JVPs through PyTorch's own rules);
@@ -44,7 +44,8 @@ class TangentModel(GenerativeModel):
 
     def predict_with_jacobian(self, mu_deg: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """g (B, R, R) and J (B, 2, R, R), a chunk of trials at a time so that each chunk's largest feature
-        map stays within ACTIVATION_BUDGET (measured at 256 x 256, 60 trials: 70 -> 91 GFLOP/s in chunks of 8)."""
+        map stays within ACTIVATION_BUDGET: the layers then work in cache, at a higher FLOP rate than on
+        the whole batch at once."""
         decoder = self.decoder
         if not isinstance(decoder, ConvDecoder):
             return super().predict_with_jacobian(mu_deg)
@@ -96,7 +97,7 @@ def _tangent_step(layer, rows: torch.Tensor, batch: int) -> torch.Tensor:
         return out
     split = rows.view(3, batch, *rows.shape[1:])
     if isinstance(layer, nn.ReLU):  # relu(x) = x * [x > 0], and its tangent is t * [x > 0]
-        return split.mul_(split[0] > 0).view(rows.shape)  # a multiply: 1.6x faster than masked_fill_
+        return split.mul_(split[0] > 0).view(rows.shape)  # a multiply: faster than masked_fill_
     if isinstance(layer, nn.Sigmoid):
         output = torch.sigmoid_(split[0])
         split[1:] *= output * (1 - output)
@@ -106,7 +107,7 @@ def _tangent_step(layer, rows: torch.Tensor, batch: int) -> torch.Tensor:
 
 def _without_bias(layer, rows: torch.Tensor) -> torch.Tensor:
     if isinstance(layer, nn.Linear):
-        if len(rows) <= 64:  # few rows: W x^T streams the weight once (measured 2x faster for 3 rows x 1024 x 8192)
+        if len(rows) <= 64:  # few rows: W x^T streams the weight once (faster than F.linear for a large W)
             return (layer.weight @ rows.T).T.contiguous()
         return F.linear(rows, layer.weight)
     if isinstance(layer, nn.ConvTranspose2d):
@@ -122,9 +123,8 @@ class SubPixelTransposedConv(nn.Module):
 
     Output pixel (2m + a, 2n + b) meets input rows m - 1 + a .. m + a and columns n - 1 + b .. n + b
     only: each of the four phases (a, b) is a 3x3 convolution with zeros at the taps it does not
-    use. 2.25x the multiply-adds, but with one output channel oneDNN runs it 1.7x faster than the
-    transposed convolution (measured 30 -> 18 ms at 24 x 16 x 128 x 128). The same function to
-    float rounding.
+    use. 2.25x the multiply-adds, but with one output channel oneDNN runs it faster than the
+    transposed convolution. The same function to float rounding.
     """
 
     TAPS = ({0: 1, -1: 3}, {1: 0, 0: 2})  # phase a -> {input offset i - m: kernel row of the transposed conv}
@@ -160,9 +160,9 @@ def optimised(model: GenerativeModel) -> TangentModel:
     """A copy of ``model`` with layer-by-layer JVPs and its convolutions in channels-last layout.
 
     The same function (to float rounding). On CPU, channels-last runs ConvTranspose2d and its
-    tangent through oneDNN instead of a generic path (1.3-3x faster at 64x64 and 256x256), the
-    written-out JVP halves the work of the Jacobian (2x faster), and the last, one-channel
-    transposed convolution runs as a :class:`SubPixelTransposedConv`.
+    tangent through oneDNN instead of a generic path, the written-out JVP halves the work of the
+    Jacobian, and the last, one-channel transposed convolution runs as a
+    :class:`SubPixelTransposedConv`.
     """
     decoder = copy.deepcopy(model.decoder)
     if isinstance(decoder, ConvDecoder):

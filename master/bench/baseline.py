@@ -10,8 +10,10 @@ gamma, mu and a in numpy.
 
 Here the environment (Unity in the paper) is this project's body, camera, stimulus and rubber
 arm components, stepped directly in the master's Gauss-Seidel order without the master, and
-the brain's equations are the brain component's functions, so the baseline computes the same
-numbers as the exact integrator (to float rounding: reverse- instead of forward-mode AD).
+the brain's equations and its event bookkeeping are the brain's own functions (``observe_events``,
+``update_gamma``, ``euler_step``): only the data flow is the released agent's. So the baseline
+computes the same numbers as the exact integrator (to float rounding: reverse- instead of
+forward-mode AD).
 
 Example::
 
@@ -29,8 +31,8 @@ import torch
 from components.body.camera import Camera
 from components.body.plant import ArmPlant
 from components.body.rubber_arm import RubberArm
-from components.brain.causal_inference import update_gamma
-from components.brain.integrator import action_rate, belief_rate
+from components.brain.causal_inference import observe_events, update_gamma
+from components.brain.integrator import Brain, euler_step
 from components.stimulus import Stimulus
 from components.vision.component import GenerativeModel, resolution_weight
 from components.vision.networks import normalise
@@ -62,6 +64,8 @@ class PaperStyleAgent:
         brain = config["brain"]
         self.sigma_p, self.gamma0 = brain["proprioceptive_variance"], brain["gamma0"]
         self.brain, self.mu0 = brain, np.array(given["brain.mu0"], dtype=float)
+        # The experiment leaves the action limit at the brain component's start value.
+        self.action_limit = float(given.get("brain.action_limit", Brain().variables["action_limit"].start))
         self.precision = resolution_weight(model.resolution, model.resolution) / config["decoder"]["visual_variance"]
 
     def use_decoder(self, model: GenerativeModel, weight_gradients: bool) -> None:
@@ -97,7 +101,8 @@ class PaperStyleAgent:
         body.exit_initialization_mode()
 
         mu, action, gamma = self.mu0[None].copy(), np.zeros((1, 2)), np.array([self.gamma0], float)
-        last_tv, last_tt, new_tv, new_tt = -np.inf, -np.inf, False, False
+        events = (np.array([-np.inf]), np.array([-np.inf]), np.array([False]), np.array([False]))
+        variance, limit = np.array([self.sigma_p], float), np.array([self.action_limit])
         record = {"mu": [mu[0].copy()], "action": [action[0].copy()], "gamma": [gamma[0]], "drive": [np.zeros(2)],
                   "q": [np.array([body.values["q_shoulder"][0], body.values["q_elbow"][0]])],
                   "force_x": [body.values["force_x"][0]]}
@@ -116,17 +121,10 @@ class PaperStyleAgent:
             s_p = np.stack([body.values["q_shoulder"], body.values["q_elbow"]], axis=1)
 
             # Gamma from the touch events: Bayes once a new visual and a new tactile event were seen.
-            tv, tt = float(stimulus.values["visual_time"][0]), float(stimulus.values["tactile_time"][0])
-            if tv != last_tv and np.isfinite(tv):
-                last_tv, new_tv = tv, True
-            if tt != last_tt and np.isfinite(tt):
-                last_tt, new_tt = tt, True
-            pair = np.array([new_tv and new_tt])
-            gamma = update_gamma(gamma, pair, np.array([last_tv]), np.array([last_tt]), t + h, h,
-                                 self.gamma0, self.brain["sync_sd"], self.brain["async_density"],
-                                 self.brain["decay_rate"])
-            if pair[0]:
-                new_tv = new_tt = False
+            visual_time, tactile_time = stimulus.values["visual_time"], stimulus.values["tactile_time"]
+            pair, *events = observe_events(*events, visual_time, tactile_time)
+            gamma = update_gamma(gamma, pair, visual_time, tactile_time, t + h, h, self.gamma0,
+                                 self.brain["sync_sd"], self.brain["async_density"], self.brain["decay_rate"])
 
             # The released agent's active_inference_step: forward, error in numpy, backward, Euler.
             began = time.perf_counter()
@@ -134,9 +132,7 @@ class PaperStyleAgent:
             g_mu = output.detach().numpy()
             drive = self.visual_drive(inpt, output, s_v[None] - g_mu)
             self.decoder_seconds += time.perf_counter() - began
-            variance = np.array([self.sigma_p], float)
-            mu = mu + h * belief_rate(s_p, mu, gamma, drive, variance)
-            action = np.clip(action + h * action_rate(s_p, mu, variance), -1.0, 1.0)
+            mu, _, action = euler_step(mu, action, s_p, gamma, drive, variance, limit, h)
 
             body.set("u_shoulder", action[:, 0].copy())
             body.set("u_elbow", action[:, 1].copy())

@@ -3,6 +3,7 @@ the user's making print one line on stderr and exit with status 2."""
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from components.component import ComponentError
@@ -53,6 +54,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    # Torch's OpenMP threads spin while they wait at barriers by default, which made training about
+    # 10x slower on cores shared with other processes; passive waiting costs little on free cores.
+    # OpenMP reads this once, when torch loads: here, before any command imports torch (this module
+    # does not), and inherited by the processes a command starts.
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     args = build_parser().parse_args(argv)
     try:
         return args.run(args) or 0
