@@ -16,10 +16,11 @@ import pytest
 from fmpy import read_model_description, simulate_fmu
 from fmpy.validation import validate_fmu
 
-from components.body.kinematics import REST_POSE, forward
+from components.body.kinematics import REST_POSE, forward, jacobian
 from components.body.plant import ArmPlant
 from components.component import ComponentError
 from components.fmu_adapter import BODY_CONTRACT, FMUComponent, check_contract, extracted, guard_library
+from components.vision.component import Decoder
 from master import ConfigError, SimulationError, System, simulate
 from master.commands.export_body import run_export
 from master.export.body import build_fmu
@@ -254,3 +255,27 @@ def test_export_command(tmp_path, capsys):
         run_export(Namespace(variant="springy", out=str(tmp_path / "B.fmu")))
     with pytest.raises(ConfigError, match="--out .*must be a file name ending in .fmu"):
         run_export(Namespace(variant="native", out=str(tmp_path / "Body.zip")))
+
+
+def test_a_swapped_body_gets_the_body_keys_it_declares_and_the_rest_are_named(fmus):
+    """The kinematic FMU meets the body contract but has no substeps, masses or load cell: the experiment runs
+    it with the keys it declares (held, servo gain, torque limit: its held force is the statics of those)."""
+    from master import experiment
+    from master.experiment import config as configuration
+    from master.experiment.wiring import undeclared
+    from tests.test_batching import tiny_config, tiny_model
+
+    config = configuration.merge(tiny_config(steps=20), {"body": {"servo_gain": 10.0}})
+    trials = experiment.plan(config)[:2]
+    body = FMUComponent(fmus["kinematic"], name="body")
+    system = experiment.build_system(Decoder(tiny_model(), threads=1), config, body)
+    assert undeclared(experiment.parameters(trials, config), system) == [
+        "body.substeps", "body.upper_arm_mass", "body.forearm_mass", "body.clamp_stiffness", "body.clamp_damping"]
+    result = experiment.run_batch(Decoder(tiny_model(), threads=1), trials, config,
+                                  FMUComponent(fmus["kinematic"], name="body"))
+    u = np.radians(np.stack([result.values["brain.u_shoulder"][-1], result.values["brain.u_elbow"][-1]], 1))
+    force = np.stack([result.values["body.force_x"][-1], result.values["body.force_y"][-1]], 1)
+    assert np.abs(u).min() > 0  # the brain acts, so the force below is a real check
+    # The configured gain reached the FMU: its held force is the statics of K = 10, J^T F = K u.
+    per_radian = jacobian(*REST_POSE) * 180 / np.pi
+    np.testing.assert_allclose(force @ per_radian, 10.0 * u, rtol=1e-9, atol=1e-12)

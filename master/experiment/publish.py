@@ -20,13 +20,13 @@ from master.outputs.files import atomic_write, package_versions, publish, stagin
 
 
 def body_factory(path):
-    """A callable making the body component: the native plant, or the FMU at ``path``."""
+    """A callable making the body component (None: the native plant) and the body's parameter names."""
     if path is None:
-        return None
+        return None, None
     from components.fmu_adapter import FMUComponent
 
-    FMUComponent(path, name="body")  # checks the body contract now, listing every problem, before any work
-    return lambda: FMUComponent(path, name="body")
+    probe = FMUComponent(path, name="body")  # checks the body contract now, listing every problem, before any work
+    return (lambda: FMUComponent(path, name="body")), set(probe.variables)
 
 
 def run_into(out, config: dict, body: str | None = None, force: bool = False, progress: bool = False) -> dict:
@@ -35,7 +35,7 @@ def run_into(out, config: dict, body: str | None = None, force: bool = False, pr
     body: an FMU to use as the body (None: the native pymunk plant).
     """
     started = time.perf_counter()
-    make_body = body_factory(body)
+    make_body, declared = body_factory(body)
     staging = staging_folder(out, force)
     try:
         checkpoints, training_seconds = ensure_checkpoints(config, progress=progress)
@@ -54,6 +54,8 @@ def run_into(out, config: dict, body: str | None = None, force: bool = False, pr
                                                                   config["experiment"]["resolution"])))
         provenance = {
             "command": "rhi experiment", "configuration": config, "body": body or "native pymunk plant",
+            "body_keys_not_declared": sorted(f"body.{key}" for key in config["body"]
+                                             if declared is not None and key not in declared),
             "checkpoints": checkpoints, "seeds": {"master": config["experiment"]["seed"],
                                                   "trials": [t.__dict__ for t in trials]},
             "versions": package_versions(),

@@ -133,12 +133,24 @@ def parameters(trials: list[Trial], config: dict) -> dict:
     return given
 
 
+def undeclared(given: dict, system: System) -> list[str]:
+    """The ``body.*`` paths of ``given`` that the system's body does not declare.
+
+    A body swapped in (an FMU, a variant) must meet the body contract (DESIGN.md: held, q0_*), not
+    carry the native plant's physics: the [body] keys it lacks are left out, and the run records them.
+    Any other component's parameter is always declared (tests/test_defaults.py).
+    """
+    variables = system.components["body"].variables
+    return [path for path in given if path.startswith("body.") and path.partition(".")[2] not in variables]
+
+
 def run_batch(decoder, trials: list[Trial], config: dict, body=None, progress=None):
     """Run ``trials`` (all with this decoder component) in lockstep; returns the master's Result."""
     experiment = config["experiment"]
     system = build_system(decoder, config, body)
+    given = parameters(trials, config)
+    for path in undeclared(given, system):
+        del given[path]
     return simulate(system, stop_time=experiment["steps"] * experiment["step_size"],
                     step_size=experiment["step_size"], scheme=experiment["scheme"], batch_size=len(trials),
-                    parameters=parameters(trials, config), record=RECORD, progress=progress)
-
-
+                    parameters=given, record=RECORD, progress=progress)
