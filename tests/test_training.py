@@ -163,7 +163,7 @@ def test_rhi_train_writes_a_checkpoint_that_loads_and_checks_the_camera(tmp_path
     assert "validation MSE" in capsys.readouterr().out
     model = load_decoder(out, 16)
     data = training_data.load(tmp_path / "decoder-data-r16-n120-s0.npz")
-    metadata = checkpoint.read_metadata(out)
+    metadata = checkpoint.load(out)[1]
     assert metadata["data_hash"] == data.content_hash and metadata["resolution"] == 16
     assert metadata["half_ranges"] == [40.0, 50.0] and metadata["hand_error"]["poses"] == 3
     assert model.metadata["validation_mse"] > 0 and metadata["seconds"] > 0
@@ -188,7 +188,7 @@ def test_rhi_train_renders_with_the_configured_camera_blur(tmp_path):
     assert run_train(argparse.Namespace(decoder="conv", config=config, out=str(out))) == 0
     data = training_data.load(tmp_path / "decoder-data-r16-n40-s0-b0.02.npz")  # its own file beside the default's
     np.testing.assert_array_equal(data.images, camera.render(data.poses, 16, None, blur=0.02))
-    assert checkpoint.read_metadata(out)["camera_blur"] == 0.02
+    assert checkpoint.load(out)[1]["camera_blur"] == 0.02
     assert load_decoder(out, 16, blur=0.02).resolution == 16
     with pytest.raises(checkpoint.CheckpointError, match="blurred by 0.02 m, but camera.blur is 0.015 m"):
         load_decoder(out, 16)

@@ -182,7 +182,7 @@ def test_checkpoint_round_trip_gives_the_same_predictions(tmp_path):
     mu = torch.tensor([[150.0, -80.0], [120.0, -100.0]])
     with torch.no_grad():
         np.testing.assert_array_equal(loaded(mu).numpy(), GenerativeModel(model.decoder, REST, HALF)(mu).numpy())
-    assert loaded.metadata["data_hash"] == "abc" and checkpoint.read_metadata(path)["kind"] == "vae"
+    assert loaded.metadata["data_hash"] == "abc" and checkpoint.load(path)[1]["kind"] == "vae"
 
 
 class Payload:

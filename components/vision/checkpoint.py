@@ -57,11 +57,6 @@ def write(file: BinaryIO, model: VisualModel, metadata: dict) -> None:
     torch.save(payload, file)
 
 
-def read_metadata(path: str | os.PathLike) -> dict:
-    """The metadata of the checkpoint at ``path`` (validated), without building the model."""
-    return _metadata(path, _payload(path))
-
-
 def load(path: str | os.PathLike, resolution: int | None = None, rest_pose=None,
          half_ranges=None) -> tuple[VisualModel, dict]:
     """The model (eval mode, float32, gradients off) and metadata stored at ``path``.
