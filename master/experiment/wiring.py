@@ -51,9 +51,7 @@ RECORD = ["brain.mu", "brain.gamma", "brain.u_shoulder", "brain.u_elbow", "brain
 #   "derived: reason"            not a configuration key: parameters() passes the value DERIVED gives.
 PARAMETER_SOURCES = {
     "rubber_arm.offset_x": "conditions.<condition> (per trial: the trial's condition)",
-    "rubber_arm.offset_y": "derived: 0 m; the protocol's conditions displace the rubber hand along x only "
-                           "(DESIGN.md: Left/Center/Right at y = 0.50 like the real hand), so [conditions] "
-                           "holds offset_x alone",
+    "rubber_arm.offset_y": "rubber_arm.offset_y",
     "stimulus.period": "stimulus.period",
     "stimulus.delay_min": "stimulations.<stimulation>.delay_min (per trial: the trial's stimulation)",
     "stimulus.delay_max": "stimulations.<stimulation>.delay_max (per trial: the trial's stimulation)",
@@ -90,7 +88,6 @@ PARAMETER_SOURCES = {
 
 # The values of the "derived:" sources, and the trial field of the per-trial ones.
 DERIVED = {
-    "rubber_arm.offset_y": lambda: 0.0,
     "brain.mu0": lambda: np.array(kinematics.REST_POSE, dtype=float),
     "body.q0_shoulder": lambda: kinematics.REST_POSE[0],
     "body.q0_elbow": lambda: kinematics.REST_POSE[1],
