@@ -1,0 +1,84 @@
+"""A body written in C (bodies/kinematic_c): built with gcc and fmpy's FMI headers, valid, and the same body as the
+Python kinematic arm - under fmpy's own master, under this master, and through `rhi experiment --body`."""
+import csv
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from fmpy.validation import validate_fmu
+
+from components.body.variants import KinematicArm
+from components.fmu_adapter import FMUComponent
+from master import ConfigError
+from master.export.body import build_fmu
+from master.export.c_body import build_c_fmu
+from tests.test_fmu import OUTPUTS, run, under_fmpy
+
+
+@pytest.fixture(scope="module")
+def bodies(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("c_body")
+    return {"c": build_c_fmu(folder / "KinematicC.fmu"), "python": build_fmu(folder / "Kinematic.fmu", "kinematic")}
+
+
+def test_the_c_fmu_is_valid_and_declares_what_the_python_arm_declares(bodies):
+    assert validate_fmu(str(bodies["c"])) == []
+    def declarations(component):  # outputs are "calculated" in FMI: no start value to compare
+        return {name: (v.causality, v.type, v.unit, v.min, v.max, v.depends_on,
+                       None if v.causality == "output" else v.start) for name, v in component.variables.items()}
+
+    assert declarations(FMUComponent(bodies["c"])) == declarations(KinematicArm())
+
+
+@pytest.mark.parametrize("held", [False, True])
+def test_under_fmpy_the_c_body_is_the_python_kinematic_arm(bodies, held):
+    alone, python = under_fmpy(bodies["c"], held), run(KinematicArm(), held)
+    for name in OUTPUTS:
+        np.testing.assert_allclose(alone[name], python[name][:, 0], rtol=0, atol=1e-12)
+    if held:  # the statics, not a copy of zeros: the arm pushes
+        assert np.hypot(alone["force_x"][-1], alone["force_y"][-1]) > 0.1
+    else:  # 0.5 deg/s for 0.6 s, exactly
+        assert alone["q_shoulder"][-1] - alone["q_shoulder"][0] == pytest.approx(0.3, abs=1e-12)
+
+
+def test_through_the_master_per_trial(bodies):
+    trials = dict(held=np.array([False, True, True]), u_shoulder=np.array([0.5, 0.5, -1.0]),
+                  u_elbow=np.array([0.0, 0.3, 1.0]), batch_size=3,
+                  parameters={"body.q0_elbow": [-91.0, -95.0, -80.0], "body.servo_gain": [20.0, 5.0, 40.0]})
+    c, python = run(FMUComponent(bodies["c"]), **trials), run(KinematicArm(), **trials)
+    for name in OUTPUTS:
+        np.testing.assert_allclose(c[name], python[name], rtol=0, atol=1e-12)
+    assert np.allclose(c["q_elbow"][0], [-91.0, -95.0, -80.0], atol=1e-12)  # the parameters reached the FMU
+
+
+def rhi(*args, cache):
+    return subprocess.run([sys.executable, "-m", "master", *args], capture_output=True, text=True, timeout=600,
+                          env={**os.environ, "RHI_CACHE": str(cache)})
+
+
+def test_rhi_experiment_with_the_c_body_gives_the_python_kinematic_summary(bodies, tmp_path):
+    config = tmp_path / "conv.toml"
+    config.write_text('[experiment]\ndecoders = ["conv"]\n')
+    summaries = {}
+    for kind, path in bodies.items():
+        done = rhi("experiment", "--quick", "--config", str(config), "--body", str(path),
+                   "--out", str(tmp_path / kind), cache=tmp_path / "cache")
+        assert done.returncode == 0, done.stderr[-2000:]
+        with open(tmp_path / kind / "summary.csv") as file:
+            summaries[kind] = list(csv.DictReader(file))
+    assert len(summaries["c"]) == 6 and [list(r) for r in summaries["c"]] == [list(r) for r in summaries["python"]]
+    for c, python in zip(summaries["c"], summaries["python"]):
+        for key, value in c.items():
+            if key in ("decoder", "condition", "stimulation"):
+                assert value == python[key]
+            else:
+                assert float(value) == pytest.approx(float(python[key]), rel=1e-9, abs=1e-12), key
+    left = next(r for r in summaries["c"] if (r["condition"], r["stimulation"]) == ("left", "sync"))
+    assert float(left["force_n_mean"]) < 0  # the statics of the brain's push toward the rubber hand
+
+
+def test_a_bad_output_path_is_named(tmp_path):
+    with pytest.raises(ConfigError, match="must be a file name ending in .fmu"):
+        build_c_fmu(tmp_path / "body.zip")
