@@ -20,8 +20,8 @@ def rhi(*args, cache, **environment):
 
 
 @pytest.fixture(scope="module")
-def cache(tmp_path_factory):
-    return tmp_path_factory.mktemp("decoders")
+def cache(quick_cache):
+    return quick_cache  # the session's --quick decoders (tests/conftest.py): the runs below train nothing
 
 
 @pytest.fixture(scope="module")
