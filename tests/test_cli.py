@@ -57,7 +57,10 @@ def test_bad_input_is_one_line_on_stderr_and_exit_status_2(command, tmp_path):
     assert set(BAD_INPUT) == set(COMMANDS)
     (tmp_path / "bad.toml").write_text("[brain]\nsigma_p = 2.0\n")
     arguments, expected = BAD_INPUT[command]
-    environment = {**os.environ, "RHI_CACHE": str(tmp_path / "cache")}
+    # Run from the empty folder (so a stray write would show), importing this checkout (not an installed copy).
+    root = str(Path(__file__).resolve().parents[1])
+    environment = {**os.environ, "RHI_CACHE": str(tmp_path / "cache"),
+                   "PYTHONPATH": os.pathsep.join([root, os.environ.get("PYTHONPATH", "")])}
     result = rhi(command, *(a.format(tmp=tmp_path) for a in arguments), cwd=tmp_path, env=environment)
     assert result.returncode == 2, (result.returncode, result.stderr[-2000:])
     lines = result.stderr.splitlines()
