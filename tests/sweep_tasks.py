@@ -2,7 +2,9 @@
 
 ``fake_outcome`` is a closed-form function of the configuration and the trial's seed, so a test can
 compute every trial's exact result itself. It places the rubber hand by inverse kinematics, so an
-offset out of the arm's reach fails as the real experiment would.
+offset out of the arm's reach fails as the real experiment would, and its outcome means what the real
+one means (tests/test_contracts.py): drift and force toward the rubber hand, gamma higher for
+synchronous touch.
 """
 import time
 
@@ -22,7 +24,7 @@ def fake_outcome(config: dict, decoder: str, condition: str, stimulation: str, i
     delay = config["stimulations"][stimulation]["delay_max"]
     gain = 0.5 if decoder == "vae" else 0.4
     return {"drift_cm": 100.0 * gain * offset * np.exp(-delay / 0.3) + 0.1 * noise,
-            "force_n": -2.0 * offset * np.exp(-delay / 0.3),
+            "force_n": 2.0 * offset * np.exp(-delay / 0.3),
             "gamma_final": float(np.exp(-delay))}
 
 

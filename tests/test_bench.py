@@ -1,12 +1,15 @@
 """`rhi bench` with tiny settings: every key, positive numbers, and numbers consistent with each other.
 
 The bench reports speed; these tests check that what it reports is computed right (FLOPs against
-a hand count, rates against counts and seconds), and that the baseline agent computes what the
-exact integrator computes.
+a hand count, rates against counts and seconds, each target judged against the issue's threshold
+written here), and that the paper-style baseline, which writes the agent's equations itself,
+computes what the exact integrator computes: an independent check on the integrator.
 """
+import ast
 import dataclasses
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,6 +23,10 @@ from master.bench.baseline import PaperStyleAgent
 from tests.test_batching import STEPS, reference_runs, tiny_config, tiny_model
 
 MODES = ("baseline", "exact_single", "exact_batched", "exact_batched_optimised", "fast")
+# The targets of issue 8 (README, Performance), written here rather than read from master/bench/report.py.
+ISSUE_TARGETS = {"exact_batched_peak_fraction_paper": (">=", 0.5), "fast_protocol_agent_steps_per_s": (">=", 1500),
+                 "fast_drift_relative_error": ("<=", 0.01), "master_step_vs_fmpy_simulate_fmu": ("<=", 1.2),
+                 "protocol_peak_rss_mb": ("<", 2048)}
 
 
 @pytest.fixture(scope="module")
@@ -71,7 +78,9 @@ def test_error_overhead_memory_and_targets(report):
     assert error["trials"] == 6 and len(error["drift_exact_cm"]) == len(error["drift_fast_cm"]) == 6
     assert math.isclose(error["max_error_cm"],
                         np.abs(np.subtract(error["drift_fast_cm"], error["drift_exact_cm"])).max())
-    assert error["bound_met"] == (error["max_error_cm"] <= 0.01 * error["largest_drift_cm"])
+    # The fast mode's drift (untrained tiny decoder, strong drive, tolerance 0.01 deg) within 1 % of the exact one's.
+    assert error["largest_drift_cm"] > 0.01 and error["max_error_cm"] <= 0.01 * error["largest_drift_cm"], error
+    assert error["bound_met"] is True
     assert math.isclose(error["decoder_points_per_trial"], sum(error["call_sizes"]) / error["trials"])
     protocol = report["protocol_fast"]  # the trained (here: error-run) decoder's calls replayed cost extra time
     assert 0 < protocol["projected_agent_steps_per_s"] < protocol["agent_steps_per_s"]
@@ -84,10 +93,16 @@ def test_error_overhead_memory_and_targets(report):
     assert report["memory"]["bench_peak_rss_mb"] > 50 and report["memory"]["protocol_peak_rss_mb"] > 50
     machine = report["machine"]
     assert machine["torch_threads"] == 1 and machine["cores"] >= 1 and set(machine["cpu_flags"]) >= {"avx512_bf16"}
-    assert set(report["targets"]) == {"exact_batched_peak_fraction_paper", "fast_protocol_agent_steps_per_s",
-                                      "fast_drift_relative_error", "master_step_vs_fmpy_simulate_fmu",
-                                      "protocol_peak_rss_mb"}
+    assert set(report["targets"]) == set(ISSUE_TARGETS)
+    for name, (operator, threshold) in ISSUE_TARGETS.items():  # each judged against the issue's threshold
+        row = report["targets"][name]
+        assert row["target"] == f"{operator} {threshold:g}", name
+        if row["value"] is not None:
+            assert row["met"] == {">=": row["value"] >= threshold, "<=": row["value"] <= threshold,
+                                  "<": row["value"] < threshold}[operator], name
     assert report["targets"]["exact_batched_peak_fraction_paper"]["met"] is None  # no paper preset in quick
+    assert report["targets"]["fast_drift_relative_error"]["met"] is True
+    assert report["targets"]["protocol_peak_rss_mb"]["met"] is True  # a tiny protocol: far below 2 GB
     json.dumps(report)  # --json must be able to print it
 
 
@@ -108,13 +123,35 @@ def test_command_arguments_and_their_errors(tmp_path):
 
 
 def test_baseline_agent_computes_the_exact_integrators_numbers():
-    """Reverse-mode (backward with grad_outputs) against forward-mode JVPs: the same trajectories."""
+    """Reverse-mode (backward with grad_outputs) against forward-mode JVPs, the baseline's own equations against the
+    integrator's: the same trajectories, for the three reference trials (left sync, center and right async).
+
+    Measured: mu within 2.2e-7 deg, the action within 1.1e-7 deg/s, the force within 6e-8 N (float32 reverse- against
+    forward-mode AD), gamma within 1e-16 (scipy's normal density against the baseline's own formula)."""
     trials, _, singles = reference_runs()
-    exact = singles[0]
-    record = PaperStyleAgent(tiny_model(), trials[0], tiny_config()).run(STEPS)
-    values = exact.values
-    assert np.abs(values["brain.mu"][-1, 0] - values["brain.mu"][0, 0]).max() > 0.1  # it moved
-    np.testing.assert_allclose(record["mu"], values["brain.mu"][:, 0], rtol=0, atol=1e-6)
-    np.testing.assert_array_equal(record["gamma"], values["brain.gamma"][:, 0])
-    np.testing.assert_allclose(record["action"][:, 0], values["brain.u_shoulder"][:, 0], rtol=0, atol=1e-6)
-    np.testing.assert_allclose(record["force_x"], values["body.force_x"][:, 0], rtol=0, atol=1e-6)
+    for trial, exact in zip(trials, singles):
+        record = PaperStyleAgent(tiny_model(), trial, tiny_config()).run(STEPS)
+        values = exact.values
+        assert np.abs(values["brain.mu"][-1, 0] - values["brain.mu"][0, 0]).max() > 0.1  # it moved
+        assert values["brain.gamma"][:, 0].max() > 0.03 and np.isfinite(values["stimulus.tactile_time"][-1, 0])
+        np.testing.assert_allclose(record["mu"], values["brain.mu"][:, 0], rtol=0, atol=1e-6)
+        np.testing.assert_allclose(record["gamma"], values["brain.gamma"][:, 0], rtol=1e-12, atol=0)
+        np.testing.assert_allclose(record["action"][:, 0], values["brain.u_shoulder"][:, 0], rtol=0, atol=1e-6)
+        np.testing.assert_allclose(record["action"][:, 1], values["brain.u_elbow"][:, 0], rtol=0, atol=1e-6)
+        np.testing.assert_allclose(record["q"][:, 0], values["body.q_shoulder"][:, 0], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(record["force_x"], values["body.force_x"][:, 0], rtol=0, atol=1e-6)
+
+
+def test_the_baseline_takes_nothing_from_the_integrator_or_the_experiment():
+    """It imports the environment's components (body, camera, stimulus, rubber arm) and torch, never the brain, the
+    decoder component or master: so a bug in the integrator's equations cannot hide in the baseline too."""
+    source = (Path(__file__).resolve().parents[1] / "master" / "bench" / "baseline.py").read_text()
+    imported = set()
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            imported |= {alias.name for alias in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            imported.add(node.module)
+    project = {name for name in imported if name.split(".")[0] in ("components", "master", "tests")}
+    assert project == {"components.body.camera", "components.body.kinematics", "components.body.plant",
+                       "components.body.rubber_arm", "components.stimulus"}, project

@@ -1,5 +1,7 @@
-"""The Pillow camera: determinism, smoothness under small pose changes, field of view, pictures."""
-import time
+"""The Pillow camera: determinism, smoothness under small pose changes, field of view, pictures.
+
+The pictures in tests/pictures/ are the golden images: each test picture is written to a temporary folder and
+compared with its golden twin, never written over it."""
 from pathlib import Path
 
 import numpy as np
@@ -44,26 +46,48 @@ def test_a_tenth_of_a_degree_changes_the_image_less_than_a_degree(joint):
     assert small < 0.3 * large
 
 
-def test_each_condition_is_drawn_where_the_kinematics_put_it_and_saved_as_a_picture():
+def as_picture(image, path):
+    """The 8-bit picture of a camera image, saved at ``path``; returns it as read back."""
+    Image.fromarray(np.round(image * 255).astype(np.uint8)).save(path)
+    return np.asarray(Image.open(path), dtype=np.int16)
+
+
+def assert_like_golden(picture, name):
+    """Within 3 of 255 gray levels everywhere, 0.2 on average, of tests/pictures/NAME (anti-aliasing may move
+    with the Pillow version; a moved arm, ball or blur changes far more: the hand's disc alone spans 100+ levels)."""
+    golden = np.asarray(Image.open(PICTURES / name), dtype=np.int16)
+    assert golden.shape == picture.shape, name
+    difference = np.abs(picture - golden)
+    assert difference.max() <= 3 and difference.mean() <= 0.2, (name, difference.max(), difference.mean())
+
+
+def test_each_condition_is_drawn_where_the_kinematics_put_it_and_looks_like_its_picture(tmp_path):
     resolution = 256
-    PICTURES.mkdir(exist_ok=True)
     for condition, offset in OFFSETS.items():
         hand = (REST_HAND[0] + offset, REST_HAND[1])
         ball = (hand[0], hand[1] + 0.12)  # the ball on its way down to the rubber hand
         image = render(np.array([inverse(*hand)]), resolution, np.array([ball]))[0]
-        Image.fromarray(np.round(image * 255).astype(np.uint8)).save(PICTURES / f"camera_{condition}.png")
+        assert_like_golden(as_picture(image, tmp_path / f"camera_{condition}.png"), f"camera_{condition}.png")
         # Brightest pixel = the hand blob, at the hand's pixel; the ball is the distinct gray.
         brightest = np.unravel_index(np.argmax(image), image.shape)
         assert np.abs(np.subtract(brightest, pixel_of(*hand, resolution))).max() <= 2, condition
         assert image[pixel_of(*ball, resolution)] == pytest.approx(camera.BALL_LEVEL, abs=0.05)
     real = render(np.array([REST_POSE]), resolution, None)[0]
-    Image.fromarray(np.round(real * 255).astype(np.uint8)).save(PICTURES / "camera_real_arm.png")
+    assert_like_golden(as_picture(real, tmp_path / "camera_real_arm.png"), "camera_real_arm.png")
     # The middle of the forearm is limb-bright (not the hand's 1.0), the shoulder is inside the limb.
     shoulder = np.radians(REST_POSE[0])
     elbow = np.add(SHOULDER, UPPER_ARM * np.array([np.cos(shoulder), np.sin(shoulder)]))
     mid_forearm = (elbow + forward(*REST_POSE)) / 2
     assert real[pixel_of(*mid_forearm, resolution)] == pytest.approx(camera.LIMB_LEVEL, abs=0.05)
     assert real[pixel_of(-0.3, 0.62, resolution)] == 0  # no ball, and black background
+
+
+def test_the_golden_pictures_tell_the_conditions_apart():
+    """Guards the comparison above: the golden pictures differ from one another by far more than its tolerance."""
+    pictures = [np.asarray(Image.open(PICTURES / f"camera_{c}.png"), dtype=np.int16) for c in OFFSETS]
+    for first in range(3):
+        for second in range(first + 1, 3):
+            assert np.abs(pictures[first] - pictures[second]).max() > 100
 
 
 def test_field_of_view_holds_every_condition_and_the_training_range_with_margin():
@@ -76,13 +100,12 @@ def test_field_of_view_holds_every_condition_and_the_training_range_with_margin(
     assert (images.reshape(len(images), -1).max(axis=1) > 0.9).all()  # every hand is in view
 
 
-def test_256_works_and_64_renders_thousands_per_minute():
+def test_256_and_64_render_a_batch():
+    """Sizes and batches only: speed is measured by `rhi bench`, not asserted here (a shared machine's wall clock)."""
     assert render(np.array([REST_POSE]), 256).shape == (1, 256, 256)
     poses = np.array(REST_POSE) + np.random.default_rng(0).uniform(-20, 20, (60, 2))
-    started = time.perf_counter()
-    render(poses, 64)
-    per_minute = 60 * len(poses) / (time.perf_counter() - started)
-    assert per_minute > 2000, per_minute
+    images = render(poses, 64)
+    assert images.shape == (60, 64, 64) and len({image.tobytes() for image in images}) == 60
 
 
 def run_camera(poses_per_step, balls_per_step, resolution=32, **parameters):

@@ -2,12 +2,16 @@
 import os
 import subprocess
 import sys
+from pathlib import Path
+
+import pytest
 
 COMMANDS = ("train", "experiment", "export-body", "sweep", "bench")
 
 
-def rhi(*args):
-    return subprocess.run([sys.executable, "-m", "master", *args], capture_output=True, text=True)
+def rhi(*args, cwd=None, env=None):
+    return subprocess.run([sys.executable, "-m", "master", *args], capture_output=True, text=True, cwd=cwd, env=env,
+                          timeout=300)
 
 
 def test_help_lists_every_command():
@@ -34,3 +38,32 @@ def test_passive_openmp_waiting_is_set_before_torch_loads():
                     "with contextlib.suppress(SystemExit), contextlib.redirect_stdout(io.StringIO()): main(['bench', '--help'])\n"
                     "print(os.environ.get('OMP_WAIT_POLICY'))")
     assert result.stdout.split() == ["False", "PASSIVE"], result.stderr
+
+
+# Bad input for each command, and what its one line must say. {tmp} is a fresh folder; nothing may appear in it but
+# what the test put there.
+BAD_INPUT = {
+    "train": (["--decoder", "conv", "--config", "{tmp}/bad.toml", "--out", "{tmp}/out.pt"],
+              "unknown config key brain.sigma_p"),
+    "experiment": (["--quick", "--config", "{tmp}/bad.toml", "--out", "{tmp}/out"], "unknown config key brain.sigma_p"),
+    "export-body": (["--variant", "springy", "--out", "{tmp}/Body.fmu"], "--variant 'springy' is not one of"),
+    "sweep": (["--config", "{tmp}/missing.toml", "--out", "{tmp}/out"], "missing.toml does not exist"),
+    "bench": (["--threads", "-2"], "--threads -2 must be a positive number"),
+}
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_bad_input_is_one_line_on_stderr_and_exit_status_2(command, tmp_path):
+    assert set(BAD_INPUT) == set(COMMANDS)
+    (tmp_path / "bad.toml").write_text("[brain]\nsigma_p = 2.0\n")
+    arguments, expected = BAD_INPUT[command]
+    # Run from the empty folder (so a stray write would show), importing this checkout (not an installed copy).
+    root = str(Path(__file__).resolve().parents[1])
+    environment = {**os.environ, "RHI_CACHE": str(tmp_path / "cache"),
+                   "PYTHONPATH": os.pathsep.join([root, os.environ.get("PYTHONPATH", "")])}
+    result = rhi(command, *(a.format(tmp=tmp_path) for a in arguments), cwd=tmp_path, env=environment)
+    assert result.returncode == 2, (result.returncode, result.stderr[-2000:])
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"rhi {command}: error: ") and expected in lines[0], result.stderr
+    assert "Traceback" not in result.stderr
+    assert sorted(p.name for p in Path(tmp_path).iterdir()) == ["bad.toml"]  # nothing half-written

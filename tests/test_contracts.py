@@ -1,16 +1,23 @@
 """Contracts between the real decoder and the brain: the free energy F the brain reports is the one its
-belief descends (-dF/dmu = mu_dot, by finite differences and by autograd), and the linear double of
-tests/linear_decoder.py means what the real Decoder means."""
+belief descends (-dF/dmu = mu_dot, by finite differences and by autograd); and every test double against the
+real component it stands for, on a case both run: the linear double of tests/linear_decoder.py means what the
+real Decoder means, the sweep's fake outcome (tests/sweep_tasks.py) what trial_outcome means, and the toys of
+tests/toys.py have the ports of the components they replace."""
 import copy
+import functools
+import inspect
 
 import numpy as np
+import pytest
 import torch
 
 from components.body import kinematics
+from components.component import ComponentError
 from components.brain import Brain
 from components.vision.component import Decoder, GenerativeModel, resolution_weight
 from components.vision.networks import build, normalise
 from tests.linear_decoder import LinearDecoder
+from tests.sweep_tasks import fake_outcome
 
 REST, HALF = np.array(kinematics.REST_POSE), np.array([40.0, 50.0])
 RES, H = 16, 0.02
@@ -195,3 +202,94 @@ def test_the_linear_double_means_what_the_real_decoder_means():
         expected = double.get(name)
         assert np.abs(expected).max() > 1e-4, name  # not vacuous
         np.testing.assert_allclose(real[name], expected, rtol=1e-5, atol=1e-6 * np.abs(expected).max(), err_msg=name)
+
+
+# -- the sweep's stand-in trial against the real one ----------------------------------------------------------
+@pytest.fixture(scope="module")
+def real_outcomes(quick_cache):
+    """master.experiment.trial_outcome on the --quick protocol with the session's conv decoder, three cells."""
+    from master.experiment import config as configuration
+    from master.experiment import trial_outcome
+
+    config = configuration.load(quick=True)
+    checkpoint = str(next(quick_cache.glob("conv-*.pt")))
+    cells = [("left", "sync"), ("right", "sync"), ("left", "async")]
+    return config, checkpoint, {cell: trial_outcome(config, "conv", *cell, 0, checkpoint=checkpoint) for cell in cells}
+
+
+def test_the_fake_sweep_outcome_means_what_the_real_trial_outcome_means(real_outcomes):
+    """tests/sweep_tasks.py's fake_outcome stands in for trial_outcome in the sweep tests: the same arguments, the
+    same keys (a subset), plain floats, and the same meaning on a case both run: drift and force toward the
+    rubber hand (negative Left, positive Right) under synchronous touch, gamma in [gamma0, 1] and higher for
+    synchronous than asynchronous touch."""
+    from master.experiment import trial_outcome
+
+    config, _, real = real_outcomes
+    parameters = list(inspect.signature(fake_outcome).parameters)
+    assert parameters == list(inspect.signature(trial_outcome).parameters)[:len(parameters)]
+    fake = {cell: fake_outcome(config, "conv", *cell, 0) for cell in real}
+    gamma0 = config["brain"]["gamma0"]
+    for outcomes in (real, fake):
+        for outcome in outcomes.values():
+            assert {"drift_cm", "force_n", "gamma_final"} <= set(outcome)
+            assert all(isinstance(outcome[key], float) for key in ("drift_cm", "force_n", "gamma_final"))
+            assert gamma0 <= outcome["gamma_final"] <= 1
+        assert outcomes[("left", "sync")]["drift_cm"] < 0 < outcomes[("right", "sync")]["drift_cm"]
+        assert outcomes[("left", "sync")]["force_n"] < 0 < outcomes[("right", "sync")]["force_n"]
+        assert outcomes[("left", "async")]["gamma_final"] < outcomes[("left", "sync")]["gamma_final"]
+    assert set(fake[("left", "sync")]) <= set(real[("left", "sync")])
+
+
+def test_the_fake_and_the_real_trial_fail_alike_out_of_reach(real_outcomes):
+    """A rubber hand out of the arm's reach fails the trial with a ComponentError saying so, in both."""
+    from master.experiment import config as configuration
+    from master.experiment import trial_outcome
+
+    _, checkpoint, _ = real_outcomes
+    config = configuration.load(quick=True, overrides={"conditions.left": 1.0})
+    for task in (fake_outcome, functools.partial(trial_outcome, checkpoint=checkpoint)):
+        with pytest.raises(ComponentError, match="out of reach"):
+            task(config, "conv", "left", "sync", 0)
+
+
+# -- the toys and doubles stand where real components stand: same ports, and both run there ---------------------
+def port(variable):
+    return (variable.causality, variable.type, variable.shape, variable.element, variable.unit, variable.start,
+            variable.depends_on)
+
+
+def test_the_image_toys_have_the_camera_and_decoder_image_ports_and_run_with_them():
+    """tests/toys.py's Image stands for the camera (an image output) and ImageSink for the decoder (an image input)
+    in the master's tests: each declares the real port, and each runs under the master with the real other side."""
+    from master import System, simulate
+    from components.body.camera import Camera
+    from tests.toys import Image, ImageSink
+
+    model = tiny_model()
+    camera, decoder = Camera(resolution=RES), Decoder(model, threads=1)
+    image_toy, sink_toy = Image(size=RES), ImageSink(size=RES)
+    assert port(image_toy.variables["image"])[:5] == port(camera.variables["image"])[:5]
+    assert port(sink_toy.variables["image"]) == port(decoder.variables["image"])
+    seen = simulate(System([Image("camera", size=RES), decoder], [("camera.image", "decoder.image")]), 0.06, 0.02,
+                    batch_size=2, record=["decoder.visual_error"])
+    assert np.isfinite(seen.values["decoder.visual_error"]).all()
+    shown = simulate(System([Camera(resolution=RES), ImageSink("decoder", size=RES)],
+                            [("camera.image", "decoder.image")]), 0.06, 0.02, batch_size=2, record=["decoder.mean"])
+    assert (shown.values["decoder.mean"][1:] > 0).all()
+
+
+def test_the_linear_double_and_the_constant_command_have_the_real_ports():
+    """LinearDecoder stands for the Decoder in the brain's tests, and Constant for the brain's commands in the body's:
+    the brain-facing ports are the real ones (the prediction is flat in the double: its 'image' is a vector)."""
+    from components.brain import Brain
+    from tests.toys import Constant
+
+    real, double = Decoder(tiny_model(), threads=1), LinearDecoder(np.zeros((4, 2)), np.zeros(4), np.zeros(4))
+    for name in ("mu", "visual_drive", "visual_error", "visual_stiffness", "visual_variance"):
+        assert port(double.variables[name])[:5] == port(real.variables[name])[:5], name
+    for name in ("visual_drive", "visual_error", "visual_stiffness"):
+        assert double.variables[name].depends_on is not None and "mu" in double.variables[name].depends_on
+        assert "mu" in real.variables[name].depends_on
+    command, brain = Constant(unit="deg/s"), Brain()
+    assert port(command.variables["y"])[:5] + (command.variables["y"].depends_on,) == \
+        port(brain.variables["u_shoulder"])[:5] + (brain.variables["u_shoulder"].depends_on,)

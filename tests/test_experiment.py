@@ -1,24 +1,27 @@
-"""`rhi experiment --quick` end to end: the files, their columns, determinism, and bad input."""
+"""`rhi experiment --quick` end to end: the files, their columns, determinism, the qualitative result, a failing
+trial left out, and bad input."""
 import csv
 import json
 import os
 import subprocess
 import sys
+from collections import defaultdict
 
+import numpy as np
 import pytest
 
 from master.outputs.tables import SUMMARY_COLUMNS
 
 
-def rhi(*args, cache):
-    environment = {**os.environ, "RHI_CACHE": str(cache)}
+def rhi(*args, cache, **environment):
+    environment = {**os.environ, "RHI_CACHE": str(cache), **environment}
     return subprocess.run([sys.executable, "-m", "master", *args], capture_output=True, text=True,
                           env=environment, timeout=600)
 
 
 @pytest.fixture(scope="module")
-def cache(tmp_path_factory):
-    return tmp_path_factory.mktemp("decoders")
+def cache(quick_cache):
+    return quick_cache  # the session's --quick decoders (tests/conftest.py): the runs below train nothing
 
 
 @pytest.fixture(scope="module")
@@ -118,3 +121,114 @@ def test_a_broken_body_fmu_is_refused_before_any_work(tmp_path, cache):
     one_line_error(rhi("experiment", "--quick", "--body", str(fake), "--out", str(tmp_path / "o"), cache=cache),
                    "Body.fmu cannot be used")
     assert not (tmp_path / "o").exists()
+
+
+def read_trials(folder):
+    """trials.csv as {(decoder, condition, stimulation, trial): {column: (steps + 1,) floats}}."""
+    columns = defaultdict(lambda: defaultdict(list))
+    with open(folder / "trials.csv") as file:
+        for row in csv.DictReader(file):
+            key = (row["decoder"], row["condition"], row["stimulation"], int(row["trial"]))
+            for name, value in row.items():
+                if name not in ("decoder", "condition", "stimulation", "trial"):
+                    columns[key][name].append(float(value))
+    return {key: {name: np.array(values) for name, values in table.items()} for key, table in columns.items()}
+
+
+def test_the_quick_run_shows_the_illusion(quick_run):
+    """The paper's qualitative result (DESIGN.md, What the paper found), with the --quick decoders trained by the
+    run, 6 s per trial: under synchronous touch the perceived hand drifts toward the rubber hand (Left negative,
+    Right positive, Center near 0) and the force points the same way; asynchronous touch attenuates the drift; gamma
+    rises from gamma0 under synchronous touch and stays near it under asynchronous touch.
+    Measured (conv / vae): sync left -0.18 / -0.18 cm, right +0.30 / +0.24 cm, center +0.02 / -0.01 cm; async
+    8-10 % of sync; gamma 0.115-0.128 sync, 0.010-0.011 async."""
+    with open(quick_run / "summary.csv") as file:
+        cell = {(r["decoder"], r["condition"], r["stimulation"]): {k: float(v) for k, v in r.items()
+                                                                   if k.endswith(("mean", "sd"))}
+                for r in csv.DictReader(file)}
+    for decoder in ("conv", "vae"):
+        drift = {(c, s): cell[(decoder, c, s)]["drift_cm_mean"] for c in ("left", "center", "right")
+                 for s in ("sync", "async")}
+        force = {(c, s): cell[(decoder, c, s)]["force_n_mean"] for c in ("left", "right") for s in ("sync", "async")}
+        gamma = {s: [cell[(decoder, c, s)]["gamma_final_mean"] for c in ("left", "center", "right")]
+                 for s in ("sync", "async")}
+        assert drift[("left", "sync")] < 0 < drift[("right", "sync")], (decoder, drift)
+        assert force[("left", "sync")] < 0 < force[("right", "sync")], (decoder, force)
+        side = min(abs(drift[("left", "sync")]), abs(drift[("right", "sync")]))
+        assert side > 0.05 and abs(drift[("center", "sync")]) < 0.25 * side, (decoder, drift)
+        for condition in ("left", "right"):
+            assert abs(drift[(condition, "async")]) < 0.25 * abs(drift[(condition, "sync")]), (decoder, drift)
+        assert min(gamma["sync"]) > 0.05 and max(gamma["async"]) < 0.5 * min(gamma["sync"]), (decoder, gamma)
+
+    for (decoder, condition, stimulation, _), trial in read_trials(quick_run).items():
+        assert trial["drift_cm"][0] == 0 and trial["gamma"][0] == 0.01  # no illusion before the first touch
+        if stimulation == "sync":  # gamma climbs touch by touch: the touches felt at about 2.05 and 4.05 s
+            after = [trial["gamma"][np.isclose(trial["time_s"], t)][0] for t in (2.5, 4.5)]
+            assert 0.01 < after[0] < after[1], (decoder, condition, after)
+
+
+# A body whose second instance in the process (one FMU instance per trial) puts NaN into force_x from t = 0.1 s on.
+COUNTED_PLANTS = '''
+import os
+
+import numpy as np
+
+from components.body.plant import ArmPlant
+
+
+class NanSecondInstance(ArmPlant):
+    """The second instance made in a process outputs NaN force_x from t = 0.1 s on (count in $RHI_TEST_COUNT)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.doomed = False
+        if os.environ.get("RHI_TEST_COUNT"):  # not while the FMU is built
+            counter = os.path.join(os.environ["RHI_TEST_COUNT"], "instances")
+            made = int(open(counter).read()) if os.path.exists(counter) else 0
+            with open(counter, "w") as file:
+                file.write(str(made + 1))
+            self.doomed = made == 1
+
+    def step(self, t, h):
+        super().step(t, h)
+        if self.doomed and t >= 0.1 - 1e-9:
+            self.values["force_x"] = np.full(self.batch_size, np.nan)
+'''
+
+
+def test_a_failing_trial_is_left_out_and_the_rest_are_written(quick_run, cache, tmp_path):
+    """Through the command line: an FMU body that emits NaN in one trial (the conv batch's second, conv/left/sync
+    trial 1). The run exits 1 naming it, run.json lists it under failed_trials, its cell counts one trial less, and
+    every other trial is written with the numbers it has without the failure (trial 0 of each cell: those of the
+    native quick run, whose first 21 rows this run repeats)."""
+    from master.export.body import build_fmu
+
+    plants = tmp_path / "rhi_test_counted_plants.py"
+    plants.write_text(COUNTED_PLANTS)
+    fmu = build_fmu(tmp_path / "Nan.fmu", component="rhi_test_counted_plants:NanSecondInstance",
+                    model_name="NanSecondInstance", extra_files=[plants])
+    (tmp_path / "count").mkdir()
+    out = tmp_path / "out"
+    result = rhi("experiment", "--quick", "--trials", "2", "--steps", "20", "--body", str(fmu), "--out", str(out),
+                 cache=cache, RHI_TEST_COUNT=str(tmp_path / "count"))
+    assert result.returncode == 1, result.stderr[-3000:]
+    assert (tmp_path / "count" / "instances").read_text() == str(12 + 11 + 12)  # conv, conv again without it, vae
+    named = [line for line in result.stderr.splitlines() if line.startswith("rhi experiment: trial failed")]
+    assert len(named) == 1 and "conv/left/sync trial 1" in named[0] and "force_x is nan" in named[0], result.stderr
+    assert "Traceback" not in result.stderr
+
+    failed = json.loads((out / "run.json").read_text())["failed_trials"]
+    assert [(f["decoder"], f["condition"], f["stimulation"], f["index"]) for f in failed] == [("conv", "left", "sync", 1)]
+    assert "force_x is nan" in failed[0]["error"] and "t = 0.12 s" in failed[0]["error"]
+    with open(out / "summary.csv") as file:
+        counts = {(r["decoder"], r["condition"], r["stimulation"]): int(r["n_trials"]) for r in csv.DictReader(file)}
+    assert len(counts) == 12 and counts.pop(("conv", "left", "sync")) == 1 and set(counts.values()) == {2}
+
+    written, native = read_trials(out), read_trials(quick_run)
+    assert len(written) == 23 and ("conv", "left", "sync", 1) not in written
+    for key, trial in written.items():
+        assert len(trial["step"]) == 21 and np.isfinite(trial["force_x_n"]).all(), key
+        if key[3] == 0:
+            for name, column in trial.items():
+                np.testing.assert_allclose(column, native[key][name][:21], rtol=1e-5, atol=1e-9, err_msg=f"{key} {name}")
+    assert sorted(p.name for p in out.iterdir()) == ["figures", "run.json", "summary.csv", "trials.csv"]

@@ -1,4 +1,4 @@
-"""A baseline written the way the paper's released agent works, for ``rhi bench`` to compare against.
+"""A baseline written the way the paper's released agent works: for ``rhi bench``, and an independent oracle.
 
 The released agent (Rood et al. 2020, adapted from PixelAI) runs ONE trial in a plain Python
 loop. Each step it converts the belief from numpy to a torch tensor that requires grad, runs
@@ -9,11 +9,17 @@ grad too, so the backward pass also accumulates weight gradients nobody uses. Th
 gamma, mu and a in numpy.
 
 Here the environment (Unity in the paper) is this project's body, camera, stimulus and rubber
-arm components, stepped directly in the master's Gauss-Seidel order without the master, and
-the brain's equations and its event bookkeeping are the brain's own functions (``observe_events``,
-``update_gamma``, ``euler_step``): only the data flow is the released agent's. So the baseline
-computes the same numbers as the exact integrator (to float rounding: reverse- instead of
-forward-mode AD).
+arm components, stepped directly in the master's Gauss-Seidel order without the master. The
+agent itself is written out below from the paper and DESIGN.md, as the released agent wrote
+it, and takes NOTHING from the integrator (``components.brain``), the decoder component or the
+experiment (``master.experiment``): the eq. 6 belief update, the eq. 7 action and its clip,
+the eqs. 8-9 gamma (Bayes on a pair of events, the decay between them, the clamp) and the
+event bookkeeping are the numpy code of :meth:`PaperStyleAgent.run`; its constants are read
+straight from the configuration (``config["brain"]`` etc.); the decoder input normalisation
+and the resolution weight 256^2/(H W) are written here too. Only the decoder's weights (and its
+training ranges) come from the model. So it is a check on the integrator: it computes the
+exact integrator's numbers (to float rounding: reverse- instead of forward-mode AD), which
+tests/test_bench.py asserts, and any bug in one of the two shows as a difference.
 
 Example::
 
@@ -23,67 +29,94 @@ Example::
 from __future__ import annotations
 
 import copy
+import math
 import time
 
 import numpy as np
 import torch
 
 from components.body.camera import Camera
+from components.body.kinematics import REST_POSE
 from components.body.plant import ArmPlant
 from components.body.rubber_arm import RubberArm
-from components.brain.causal_inference import observe_events, update_gamma
-from components.brain.integrator import Brain, euler_step
 from components.stimulus import Stimulus
-from components.vision.component import GenerativeModel, resolution_weight
-from components.vision.networks import normalise
-from master.experiment import Trial, parameters
+
+REFERENCE_PIXELS = 256 * 256  # Sigma_v is per pixel at the paper's 256x256 (README, Calibrating the visual variance)
 
 
 class PaperStyleAgent:
     """One trial of the protocol, run like the released agent.
 
-    model: the decoder g (a GenerativeModel; its weights are copied, never changed).
-    trial, config: as for :func:`master.experiment.run_batch` (one trial).
+    model: the decoder g (a GenerativeModel: ``.decoder``, ``.rest_pose``, ``.half_ranges``,
+        ``.resolution``; its weights are copied, never changed).
+    trial: what makes the trial differ (``offset_x``, ``delay_min``, ``delay_max``, ``seed``), e.g. a
+        :class:`master.experiment.Trial`; config: the experiment's configuration (a loaded
+        ``defaults.toml``), read directly.
     weight_gradients: let the backward pass compute weight gradients too, as the released agent
         does (its decoder's parameters require grad); False computes the input gradient only.
     """
 
-    def __init__(self, model: GenerativeModel, trial: Trial, config: dict, weight_gradients: bool = True):
+    def __init__(self, model, trial, config: dict, weight_gradients: bool = True):
         self.use_decoder(model, weight_gradients)
         self.config, self.step_size = config, config["experiment"]["step_size"]
         self.environment = [RubberArm(), Stimulus(), Camera(resolution=model.resolution), ArmPlant()]
         self.rubber_arm, self.stimulus, self.camera, self.body = self.environment
         self.setup_seconds = self.step_seconds = self.decoder_seconds = 0.0
-        given = parameters([trial], config)
+        # The environment's settings: the trial's rubber hand and delays, the configured stimulus, camera and
+        # body; the real arm starts at rest (DESIGN.md).
+        settings = {
+            "rubber_arm": {"offset_x": trial.offset_x, "offset_y": 0.0},
+            "stimulus": {**config["stimulus"], "delay_min": trial.delay_min, "delay_max": trial.delay_max,
+                         "seed": trial.seed},
+            "camera": config["camera"],
+            "body": {**config["body"], "q0_shoulder": REST_POSE[0], "q0_elbow": REST_POSE[1]},
+        }
         for component in self.environment:
             component.instantiate(1)
-            for path, value in given.items():
-                name, _, variable = path.partition(".")
-                if name == component.name:
-                    component.set(variable, value)
+            for name, value in settings[component.name].items():
+                component.set(name, value)
+        # The agent's constants, as the released agent holds them.
         brain = config["brain"]
-        self.sigma_p, self.gamma0 = brain["proprioceptive_variance"], brain["gamma0"]
-        self.brain, self.mu0 = brain, np.array(given["brain.mu0"], dtype=float)
-        # The experiment leaves the action limit at the brain component's start value.
-        self.action_limit = float(given.get("brain.action_limit", Brain().variables["action_limit"].start))
-        self.precision = resolution_weight(model.resolution, model.resolution) / config["decoder"]["visual_variance"]
+        self.sigma_p = float(brain["proprioceptive_variance"])
+        self.gamma0 = float(brain["gamma0"])
+        self.sync_sd, self.async_density = float(brain["sync_sd"]), float(brain["async_density"])
+        self.decay_rate, self.action_limit = float(brain["decay_rate"]), float(brain["action_limit"])
+        self.mu0 = np.array(REST_POSE, dtype=float)  # the belief starts where the arm rests
+        # Sigma_v^-1 per pixel at this resolution: Sigma_v is given at 256 x 256.
+        self.precision = REFERENCE_PIXELS / model.resolution ** 2 / config["decoder"]["visual_variance"]
 
-    def use_decoder(self, model: GenerativeModel, weight_gradients: bool) -> None:
-        """A copy of the decoder, its weights requiring grad or not, and the input normalisation."""
+    def use_decoder(self, model, weight_gradients: bool) -> None:
+        """A copy of the decoder, its weights requiring grad or not, and its input normalisation."""
         self.decoder = copy.deepcopy(model.decoder).requires_grad_(weight_gradients)
-        self.rest = torch.tensor(model.rest_pose, dtype=torch.float32)
-        self.half = torch.tensor(model.half_ranges, dtype=torch.float32)
+        self.rest = torch.tensor(np.asarray(model.rest_pose, dtype=np.float32))
+        self.half = torch.tensor(np.asarray(model.half_ranges, dtype=np.float32))
 
     def visual_forward(self, mu: np.ndarray):
-        """numpy -> torch: the input tensor (requires grad) and g(mu), as the released agent's get_visual_forward."""
-        inpt = torch.tensor(mu, dtype=torch.float32, requires_grad=True)
-        return inpt, self.decoder(normalise(inpt, self.rest, self.half))
+        """numpy -> torch: the input tensor (1, 2) (requires grad) and g(mu), as the released agent's
+        get_visual_forward; the decoder sees the angles scaled to [-1, 1] over its training ranges."""
+        inpt = torch.tensor(np.reshape(mu, (1, 2)), dtype=torch.float32, requires_grad=True)
+        return inpt, self.decoder((inpt - self.rest) / self.half)
 
     def visual_drive(self, inpt, output, error: np.ndarray) -> np.ndarray:
         """J^T Sigma_v^-1 e by a backward pass with grad_outputs e (retain_graph, as released), torch -> numpy."""
         inpt.grad = torch.zeros_like(inpt)
         output.backward(torch.tensor(error * self.precision, dtype=torch.float32), retain_graph=True)
-        return inpt.grad.numpy().astype(np.float64)
+        return inpt.grad.numpy()[0].astype(np.float64)
+
+    # -- the agent's equations --------------------------------------------------------------------
+    def bayes(self, gamma: float, visual_time: float, tactile_time: float) -> float:
+        """Eq. 8: p(c1 | t_v, t_t) with prior gamma; p1 the normal density of the delay (sd sync_sd), p2 uniform."""
+        delay = visual_time - tactile_time
+        p1 = math.exp(-0.5 * (delay / self.sync_sd) ** 2) / (self.sync_sd * math.sqrt(2.0 * math.pi))
+        evidence = p1 * gamma + self.async_density * (1.0 - gamma)
+        return p1 * gamma / evidence if evidence > 0 else gamma
+
+    def decay(self, gamma: float, time_now: float, tactile_time: float, dt: float) -> float:
+        """Eq. 9, between events: gamma * exp(-(t - t_t)^2 dt r_decay), t_t the last touch felt (DESIGN.md);
+        before the first touch there is no time since touch, and gamma holds."""
+        if not math.isfinite(tactile_time):
+            return gamma
+        return gamma * math.exp(-(time_now - tactile_time) ** 2 * dt * self.decay_rate)
 
     def run(self, steps: int) -> dict[str, np.ndarray]:
         """Run ``steps`` steps; returns mu (steps+1, 2), action, gamma, drive, body angles, force per step."""
@@ -100,10 +133,12 @@ class PaperStyleAgent:
         camera.exit_initialization_mode()
         body.exit_initialization_mode()
 
-        mu, action, gamma = self.mu0[None].copy(), np.zeros((1, 2)), np.array([self.gamma0], float)
-        events = (np.array([-np.inf]), np.array([-np.inf]), np.array([False]), np.array([False]))
-        variance, limit = np.array([self.sigma_p], float), np.array([self.action_limit])
-        record = {"mu": [mu[0].copy()], "action": [action[0].copy()], "gamma": [gamma[0]], "drive": [np.zeros(2)],
+        mu, action, gamma = self.mu0.copy(), np.zeros(2), self.gamma0
+        # Event bookkeeping: the event times last seen, and whether a new visual / tactile event came since the
+        # last Bayes update (the released agent's flags).
+        seen_visual = seen_tactile = -math.inf
+        new_visual = new_tactile = False
+        record = {"mu": [mu.copy()], "action": [action.copy()], "gamma": [gamma], "drive": [np.zeros(2)],
                   "q": [np.array([body.values["q_shoulder"][0], body.values["q_elbow"][0]])],
                   "force_x": [body.values["force_x"][0]]}
         stepping = time.perf_counter()
@@ -118,13 +153,21 @@ class PaperStyleAgent:
             camera.set("ball", stimulus.values["ball"])
             camera.do_step(t, h)
             s_v = camera.values["image"][0]
-            s_p = np.stack([body.values["q_shoulder"], body.values["q_elbow"]], axis=1)
+            s_p = np.array([body.values["q_shoulder"][0], body.values["q_elbow"][0]])
 
-            # Gamma from the touch events: Bayes once a new visual and a new tactile event were seen.
-            visual_time, tactile_time = stimulus.values["visual_time"], stimulus.values["tactile_time"]
-            pair, *events = observe_events(*events, visual_time, tactile_time)
-            gamma = update_gamma(gamma, pair, visual_time, tactile_time, t + h, h, self.gamma0,
-                                 self.brain["sync_sd"], self.brain["async_density"], self.brain["decay_rate"])
+            # Gamma (eqs. 8-9): Bayes once a new visual and a new tactile event were both seen, else the decay.
+            # The stimulus has already advanced to t + h (Gauss-Seidel), so the decay measures from t + h.
+            visual_time = float(stimulus.values["visual_time"][0])
+            tactile_time = float(stimulus.values["tactile_time"][0])
+            new_visual |= visual_time != seen_visual and math.isfinite(visual_time)
+            new_tactile |= tactile_time != seen_tactile and math.isfinite(tactile_time)
+            seen_visual, seen_tactile = visual_time, tactile_time
+            if new_visual and new_tactile:
+                gamma = self.bayes(gamma, visual_time, tactile_time)
+                new_visual = new_tactile = False
+            else:
+                gamma = self.decay(gamma, t + h, tactile_time, h)
+            gamma = min(max(gamma, self.gamma0), 1.0)
 
             # The released agent's active_inference_step: forward, error in numpy, backward, Euler.
             began = time.perf_counter()
@@ -132,12 +175,15 @@ class PaperStyleAgent:
             g_mu = output.detach().numpy()
             drive = self.visual_drive(inpt, output, s_v[None] - g_mu)
             self.decoder_seconds += time.perf_counter() - began
-            mu, _, action = euler_step(mu, action, s_p, gamma, drive, variance, limit, h)
+            mu_dot = (s_p - mu) / self.sigma_p + gamma * drive          # eq. 6
+            mu = mu + h * mu_dot
+            a_dot = -(s_p - mu) / self.sigma_p                          # eq. 7, with the updated belief
+            action = np.clip(action + h * a_dot, -self.action_limit, self.action_limit)
 
-            body.set("u_shoulder", action[:, 0].copy())
-            body.set("u_elbow", action[:, 1].copy())
+            body.set("u_shoulder", action[:1].copy())
+            body.set("u_elbow", action[1:].copy())
             body.do_step(t, h)
-            for key, value in (("mu", mu[0]), ("action", action[0]), ("gamma", gamma[0]), ("drive", drive[0]),
+            for key, value in (("mu", mu), ("action", action), ("gamma", gamma), ("drive", drive),
                                ("q", np.array([body.values["q_shoulder"][0], body.values["q_elbow"][0]])),
                                ("force_x", body.values["force_x"][0])):
                 record[key].append(np.array(value, copy=True))
