@@ -58,13 +58,13 @@ def rhi(*args, cache):
                           env={**os.environ, "RHI_CACHE": str(cache)})
 
 
-def test_rhi_experiment_with_the_c_body_gives_the_python_kinematic_summary(bodies, tmp_path):
+def test_rhi_experiment_with_the_c_body_gives_the_python_kinematic_summary(bodies, tmp_path, quick_cache):
     config = tmp_path / "conv.toml"
     config.write_text('[experiment]\ndecoders = ["conv"]\n')
     summaries = {}
     for kind, path in bodies.items():
         done = rhi("experiment", "--quick", "--config", str(config), "--body", str(path),
-                   "--out", str(tmp_path / kind), cache=tmp_path / "cache")
+                   "--out", str(tmp_path / kind), cache=quick_cache)
         assert done.returncode == 0, done.stderr[-2000:]
         with open(tmp_path / kind / "summary.csv") as file:
             summaries[kind] = list(csv.DictReader(file))
