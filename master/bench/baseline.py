@@ -66,6 +66,7 @@ class PaperStyleAgent:
         self.brain, self.mu0 = brain, np.array(given["brain.mu0"], dtype=float)
         # The experiment leaves the action limit at the brain component's start value.
         self.action_limit = float(given.get("brain.action_limit", Brain().variables["action_limit"].start))
+        self.action_time_constant = float(given["brain.action_time_constant"])
         self.precision = resolution_weight(model.resolution, model.resolution) / config["decoder"]["visual_variance"]
 
     def use_decoder(self, model: GenerativeModel, weight_gradients: bool) -> None:
@@ -103,6 +104,7 @@ class PaperStyleAgent:
         mu, action, gamma = self.mu0[None].copy(), np.zeros((1, 2)), np.array([self.gamma0], float)
         events = (np.array([-np.inf]), np.array([-np.inf]), np.array([False]), np.array([False]))
         variance, limit = np.array([self.sigma_p], float), np.array([self.action_limit])
+        time_constant = np.array([self.action_time_constant])
         record = {"mu": [mu[0].copy()], "action": [action[0].copy()], "gamma": [gamma[0]], "drive": [np.zeros(2)],
                   "q": [np.array([body.values["q_shoulder"][0], body.values["q_elbow"][0]])],
                   "force_x": [body.values["force_x"][0]]}
@@ -132,7 +134,7 @@ class PaperStyleAgent:
             g_mu = output.detach().numpy()
             drive = self.visual_drive(inpt, output, s_v[None] - g_mu)
             self.decoder_seconds += time.perf_counter() - began
-            mu, _, action = euler_step(mu, action, s_p, gamma, drive, variance, limit, h)
+            mu, _, action = euler_step(mu, action, s_p, gamma, drive, variance, limit, h, time_constant)
 
             body.set("u_shoulder", action[:, 0].copy())
             body.set("u_elbow", action[:, 1].copy())
