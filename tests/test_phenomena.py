@@ -55,7 +55,7 @@ def test_shipped_files_load_and_span_the_human_ranges():
         xs = sorted({phenomenon.x_of(sweep.configs[t.point], t.condition, t.stimulation) for t in sweep.trials})
         spans[name] = (xs[0], xs[-1], len(xs))
         assert all(config["decoder"]["fast"] for config in sweep.configs)  # fast mode, as the README says
-    assert spans == {"temporal-window": (0.0, 1.0, 9), "distance": (5.0, 45.0, 9), "time-course": (5.0, 30.0, 6)}
+    assert spans == {"temporal-window": (0.0, 1.0, 13), "distance": (5.0, 45.0, 9), "time-course": (5.0, 30.0, 6)}
     # the fixed delay: delay_min = delay_max at every point
     for config in sweeps.load(sweep_file("temporal-window")).configs:
         assert config["stimulations"]["fixed"]["delay_min"] == config["stimulations"]["fixed"]["delay_max"]
@@ -78,7 +78,7 @@ def test_rows_and_table_by_hand(tmp_path):
     base["experiment"]["decoders"] = ["conv"]
     base["experiment"]["conditions"] = ["left"]
     base["sweep"]["trials"] = 2
-    base["sweep"]["points"] = base["sweep"]["points"][:1] + base["sweep"]["points"][4:5]  # 0.0 and 0.4 s
+    base["sweep"]["points"] = delays(base, 0.0, 0.4)
     path = tmp_path / "tw.toml"
     path.write_text(to_toml(base))
     sweep = sweeps.load(path)
@@ -101,13 +101,18 @@ def test_rows_and_table_by_hand(tmp_path):
         reports.report("temporal-window", path, path.parent)
 
 
+def delays(base: dict, *wanted: float) -> list[dict]:
+    """The temporal window's points at these delays."""
+    return [p for p in base["sweep"]["points"] if p["stimulations.fixed"]["delay_max"] in wanted]
+
+
 def quick_copy(name: str, folder: Path) -> Path:
     """The shipped file at quick size: conv only, the [quick] defaults (300 steps, 32 px), two points."""
     base = shipped(name)
     base["experiment"]["decoders"] = ["conv"]
     base["sweep"].update(quick=True, workers=1, trials=1)
     if "points" in base["sweep"]:
-        base["sweep"]["points"] = [base["sweep"]["points"][0], base["sweep"]["points"][4]]  # 0 and 0.4 s
+        base["sweep"]["points"] = delays(base, 0.0, 0.4)
     elif name == "time-course":
         base["sweep"]["grid"] = {"experiment.steps": [150, 300]}  # 3 and 6 s
     else:

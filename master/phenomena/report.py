@@ -51,7 +51,8 @@ PHENOMENA = {p.name: p for p in (
                "lateral distance between the real and the rubber hand (cm)",
                lambda config, condition, stimulation: round(100.0 * abs(config["conditions"][condition]), 9),
                "largest"),
-    Phenomenon("time-course", FILES["time-course"], "time_course", "time_s", "time from the start of touch (s)",
+    Phenomenon("time-course", FILES["time-course"], "time_course", "time_s",
+               "time from the start of the trial (s; the first touch at 2 s)",
                lambda config, condition, stimulation: round(config["experiment"]["steps"]
                                                             * config["experiment"]["step_size"], 9), "last"),
 )}
@@ -113,6 +114,7 @@ def table(phenomenon: Phenomenon, found: list[dict]) -> str:
 
 def draw_human(axis, references: list[dict], with_labels: bool = True) -> None:
     """Bands and marks for the human findings; never data points (they are qualitative here)."""
+    tested = iter(("v", "^", "s", "D"))
     for reference in references:
         label = reference["short"] if with_labels else None
         kind = reference["kind"]
@@ -121,7 +123,8 @@ def draw_human(axis, references: list[dict], with_labels: bool = True) -> None:
                          label=f"human: effect present ({label})" if label else None)
             axis.axvline(reference["value"], color=HUMAN, ls="--", lw=1)
         elif kind == "tested":
-            axis.plot(reference["values"], [0.98] * len(reference["values"]), "v", color=HUMAN, ms=6, mfc="none",
+            axis.plot(reference["values"], [0.98] * len(reference["values"]), next(tested), color=HUMAN, ms=6,
+                      mfc="none",
                       transform=axis.get_xaxis_transform(), clip_on=False,
                       label=f"human: tested ({label})" if label else None)
         elif kind == "marker":
@@ -164,10 +167,11 @@ def figure(phenomenon: Phenomenon, found: list[dict], path: Path, model: str) ->
                                   ("gamma_final_mean", None, "final gamma")],
               "distance": [("drift_cm_mean", "drift_cm_sd", "final drift (cm)"),
                            ("drift_relative", None, "drift / largest drift"),
+                           ("gamma_final_mean", None, "final gamma (belief in a common cause)"),
                            ("force_n_mean", "force_n_sd", "final force (N)")],
               "time-course": [("drift_relative", None, "drift / drift at the end of the longest trial"),
                               ("drift_half_time_s_mean", None, "drift half time (s)")]}[phenomenon.name]
-    fig, axes = plt.subplots(1, len(panels), figsize=(5.2 * len(panels), 4.6), squeeze=False)
+    fig, axes = plt.subplots(1, len(panels), figsize=(5.0 * len(panels), 4.6), squeeze=False)
     for number_, (axis, (value, sd, ylabel)) in enumerate(zip(axes[0], panels)):
         if phenomenon.name == "time-course" and value == "drift_half_time_s_mean":
             half_times(axis, found)
@@ -195,7 +199,7 @@ def half_times(axis, found: list[dict]) -> None:
     axis.set_yticks(range(len(cells)), [f"{r['decoder']} {r['condition']} {r['stimulation']}" for r in cells],
                     fontsize=7)
     axis.set_ylim(-1, len(cells))
-    axis.set_xlabel("drift half time (model) / illusion onset (human), s")
+    axis.set_xlabel("drift half time from the trial's start (model) / illusion onset (human), s")
     axis.grid(alpha=0.3)
 
 
