@@ -61,6 +61,15 @@ def test_shipped_files_load_and_span_the_human_ranges():
         assert config["stimulations"]["fixed"]["delay_min"] == config["stimulations"]["fixed"]["delay_max"]
 
 
+def test_the_spatial_variant_of_the_distance_protocol():
+    """distance_spatial.toml: the distance points with causal inference over space on, and nothing else changed."""
+    spatial = sweeps.load(sweep_file("distance").with_name("distance_spatial.toml"))
+    plain = sweeps.load(sweep_file("distance"))
+    assert spatial.points == plain.points and {c["brain"]["spatial_sd"] for c in spatial.configs} == {0.18}
+    for a, b in zip(spatial.configs, plain.configs):
+        assert {**a, "brain": {**a["brain"], "spatial_sd": None}} == {**b, "brain": {**b["brain"], "spatial_sd": None}}
+
+
 def test_human_file_has_a_source_per_number():
     with open(human_file(), "rb") as file:
         human = tomllib.load(file)
