@@ -15,20 +15,19 @@ The action law (step 4). The action a is a commanded joint velocity (deg/s); the
 velocity servo turns it into joint torques, and the held arm into a force at the hand.
 - tau = inf is the paper's law as the released agent runs it: a <- clip(a + dt * a_dot),
   the action integrates a_dot (eq. 7). The held arm cannot move, so s_p stays put and any
-  persistent belief-sense gap mu - s_p integrates until the clip: the final force is a sign
-  (+-0.8 N in every synchronous side cell of the default run, and in the VAE's Center cell).
-  ``tau = inf`` gives this law bit for bit (:func:`action_update` takes the paper's branch).
+  lasting belief-sense gap mu - s_p integrates until the clip: the final force then gives a
+  direction, not a size (README, The action). ``tau = inf`` gives this law bit for bit
+  (:func:`action_update` takes the paper's branch).
 - tau finite (the default, 0.1 s) is a leaky integrator, the reflex arc of active inference
   (the action is driven by the proprioceptive prediction error) with a first-order
   response: a relaxes with time constant tau to a = -tau (s_p - mu)/Sigma_p, proportional
   to the belief-sense gap. The held arm's force then measures the gap: toward the rubber
   hand under synchronous touch, about none when the rubber hand overlays the real hand, as
-  humans push (Lanillos et al. 2021, Sci Rep 11:22844; Asai 2015). Why 0.1 s: it is the
-  time scale of the human stretch reflex loop and of muscle force development (tens to
-  about a hundred ms), far shorter than the touch period (2 s) and the rise of gamma (about
-  15 s), so the force follows the belief rather than its history. Within the range that
-  keeps the action off the clip (tau below about 0.4 s in the default run), tau scales the
-  force in proportion and leaves its signs and ratios as they are (README, The action).
+  humans push (Lanillos et al. 2021, Sci Rep 11:22844; Asai 2015). Why 0.1 s: the time scale
+  of the human stretch-reflex loop and of muscle force development (tens of ms to about a
+  hundred), far shorter than the touch period and the rise of gamma, so the force follows the
+  belief rather than its history. While the action stays off the clip, tau scales the force
+  in proportion and leaves its signs and ratios as they are (README, The action).
   Explicit Euler of the leak is stable while dt/tau < 2 (the step fails otherwise).
 The paper's action measure (Fig. 3 d-f, the horizontal hand acceleration J a_dot) reads
 a_dot of step 3, which does not depend on the law.
