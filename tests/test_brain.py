@@ -7,7 +7,7 @@ import pytest
 
 from components.brain import Brain
 from components.brain.causal_inference import decayed, observe_events, posterior_common_cause, update_gamma
-from components.brain.integrator import euler_step
+from components.brain.integrator import action_update, euler_step
 from components.component import ComponentError, Status
 from master import SimulationError, System, simulate
 from tests.linear_decoder import LinearDecoder
@@ -17,10 +17,11 @@ H = 0.02
 
 
 def started(batch=1, inputs=None, **parameters):
-    """A brain past initialization, parameters and inputs set by hand (no master)."""
+    """A brain past initialization, parameters and inputs set by hand (no master); the paper's action
+    law (action_time_constant = inf) unless the test sets another."""
     brain = Brain()
     brain.instantiate(batch)
-    for name, value in parameters.items():
+    for name, value in {"action_time_constant": np.inf, **parameters}.items():
         brain.set(name, value)
     brain.setup_experiment(0.0)
     brain.enter_initialization_mode()
@@ -288,7 +289,9 @@ def test_non_finite_drive_and_belief_are_named():
     ("proprioceptive_variance", 0.0, r"brain\.proprioceptive_variance must be positive and finite, got 0\.0"),
     ("sync_sd", 0.0, r"brain\.sync_sd must be positive and finite, got 0\.0"),
     ("async_density", np.inf, r"brain\.async_density must be positive and finite, got inf"),
-    ("action_limit", 0.0, r"brain\.action_limit must be positive and finite, got 0\.0")])
+    ("action_limit", 0.0, r"brain\.action_limit must be positive and finite, got 0\.0"),
+    ("action_time_constant", 0.0, r"brain\.action_time_constant must be positive \(inf: the paper's law\), got 0\.0"),
+    ("action_time_constant", np.nan, r"brain\.action_time_constant must be positive \(inf: the paper's law\), got nan")])
 def test_bad_parameter_is_named_at_initialization(name, value, message):
     with pytest.raises(ComponentError, match=message):
         started(**{name: value})
@@ -343,7 +346,110 @@ def test_event_bookkeeping_fires_bayes_once_per_new_pair():
 def test_euler_step_updates_the_belief_then_the_action_from_it_and_clips():
     mu, s_p, drive = np.array([[10.0, 20.0]]), np.array([[10.5, 19.0]]), np.array([[3.0, -4.0]])
     one = np.ones(1)
-    new_mu, a_dot, action = euler_step(mu, np.array([[-0.995, -0.2]]), s_p, 0.5 * one, drive, 2.0 * one, one, 0.1)
+    new_mu, a_dot, action = euler_step(mu, np.array([[-0.995, -0.2]]), s_p, 0.5 * one, drive, 2.0 * one, one, 0.1,
+                                       np.inf * one)
     np.testing.assert_allclose(new_mu, mu + 0.1 * ((s_p - mu) / 2.0 + 0.5 * drive), rtol=1e-15)
     np.testing.assert_allclose(a_dot, -(s_p - new_mu) / 2.0, rtol=1e-15)
     np.testing.assert_allclose(action, [[-1.0, -0.2 + 0.1 * a_dot[0, 1]]], rtol=1e-15)  # shoulder clipped at -1
+    # the leaky law in the same step: a + h (a_dot - a/tau), then the clip
+    _, _, leaky = euler_step(mu, np.array([[-0.995, -0.2]]), s_p, 0.5 * one, drive, 2.0 * one, one, 0.1, 0.5 * one)
+    np.testing.assert_allclose(leaky, [[-0.995 + 0.1 * (a_dot[0, 0] + 0.995 / 0.5),
+                                        -0.2 + 0.1 * (a_dot[0, 1] + 0.2 / 0.5)]], rtol=1e-15)
+
+
+# -- the action laws ------------------------------------------------------------------------------
+
+def test_paper_law_is_the_released_agent_s_integrator_bit_for_bit():
+    """tau = inf: a <- clip(a + h a_dot), the same bits as the formula written out, also for -0.0 and at the clip."""
+    rng = np.random.default_rng(3)
+    action, a_dot = rng.uniform(-1, 1, (50, 2)), rng.normal(0, 20, (50, 2))
+    action[0], a_dot[1] = [-0.0, 0.0], [-0.0, 0.0]
+    limit = np.full(50, 0.9)
+    expected = np.clip(action + 0.02 * a_dot, -0.9, 0.9)
+    got = action_update(action, a_dot, np.full(50, np.inf), limit, 0.02)
+    assert got.tobytes() == expected.tobytes()
+
+
+def test_leaky_law_by_hand_and_its_fixed_point():
+    """a_{n+1} = a_n + h (a_dot - a_n / tau) by hand over steps; a constant gap settles at a = tau * a_dot
+    = -tau (s_p - mu) / Sigma_p, geometrically at the rate (1 - h/tau) per step, below the clip."""
+    tau, variance, h = 0.1, 2.0, 0.02
+    s_p, mu = np.array([147.0, -91.0]), np.array([147.3, -91.1])  # gamma0 = 0: mu relaxes, so compute a_dot per step
+    brain = started(gamma0=0.0, proprioceptive_variance=variance, mu0=mu, action_time_constant=tau,
+                    inputs={"q_shoulder": s_p[0], "q_elbow": s_p[1]})
+    a, belief = np.zeros(2), mu.copy()
+    for n in range(40):
+        advance(brain, n * h)
+        belief = belief + h * (s_p - belief) / variance
+        a_dot = -(s_p - belief) / variance
+        a = a + h * (a_dot - a / tau)
+        np.testing.assert_allclose(brain.get("action_rate")[0], a_dot, rtol=1e-13)
+        np.testing.assert_allclose([brain.get("u_shoulder")[0], brain.get("u_elbow")[0]], a, rtol=1e-12)
+    # with the gap held constant (a steady a_dot), the action converges to tau * a_dot
+    steady = np.array([[0.6, -0.3]])
+    action = np.zeros((1, 2))
+    for n in range(400):
+        action = action_update(action, steady, np.array([tau]), np.array([1.0]), h)
+    np.testing.assert_allclose(action, tau * steady, rtol=1e-12)
+    one_step = action_update(np.zeros((1, 2)), steady, np.array([tau]), np.array([1.0]), h)
+    np.testing.assert_allclose(one_step, h * steady, rtol=1e-15)  # from rest, the first step is the paper's
+    # the clip still bounds it: tau * a_dot = 3 deg/s against a limit of 1
+    big = action_update(np.zeros((1, 2)), np.array([[30.0, -30.0]]), np.array([tau]), np.array([1.0]), 1.0 * tau)
+    assert big.tolist() == [[1.0, -1.0]]
+
+
+def test_paper_and_leaky_laws_in_one_batch():
+    s_p, mu = [0.0, 0.0], [20.0, -10.0]  # the gap relaxes at 1/Sigma_p = 0.25/s; its integral is the gap
+    brain = started(batch=2, gamma0=0.0, mu0=mu, proprioceptive_variance=4.0, action_time_constant=[np.inf, 0.05],
+                    inputs={"q_shoulder": s_p[0], "q_elbow": s_p[1]})
+    for n in range(200):
+        advance(brain, n * H)
+    paper, leaky = np.stack([brain.get("u_shoulder"), brain.get("u_elbow")], axis=1)
+    assert paper.tolist() == [1.0, -1.0]  # integrated to the clip
+    a_dot = brain.get("action_rate")[1]
+    np.testing.assert_allclose(leaky, 0.05 * a_dot, rtol=0.02)  # tracks tau * a_dot (lag ~ tau/Sigma_p = 1.25 %)
+
+
+def test_leaky_action_step_guard():
+    brain = started(action_time_constant=0.009)  # 0.02 / 0.009 = 2.22
+    assert brain.do_step(0.0, H) == Status.ERROR
+    assert brain.last_reason.startswith("step too large for the leaky action in trial 0: dt / action_time_constant "
+                                        "= 2.222 >= 2")
+    advance(started(action_time_constant=0.011), 0.0)
+
+
+# -- the extension: causal inference over space ---------------------------------------------------
+
+def test_spatial_likelihood_by_hand_and_off_by_default():
+    from components.brain.causal_inference import spatial_likelihood
+
+    seen = np.array([[-0.45, 0.5], [0.0, 0.0], [np.nan, np.nan]])
+    felt = np.array([[-0.30, 0.5], [0.3, 0.4], [np.nan, 1.0]])
+    factor = spatial_likelihood(seen, felt, np.array([0.2, 0.25, np.inf]))
+    assert factor[0] == pytest.approx(math.exp(-0.15 ** 2 / (2 * 0.2 ** 2)), rel=1e-14)
+    assert factor[1] == pytest.approx(math.exp(-(0.3 ** 2 + 0.4 ** 2) / (2 * 0.25 ** 2)), rel=1e-14)
+    assert factor[2] == 1.0  # inf: the paper's model; the positions are not read (NaN is fine)
+    assert Brain().variables["spatial_sd"].start == np.inf
+
+
+def test_gamma_with_space_is_bayes_with_the_spatial_factor():
+    """A synchronous pair with the hands 15 cm apart: p1 = N(delay) * exp(-d^2 / (2 sigma_s^2)); with
+    sigma_s = inf the same brain gives the paper's update."""
+    inputs = {"seen_hand": [[-0.45, 0.5]], "hand_x": -0.30, "hand_y": 0.5}
+    spatial, paper = started(gamma0=0.01, spatial_sd=0.1, inputs=inputs), started(gamma0=0.01, inputs=inputs)
+    for brain in (spatial, paper):
+        advance(brain, 1.0, visual_time=1.0, tactile_time=1.02)
+    p1 = normal_pdf(-0.02)
+    factor = math.exp(-0.15 ** 2 / (2 * 0.1 ** 2))
+    expected = p1 * factor * 0.01 / (p1 * factor * 0.01 + 0.5 * 0.99)
+    assert spatial.get("gamma")[0] == pytest.approx(max(expected, 0.01), rel=1e-13)
+    assert paper.get("gamma")[0] == pytest.approx(p1 * 0.01 / (p1 * 0.01 + 0.5 * 0.99), rel=1e-13)
+    assert spatial.get("gamma")[0] < paper.get("gamma")[0]
+
+
+def test_spatial_extension_needs_the_hands_connected():
+    brain = started(batch=2, spatial_sd=[np.inf, 0.2])  # seen_hand and hand_x/y at their NaN start values
+    assert brain.do_step(0.0, H) == Status.ERROR
+    assert brain.last_reason.startswith("seen_hand is not finite (nan) in trial 1 (brain.spatial_sd is finite")
+    with pytest.raises(ComponentError, match=r"brain\.spatial_sd must be positive \(inf: the paper's model\), got 0"):
+        started(spatial_sd=0.0)

@@ -13,7 +13,8 @@ ROOT = Path(__file__).resolve().parents[1]
 # -- the rules, as data --------------------------------------------------------------------------
 # master's sub-packages by layer, top first. A sub-package may import itself and any lower layer;
 # never a higher layer, nor another member of its own layer (sweeps/bench, experiment/export).
-MASTER_LAYERS = [("commands",), ("sweeps", "bench"), ("experiment", "export"), ("outputs",), ("cosim",)]
+MASTER_LAYERS = [("commands",), ("phenomena",), ("sweeps", "bench"), ("experiment", "export"), ("outputs",),
+                 ("cosim",)]
 # master's own files outside the sub-packages, and the sub-packages each may import.
 MASTER_FILES = {"master/__init__.py": ("cosim",), "master/__main__.py": ("commands",)}
 # ``from master import X`` (not a sub-package) reaches master/__init__.py, which re-exports this one:
@@ -147,6 +148,8 @@ def test_engine_knows_no_rubber_hand_words():
     ("master/outputs/files.py", "from master.experiment.measures import measures\n", "a layer above it"),
     ("master/experiment/wiring.py", "from master.export import body\n", "a layer beside it"),
     ("master/sweeps/plan.py", "import master.bench.suite\n", "a layer beside it"),
+    ("master/sweeps/plan.py", "from master.phenomena import report\n", "a layer above it"),
+    ("master/phenomena/report.py", "from master.commands import cli\n", "only master/__main__.py"),
     ("master/bench/suite.py", "from master.commands import cli\n", "only master/__main__.py"),
     ("master/__init__.py", "from master.experiment import wiring\n", "imports only master.cosim"),
     ("master/extra.py", "", "outside the layer table"),
@@ -166,6 +169,7 @@ def test_the_checker_catches_each_kind_of_violation(relative, source, expected):
     ("master/cosim/links.py", "from .system import split\n"),
     ("master/commands/cli.py", "from master.sweeps import plan\nfrom master.commands import bench\n"),
     ("master/sweeps/runner.py", "from master.experiment import runner\nfrom master import ConfigError\n"),
+    ("master/phenomena/report.py", "from master.sweeps import plan\nfrom master.outputs import figures\n"),
     ("master/export/body.py", "from master.cosim import ConfigError\nimport numpy\n"),
     ("master/__main__.py", "from master.commands.cli import main\n"),
     ("components/body/variants.py", "from components.body.plant import ArmPlant\nfrom .kinematics import forward\n"),

@@ -6,6 +6,7 @@ from master.outputs import files, tables as outputs
 from master.cosim import ConfigError
 from master.experiment import Trial, plan, trial_seed
 from master.experiment.config import load
+from master.experiment.measures import end_of_trial, half_time
 
 
 def test_plan_covers_the_protocol_with_stable_seeds():
@@ -23,10 +24,33 @@ def test_summary_by_hand():
     trials = [Trial("conv", "left", "sync", i, i, -0.15, 0.0, 0.1) for i in range(3)] + \
              [Trial("conv", "right", "sync", 0, 9, 0.15, 0.0, 0.1)]
     final = {"drift_cm": np.array([-1.0, -2.0, -3.0, 4.0]), "force_x_n": np.array([-0.1, -0.2, -0.6, 0.5]),
-             "gamma": np.array([0.9, 1.0, 0.95, 1.0])}
+             "gamma": np.array([0.9, 1.0, 0.95, 1.0]),
+             "action_accel_mean_x_m_s2": np.array([-0.01, -0.02, -0.06, 0.03]),
+             "action_accel_x_m_s2": np.array([-0.02, -0.02, -0.05, 0.04])}
     rows = outputs.summary(trials, final)
-    assert rows[0] == ["conv", "left", "sync", 3, "-2", "1", "-0.3", "0.264575", "0.95"]  # sd with ddof = 1
-    assert rows[1] == ["conv", "right", "sync", 1, "4", "0", "0.5", "0", "1"]
+    # sd with ddof = 1: sqrt(((0.1)^2 + 0 + 0.2^2 + ...)/2); the action measure's columns after the old ones
+    assert rows[0] == ["conv", "left", "sync", 3, "-2", "1", "-0.3", "0.264575", "0.95",
+                       "-0.03", "0.0264575", "-0.03", "0.0173205"]
+    assert rows[1] == ["conv", "right", "sync", 1, "4", "0", "0.5", "0", "1", "0.03", "0", "0.04", "0"]
+    assert outputs.SUMMARY_COLUMNS[:9] == ["decoder", "condition", "stimulation", "n_trials", "drift_cm_mean",
+                                           "drift_cm_sd", "force_n_mean", "force_n_sd", "gamma_final_mean"]
+    assert len(outputs.SUMMARY_COLUMNS) == len(rows[0])
+
+
+def test_end_of_trial_measures_by_hand():
+    """The action measure's trial mean leaves out row 0 (no step yet); the drift's half time is the first
+    time it reaches half its final value, by size; NaN when it ends at 0."""
+    times = np.array([0.0, 0.02, 0.04, 0.06])
+    per_step = {"drift_cm": np.array([[0.0, 0.0, 0.0], [-0.5, 0.1, 0.3], [-0.9, 0.3, -0.1], [-1.0, 0.4, 0.0]]),
+                "action_accel_x_m_s2": np.array([[0.0, 0.0, 0.0], [1.0, 2.0, 3.0], [2.0, 2.0, 0.0],
+                                                 [6.0, -1.0, 0.0]])}
+    final = end_of_trial(times, per_step)
+    np.testing.assert_allclose(final["action_accel_mean_x_m_s2"], [3.0, 1.0, 1.0], rtol=1e-15)
+    np.testing.assert_array_equal(final["action_accel_x_m_s2"], [6.0, -1.0, 0.0])
+    np.testing.assert_array_equal(final["drift_cm"], [-1.0, 0.4, 0.0])
+    half = final["drift_half_time_s"]
+    assert half[0] == 0.02 and half[1] == 0.04 and np.isnan(half[2])
+    np.testing.assert_array_equal(half_time(times, per_step["drift_cm"][:, :2]), half[:2])
 
 
 def test_trials_csv_is_tidy():

@@ -16,6 +16,15 @@ Choices the paper leaves open (DESIGN.md wins where it speaks):
 - When p1 * gamma + p2 * (1 - gamma) underflows to 0 (gamma = 1 and a delay so large
   that p1 = 0), the posterior is taken equal to the prior instead of 0/0.
 
+An extension, off by default (``spatial_sd = inf``): causal inference over space as well as
+time (Samad, Chung & Shams 2015, PLoS ONE 10:e0117178). Under a common cause the seen and the
+felt hand are at the same place up to Gaussian noise of sd sigma_s; under separate causes their
+distance is uninformative. Bayes' rule then multiplies p1 by :func:`spatial_likelihood`, the
+Gaussian factor exp(-d^2 / (2 sigma_s^2)) of the distance d between the seen and the felt hand,
+taken relative to its peak (the density under separate causes is set equal to the common-cause
+density at d = 0), so that overlapping hands leave the paper's model as it is, and sigma_s = inf
+is the paper's model exactly.
+
 All functions are vectorised over the batch: arguments are arrays of shape (B,).
 """
 from __future__ import annotations
@@ -32,13 +41,26 @@ def synchrony_likelihood(visual_time, tactile_time, sync_sd):
     return norm.pdf(np.asarray(visual_time) - np.asarray(tactile_time), loc=0.0, scale=sync_sd)
 
 
-def posterior_common_cause(gamma, visual_time, tactile_time, sync_sd, async_density):
+def spatial_likelihood(seen_hand, felt_hand, spatial_sd):
+    """The extension's spatial factor: exp(-|seen - felt|^2 / (2 spatial_sd^2)), (B,); 1 where spatial_sd = inf.
+
+    seen_hand, felt_hand: (B, 2) m, the seen (rubber) and the felt (sensed) hand; spatial_sd: (B,) m.
+    Where spatial_sd is inf the positions are not read (they may be NaN) and the factor is exactly 1.
+    """
+    spatial_sd = np.asarray(spatial_sd, dtype=float)
+    off = np.isinf(spatial_sd)
+    distance2 = np.where(off, 0.0, ((np.asarray(seen_hand) - np.asarray(felt_hand)) ** 2).sum(axis=-1))
+    return np.where(off, 1.0, np.exp(-distance2 / (2.0 * np.where(off, 1.0, spatial_sd) ** 2)))
+
+
+def posterior_common_cause(gamma, visual_time, tactile_time, sync_sd, async_density, spatial=1.0):
     """Paper eq. 8 (and the first case of eq. 9): Bayes' rule with prior gamma.
 
-    gamma' = p1 gamma / (p1 gamma + p2 (1 - gamma)), p1 = synchrony_likelihood(...),
-    p2 = async_density, the uniform density of the delay under two separate causes.
+    gamma' = p1 gamma / (p1 gamma + p2 (1 - gamma)), p1 = synchrony_likelihood(...) * spatial,
+    p2 = async_density, the uniform density of the delay under two separate causes. ``spatial`` is
+    the extension's :func:`spatial_likelihood` (1: the paper's model).
     """
-    p1 = synchrony_likelihood(visual_time, tactile_time, sync_sd)
+    p1 = synchrony_likelihood(visual_time, tactile_time, sync_sd) * spatial
     numerator = p1 * gamma
     evidence = numerator + async_density * (1.0 - gamma)
     safe = np.where(evidence > 0, evidence, 1.0)
@@ -75,7 +97,7 @@ def observe_events(seen_visual, seen_tactile, pending_visual, pending_tactile, v
 
 
 def update_gamma(gamma, new_pair, visual_time, tactile_time, time, step, gamma0,
-                 sync_sd=0.2, async_density=0.5, decay_rate=1.0 / 80.0):
+                 sync_sd=0.2, async_density=0.5, decay_rate=1.0 / 80.0, spatial=1.0):
     """One step of paper eq. 9 for each trial, then the clamp to [gamma0, 1].
 
     new_pair: (B,) bool, a new visual and a new tactile event have both been observed since
@@ -83,10 +105,11 @@ def update_gamma(gamma, new_pair, visual_time, tactile_time, time, step, gamma0,
         decay elsewhere.
     visual_time, tactile_time: the last observed event times, s (-inf before any).
     time: the time the inputs describe, s; step: the communication step dt, s.
+    spatial: (B,) the extension's :func:`spatial_likelihood` (1: the paper's model).
     """
     # Event times may be -inf where no pair is due; keep them out of the density (no inf - inf).
     visual = np.where(new_pair, visual_time, 0.0)
     tactile = np.where(new_pair, tactile_time, 0.0)
-    bayes = posterior_common_cause(gamma, visual, tactile, sync_sd, async_density)
+    bayes = posterior_common_cause(gamma, visual, tactile, sync_sd, async_density, spatial)
     decay = decayed(gamma, time, tactile_time, step, decay_rate)
     return np.clip(np.where(new_pair, bayes, decay), gamma0, 1.0)

@@ -81,6 +81,11 @@ class PaperStyleAgent:
         self.gamma0 = float(brain["gamma0"])
         self.sync_sd, self.async_density = float(brain["sync_sd"]), float(brain["async_density"])
         self.decay_rate, self.action_limit = float(brain["decay_rate"]), float(brain["action_limit"])
+        # The action law (a leaky integrator, time constant tau; inf: the paper's eq. 7 as released).
+        self.action_time_constant = float(brain["action_time_constant"])
+        if math.isfinite(float(brain["spatial_sd"])):
+            raise ValueError("the paper-style baseline has the paper's causal inference over time only: "
+                             "brain.spatial_sd must be inf")
         self.mu0 = np.array(REST_POSE, dtype=float)  # the belief starts where the arm rests
         # Sigma_v^-1 per pixel at this resolution: Sigma_v is given at 256 x 256.
         self.precision = REFERENCE_PIXELS / model.resolution ** 2 / config["decoder"]["visual_variance"]
@@ -178,7 +183,9 @@ class PaperStyleAgent:
             mu_dot = (s_p - mu) / self.sigma_p + gamma * drive          # eq. 6
             mu = mu + h * mu_dot
             a_dot = -(s_p - mu) / self.sigma_p                          # eq. 7, with the updated belief
-            action = np.clip(action + h * a_dot, -self.action_limit, self.action_limit)
+            tau = self.action_time_constant
+            leak = 0.0 if math.isinf(tau) else action / tau   # a <- a + h (a_dot - a / tau), then the clip
+            action = np.clip(action + h * (a_dot - leak), -self.action_limit, self.action_limit)
 
             body.set("u_shoulder", action[:1].copy())
             body.set("u_elbow", action[1:].copy())

@@ -42,6 +42,12 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("--force", action="store_true", help="replace a different sweep in DIR")
     sweep.set_defaults(run=lambda args: __import__("master.commands.sweep", fromlist=["_"]).run_sweep(args))
 
+    phenomenon = commands.add_parser("phenomenon", help="a human phenomenon (temporal window, distance, time "
+                                                        "course): the model beside the human data")
+    __import__("master.commands.phenomenon", fromlist=["_"]).add_arguments(phenomenon)
+    phenomenon.set_defaults(
+        run=lambda args: __import__("master.commands.phenomenon", fromlist=["_"]).run_phenomenon(args))
+
     bench = commands.add_parser("bench", help="measure speed")
     bench.add_argument("--json", action="store_true", help="print the results as JSON (for machines)")
     bench.add_argument("--quick", action="store_true", help="tiny settings: a smoke test in seconds")

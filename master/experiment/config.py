@@ -135,6 +135,11 @@ def validate(config: dict) -> None:
     brain = config["brain"]
     if brain["proprioceptive_variance"] <= 0:
         raise ConfigError(f"brain.proprioceptive_variance must be positive, got {brain['proprioceptive_variance']}")
+    if not brain["spatial_sd"] > 0:
+        raise ConfigError(f"brain.spatial_sd must be positive (inf: the paper's model), got {brain['spatial_sd']}")
+    if not brain["action_time_constant"] > 0:
+        raise ConfigError(f"brain.action_time_constant must be positive (inf: the paper's action law), got "
+                          f"{brain['action_time_constant']}")
     if not 0 < brain["gamma0"] <= 1:
         raise ConfigError(f"brain.gamma0 must be in (0, 1], got {brain['gamma0']}")
     for key in ("blur", "ball_radius"):

@@ -6,10 +6,14 @@ import numpy as np
 from components.body import kinematics
 
 def measures(result) -> dict[str, np.ndarray]:
-    """Per step and trial (shape steps+1 x B): drift (cm), force (N), attempted hand velocity, and the rest.
+    """Per step and trial (shape steps+1 x B): drift (cm), force (N), the action measure, and the rest.
 
     Drift = x of the perceived hand (forward kinematics of mu) minus x of the real hand, in cm;
-    negative is to the left (DESIGN.md, Measures).
+    negative is to the left (DESIGN.md, Measures). The action measure of the paper's Fig. 3 d-f,
+    ``action_accel_x_m_s2``, is the horizontal hand acceleration J a_dot: eq. 7's a_dot (deg/s^2)
+    through the arm Jacobian at the sensed angles (m/deg), in m/s^2; 0 in row 0, before any step.
+    ``attempted_hand_vx_m_s`` holds the same numbers under its older name (it is an acceleration,
+    not a velocity; kept so that the columns of earlier runs keep their names and bytes).
     """
     values = result.values
     mu = values["brain.mu"]
@@ -37,5 +41,32 @@ def measures(result) -> dict[str, np.ndarray]:
         "free_energy": values["brain.free_energy"],
         "ball_x_m": values["stimulus.ball"][..., 0],
         "ball_y_m": values["stimulus.ball"][..., 1],
+        "action_accel_x_m_s2": attempted[..., 0],
     }
+
+
+def half_time(times: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Per trial (B,): the first time at which ``values`` (steps+1 x B) reaches half its final value.
+
+    Reaching means ``values / final >= 1/2`` (so a negative drift counts by its size). NaN where
+    the final value is 0 (nothing to reach).
+    """
+    final = values[-1]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        reached = values / np.where(final == 0, np.nan, final) >= 0.5
+    first = np.argmax(reached, axis=0)
+    return np.where(reached.any(axis=0), np.asarray(times)[first], np.nan)
+
+
+def end_of_trial(times: np.ndarray, per_step: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Per trial (B,): every measure's value after the last step, and the measures of a whole trial.
+
+    ``action_accel_mean_x_m_s2``: the action measure's mean over the steps (rows 1..steps, the
+    values the brain computed; row 0 is the initial 0), the paper's Fig. 3 d. ``drift_half_time_s``:
+    when the drift first reaches half its final value (:func:`half_time`), the illusion's time course.
+    """
+    final = {key: values[-1] for key, values in per_step.items()}
+    final["action_accel_mean_x_m_s2"] = per_step["action_accel_x_m_s2"][1:].mean(axis=0)
+    final["drift_half_time_s"] = half_time(times, per_step["drift_cm"])
+    return final
 

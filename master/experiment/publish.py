@@ -13,6 +13,7 @@ import numpy as np
 
 from master.experiment import runner as experiment
 from master.experiment.decoders import ensure_checkpoints, jacobian_pair
+from master.experiment.measures import end_of_trial
 from master.experiment.protocol import rubber_pose
 from master.outputs import figures, tables
 from master.outputs.animation import frames, gif_bytes
@@ -41,7 +42,7 @@ def run_into(out, config: dict, body: str | None = None, force: bool = False, pr
         checkpoints, training_seconds = ensure_checkpoints(config, progress=progress)
         trials, times, per_step, run_seconds, failures = experiment.run(config, checkpoints, make_body,
                                                                         progress=progress)
-        final = {key: values[-1] for key, values in per_step.items()}
+        final = end_of_trial(times, per_step)
         atomic_write(staging / "summary.csv", tables.csv_text(tables.SUMMARY_COLUMNS, tables.summary(trials, final)))
         atomic_write(staging / "trials.csv", tables.trials_csv(trials, times, per_step))
         jacobians = {kind: jacobian_pair(kind, checkpoints[kind], config) for kind in checkpoints}

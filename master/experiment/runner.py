@@ -10,7 +10,7 @@ import time
 import numpy as np
 
 from master.cosim import SimulationError
-from master.experiment.measures import measures
+from master.experiment.measures import end_of_trial, measures
 from master.experiment.protocol import Trial, make_trial, plan
 from master.experiment.wiring import run_batch
 
@@ -83,8 +83,8 @@ def trial_outcome(config: dict, decoder: str, condition: str, stimulation: str, 
 
     trial = make_trial(config, decoder, condition, stimulation, index)
     path = checkpoint or checkpoint_path(decoder, config, must_exist=True)
-    final = {key: float(value[-1, 0]) for key, value in
-             measures(run_batch(decoder_component(decoder, path, config), [trial], config)).items()}
+    result = run_batch(decoder_component(decoder, path, config), [trial], config)
+    final = {key: float(value[0]) for key, value in end_of_trial(result.times, measures(result)).items()}
     return {"drift_cm": final["drift_cm"], "force_n": final["force_x_n"], "gamma_final": final["gamma"],
             "seed": trial.seed, **{k: v for k, v in final.items() if k not in ("drift_cm", "force_x_n", "gamma")}}
 

@@ -32,6 +32,9 @@ CONNECTIONS = [
     ("decoder.visual_stiffness", "brain.visual_stiffness"),
     ("stimulus.visual_time", "brain.visual_time"),
     ("stimulus.tactile_time", "brain.tactile_time"),
+    ("rubber_arm.hand", "brain.seen_hand"),            # read only by the spatial extension (brain.spatial_sd)
+    ("body.hand_x", "brain.hand_x"),
+    ("body.hand_y", "brain.hand_y"),
     ("body.q_shoulder", "brain.q_shoulder"),
     ("body.q_elbow", "brain.q_elbow"),
     ("brain.u_shoulder", "body.u_shoulder"),
@@ -72,6 +75,8 @@ PARAMETER_SOURCES = {
     "brain.async_density": "brain.async_density",
     "brain.decay_rate": "brain.decay_rate",
     "brain.action_limit": "brain.action_limit",
+    "brain.action_time_constant": "brain.action_time_constant",
+    "brain.spatial_sd": "brain.spatial_sd",
     "body.held": "body.held",
     "body.q0_shoulder": "derived: the rest pose's shoulder, components.body.kinematics.REST_POSE[0]; the real arm "
                         "starts at rest (DESIGN.md fixes the geometry; the decoders are trained around it)",

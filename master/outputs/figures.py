@@ -1,7 +1,9 @@
 """The paper's Figure 3, panel by panel, plus an animation of one trial.
 
-(a) final drift per condition, (b, c) drift over time (sync, async), (d, e, f) the
-same for the force, (g) gamma over time, (h) the decoders' Jacobian images.
+(a) final drift per condition, (b, c) drift over time (sync, async), (d, e, f) the same for
+the action: the held arm's force (top) and the paper's action measure, the horizontal hand
+acceleration J a_dot (bottom; in (d) its mean over the trial, as the paper's Fig. 3 d),
+(g) gamma over time, (h) the decoders' Jacobian images.
 """
 from __future__ import annotations
 
@@ -20,18 +22,17 @@ STYLES = {"conv": "-", "vae": "--"}
 METADATA = {"Software": None}  # no version string in the file: same data, same bytes
 
 
-def final_bars(trials, values, ylabel, path):
-    """Mean +/- sd of the end-of-trial value per decoder, condition and stimulation."""
+def bars(axes, trials, per_trial, ylabel):
+    """Mean +/- sd of a per-trial value (``per_trial[trial]``) per decoder, condition and stimulation,
+    one axis of ``axes`` per stimulation."""
     found = cells(trials)
     decoders = list(dict.fromkeys(k[0] for k in found))
     conditions = list(dict.fromkeys(k[1] for k in found))
     stimulations = list(dict.fromkeys(k[2] for k in found))
-    figure, axes = plt.subplots(1, len(stimulations), figsize=(4.5 * len(stimulations), 3.6), sharey=True,
-                                squeeze=False)
     width = 0.8 / len(decoders)
-    for axis, stimulation in zip(axes[0], stimulations):
+    for axis, stimulation in zip(axes, stimulations):
         for d, decoder in enumerate(decoders):
-            means, sds = zip(*(mean_sd(values[-1, found[(decoder, condition, stimulation)]])
+            means, sds = zip(*(mean_sd(per_trial[found[(decoder, condition, stimulation)]])
                                for condition in conditions))
             axis.bar(np.arange(len(conditions)) + (d - (len(decoders) - 1) / 2) * width, means, width,
                      yerr=sds, capsize=3, label=decoder, color=[COLOURS.get(c, "k") for c in conditions],
@@ -39,14 +40,29 @@ def final_bars(trials, values, ylabel, path):
         axis.axhline(0, color="k", lw=0.8)
         axis.set_xticks(range(len(conditions)), conditions)
         axis.set_title(stimulation)
-    axes[0, 0].set_ylabel(ylabel)
-    axes[0, -1].legend(title="decoder (solid, faded)")
+    axes[0].set_ylabel(ylabel)
+    axes[-1].legend(title="decoder (solid, faded)")
+
+
+def final_bars(trials, values, ylabel, path):
+    """Mean +/- sd of the end-of-trial value (``values[-1]``) per decoder, condition and stimulation."""
+    columns = len(dict.fromkeys(t.stimulation for t in trials))
+    figure, axes = plt.subplots(1, columns, figsize=(4.5 * columns, 3.6), sharey=True, squeeze=False)
+    bars(axes[0], trials, values[-1], ylabel)
     save(figure, path)
 
 
-def over_time(trials, times, values, stimulation, ylabel, path):
+def action_bars(trials, force, accel_mean, path):
+    """Panel d: the final force (top row) and the action measure's trial mean (bottom row), per cell."""
+    columns = len(dict.fromkeys(t.stimulation for t in trials))
+    figure, axes = plt.subplots(2, columns, figsize=(4.5 * columns, 6.6), sharey="row", squeeze=False)
+    bars(axes[0], trials, force, "final horizontal force (N)")
+    bars(axes[1], trials, accel_mean, "mean hand acceleration J a_dot (m/s$^2$)")
+    save(figure, path)
+
+
+def lines_over_time(axis, trials, times, values, stimulation, ylabel):
     """Mean over trials (line) +/- sample sd (band) per decoder and condition, one stimulation."""
-    figure, axis = plt.subplots(figsize=(5.5, 3.6))
     for (decoder, condition, stim), members in cells(trials).items():
         if stim != stimulation:
             continue
@@ -59,6 +75,23 @@ def over_time(trials, times, values, stimulation, ylabel, path):
     axis.set_ylabel(ylabel)
     axis.set_title(stimulation)
     axis.legend(fontsize=7, ncol=2)
+
+
+def over_time(trials, times, values, stimulation, ylabel, path):
+    """Mean over trials (line) +/- sample sd (band) per decoder and condition, one stimulation."""
+    figure, axis = plt.subplots(figsize=(5.5, 3.6))
+    lines_over_time(axis, trials, times, values, stimulation, ylabel)
+    save(figure, path)
+
+
+def action_over_time(trials, times, force, accel, stimulation, path):
+    """Panels e, f: the force (top) and the action measure J a_dot (bottom) over time, one stimulation."""
+    figure, axes = plt.subplots(2, 1, figsize=(5.5, 6.6), sharex=True)
+    lines_over_time(axes[0], trials, times, force, stimulation, "horizontal force (N)")
+    lines_over_time(axes[1], trials, times, accel, stimulation, "hand acceleration J a_dot (m/s$^2$)")
+    axes[0].set_xlabel("")
+    axes[1].set_title("")
+    axes[1].get_legend().remove()
     save(figure, path)
 
 
@@ -86,12 +119,13 @@ def write_all(folder: Path, trials, times, per_step: dict[str, np.ndarray], jaco
     folder.mkdir(parents=True, exist_ok=True)
     stimulations = list(dict.fromkeys(t.stimulation for t in trials))
     final_bars(trials, per_step["drift_cm"], "final drift (cm)", folder / "a_drift_final.png")
-    final_bars(trials, per_step["force_x_n"], "final horizontal force (N)", folder / "d_force_final.png")
+    accel = per_step["action_accel_x_m_s2"]
+    action_bars(trials, per_step["force_x_n"][-1], accel[1:].mean(axis=0), folder / "d_force_final.png")
     for letter_drift, letter_force, stimulation in zip("bc", "ef", stimulations):
         over_time(trials, times, per_step["drift_cm"], stimulation, "drift (cm)",
                   folder / f"{letter_drift}_drift_{stimulation}.png")
-        over_time(trials, times, per_step["force_x_n"], stimulation, "horizontal force (N)",
-                  folder / f"{letter_force}_force_{stimulation}.png")
+        action_over_time(trials, times, per_step["force_x_n"], accel, stimulation,
+                         folder / f"{letter_force}_force_{stimulation}.png")
     figure, axes = plt.subplots(1, len(stimulations), figsize=(5 * len(stimulations), 3.4), squeeze=False)
     for axis, stimulation in zip(axes[0], stimulations):
         for (decoder, condition, stim), members in cells(trials).items():

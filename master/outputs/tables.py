@@ -8,7 +8,11 @@ import io
 import numpy as np
 
 SUMMARY_COLUMNS = ["decoder", "condition", "stimulation", "n_trials", "drift_cm_mean", "drift_cm_sd",
-                   "force_n_mean", "force_n_sd", "gamma_final_mean"]
+                   "force_n_mean", "force_n_sd", "gamma_final_mean",
+                   "action_accel_mean_m_s2_mean", "action_accel_mean_m_s2_sd",
+                   "action_accel_final_m_s2_mean", "action_accel_final_m_s2_sd"]
+# The per-trial values (keys of ``final`` in :func:`summary`) behind the mean +/- sd column pairs, in order.
+SUMMARY_MEASURES = ("drift_cm", "force_x_n", "gamma", "action_accel_mean_x_m_s2", "action_accel_x_m_s2")
 TRIAL_KEYS = ["decoder", "condition", "stimulation", "trial", "seed"]
 
 
@@ -45,13 +49,19 @@ def mean_sd(values, axis: int = 0):
 
 
 def summary(trials, final: dict[str, np.ndarray]) -> list[list]:
-    """One row per decoder x condition x stimulation, from end-of-trial values (``final[key][trial]``)."""
+    """One row per decoder x condition x stimulation, from per-trial values (``final[key][trial]``).
+
+    ``final`` holds the end-of-trial values and the trial means of master.experiment.measures.end_of_trial:
+    drift, force, gamma (mean only), then the action measure J a_dot (m/s^2): its mean over the
+    trial and its final value, each as mean and sample sd over the cell's trials.
+    """
     rows = []
     for (decoder, condition, stimulation), members in cells(trials).items():
-        (drift, drift_sd), (force, force_sd), (gamma, _) = (mean_sd(final[key][members])
-                                                            for key in ("drift_cm", "force_x_n", "gamma"))
+        stats = [mean_sd(final[key][members]) for key in SUMMARY_MEASURES]
+        (drift, drift_sd), (force, force_sd), (gamma, _), (accel_mean, accel_mean_sd), (accel, accel_sd) = stats
         rows.append([decoder, condition, stimulation, len(members), number(drift), number(drift_sd),
-                     number(force), number(force_sd), number(gamma)])
+                     number(force), number(force_sd), number(gamma), number(accel_mean), number(accel_mean_sd),
+                     number(accel), number(accel_sd)])
     return rows
 
 

@@ -1,0 +1,38 @@
+"""`rhi phenomenon NAME [--config FILE] [--scheduler ADDRESS] [--force] --out DIR`: one human phenomenon.
+
+Runs the phenomenon's sweep (the shipped file master/phenomena/NAME.toml, or an edited copy given
+with --config) exactly as `rhi sweep` does, resumably, then writes DIR/NAME.csv and DIR/NAME.png,
+the model beside the human reference (master/phenomena/human.toml).
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from master.phenomena import NAMES, sweep_file
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("name", choices=NAMES, help="the phenomenon")
+    parser.add_argument("--config", metavar="FILE",
+                        help="a sweep file to use instead of the shipped one (copy master/phenomena/NAME.toml)")
+    parser.add_argument("--scheduler", metavar="ADDRESS",
+                        help="a Dask scheduler, tcp://HOST:PORT (default: a process pool on this machine)")
+    parser.add_argument("--out", metavar="DIR", required=True)
+    parser.add_argument("--force", action="store_true", help="replace a different sweep in DIR")
+
+
+def run_phenomenon(args) -> int:
+    from master.commands.sweep import run_sweep
+    from master.phenomena.report import report
+
+    started = time.perf_counter()
+    path = Path(args.config) if args.config else sweep_file(args.name)
+    status = run_sweep(argparse.Namespace(config=str(path), out=args.out, scheduler=args.scheduler,
+                                          force=args.force, debug=args.debug))
+    written = report(args.name, path, Path(args.out))
+    print(f"rhi phenomenon {args.name}: wrote {', '.join(str(Path(args.out) / name) for name in written)} "
+          f"({time.perf_counter() - started:.0f} s)")
+    print((Path(args.out) / written[0]).read_text(), end="")
+    return status

@@ -1,0 +1,31 @@
+"""Named protocols for the human phenomena the model is compared with (DESIGN.md, Measures).
+
+Each phenomenon is a sweep file shipped beside this module (a user copies and edits it) and a
+report (:mod:`master.phenomena.report`) that reads the sweep's trial records and writes a table
+and a figure with the human reference (``human.toml``, one source per number) beside the model:
+
+- ``temporal-window``: drift, force and gamma against a fixed visuo-tactile delay, 0 to 1 s;
+- ``distance``: drift and force against the rubber hand's lateral distance, 5 to 45 cm;
+- ``time-course``: when the drift reaches half its final value under synchronous touch.
+
+``rhi phenomenon NAME --out DIR`` runs the sweep (the ``rhi sweep`` machinery: resumable, a local
+pool or Dask) and then the report. This module stays light (no matplotlib) so that the command
+line can list the names.
+"""
+from __future__ import annotations
+
+from importlib import resources
+from pathlib import Path
+
+FILES = {"temporal-window": "temporal_window.toml", "distance": "distance.toml", "time-course": "time_course.toml"}
+NAMES = tuple(FILES)
+
+
+def sweep_file(name: str) -> Path:
+    """The shipped sweep file of phenomenon ``name`` (``temporal-window`` -> ``temporal_window.toml``)."""
+    return Path(str(resources.files("master.phenomena").joinpath(FILES[name])))
+
+
+def human_file() -> Path:
+    """The human reference data, one source per number."""
+    return Path(str(resources.files("master.phenomena").joinpath("human.toml")))
