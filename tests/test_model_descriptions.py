@@ -29,8 +29,8 @@ SCALARS = {
     RubberArm: ["offset_x", "offset_y"],
     Stimulus: ["period", "delay_min", "delay_max", "seed", "ball_distance", "visual_time", "tactile_time"],
     Brain: ["proprioceptive_variance", "gamma0", "sync_sd", "async_density", "decay_rate", "action_limit",
-            "q_shoulder", "q_elbow", "visual_error", "visual_stiffness", "visual_time", "tactile_time",
-            "u_shoulder", "u_elbow", "gamma", "free_energy"],
+            "spatial_sd", "action_time_constant", "q_shoulder", "q_elbow", "visual_error", "visual_stiffness",
+            "hand_x", "hand_y", "visual_time", "tactile_time", "u_shoulder", "u_elbow", "gamma", "free_energy"],
 }
 # Array ports (name: causality, shape, dependsOn or None for a non-output), in the vendor annotation.
 ARRAYS = {
@@ -39,7 +39,8 @@ ARRAYS = {
              "image": ("output", "64 64", "arm_pose ball")},
     RubberArm: {"pose": ("output", "2", ""), "hand": ("output", "2", "")},
     Stimulus: {"target": ("input", "2", None), "ball": ("output", "2", "target")},
-    Brain: {"mu0": ("parameter", "2", None), "visual_drive": ("input", "2", None), "mu": ("output", "2", ""),
+    Brain: {"mu0": ("parameter", "2", None), "visual_drive": ("input", "2", None), "seen_hand": ("input", "2", None),
+            "mu": ("output", "2", ""),
             "action_rate": ("output", "2", "")},
 }
 
