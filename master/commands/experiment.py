@@ -30,15 +30,15 @@ def overrides(args) -> dict:
 
 
 def run_experiment(args) -> int:
+    started = time.perf_counter()
+    config = configuration.load(args.config, overrides(args), quick=args.quick)  # before torch loads: fast refusals
     from master.experiment.publish import run_into
 
-    started = time.perf_counter()
-    config = configuration.load(args.config, overrides(args), quick=args.quick)
     failures = run_into(args.out, config, body=args.body, force=args.force, progress=True)
-    print(f"wrote {args.out}: summary.csv, trials.csv, run.json, figures/ "
-          f"({time.perf_counter() - started:.0f} s)")
-    print((Path(args.out) / "summary.csv").read_text(), end="")
     for trial, error in failures.items():
         print(f"rhi experiment: trial failed and left out: {trial.decoder}/{trial.condition}/{trial.stimulation} "
               f"trial {trial.index}: {error}", file=sys.stderr)
+    print(f"wrote {args.out}: summary.csv, trials.csv, run.json, figures/ "
+          f"({time.perf_counter() - started:.0f} s)")
+    print((Path(args.out) / "summary.csv").read_text(), end="")
     return 1 if failures else 0

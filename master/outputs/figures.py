@@ -21,7 +21,8 @@ METADATA = {"Software": None}  # no version string in the file: same data, same 
 
 
 def final_bars(trials, values, ylabel, path):
-    """Mean +/- sd of the end-of-trial value per decoder, condition and stimulation."""
+    """Mean +/- sd of the end-of-trial value per decoder, condition and stimulation; a cell with no trial
+    (every one failed) has no bar."""
     found = cells(trials)
     decoders = list(dict.fromkeys(k[0] for k in found))
     conditions = list(dict.fromkeys(k[1] for k in found))
@@ -32,6 +33,7 @@ def final_bars(trials, values, ylabel, path):
     for axis, stimulation in zip(axes[0], stimulations):
         for d, decoder in enumerate(decoders):
             means, sds = zip(*(mean_sd(values[-1, found[(decoder, condition, stimulation)]])
+                               if (decoder, condition, stimulation) in found else (np.nan, np.nan)
                                for condition in conditions))
             axis.bar(np.arange(len(conditions)) + (d - (len(decoders) - 1) / 2) * width, means, width,
                      yerr=sds, capsize=3, label=decoder, color=[COLOURS.get(c, "k") for c in conditions],

@@ -44,13 +44,22 @@ def mean_sd(values, axis: int = 0):
     return values.mean(axis=axis), sd
 
 
-def summary(trials, final: dict[str, np.ndarray]) -> list[list]:
-    """One row per decoder x condition x stimulation, from end-of-trial values (``final[key][trial]``)."""
+def summary(trials, final: dict[str, np.ndarray], planned=None) -> list[list]:
+    """One row per decoder x condition x stimulation, from end-of-trial values (``final[key][trial]``).
+
+    planned: every cell the protocol planned, in order (default: those of ``trials``); a planned cell with no
+    trial left (every one failed) has a row with n_trials 0 and empty statistics.
+    """
+    found = cells(trials)
     rows = []
-    for (decoder, condition, stimulation), members in cells(trials).items():
+    for cell in (planned if planned is not None else found):
+        members = found.get(cell, [])
+        if not members:
+            rows.append([*cell, 0, "", "", "", "", ""])
+            continue
         (drift, drift_sd), (force, force_sd), (gamma, _) = (mean_sd(final[key][members])
                                                             for key in ("drift_cm", "force_x_n", "gamma"))
-        rows.append([decoder, condition, stimulation, len(members), number(drift), number(drift_sd),
+        rows.append([*cell, len(members), number(drift), number(drift_sd),
                      number(force), number(force_sd), number(gamma)])
     return rows
 
