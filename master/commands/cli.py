@@ -7,6 +7,7 @@ written); 130 interrupted by Ctrl-C (SIGINT), 143 by SIGTERM (nothing half-writt
 from __future__ import annotations
 
 import argparse
+import errno
 import os
 import signal
 import sys
@@ -17,6 +18,7 @@ from master.commands import experiment as experiment_command
 from master.cosim import ConfigError, SimulationError
 
 USER_ERRORS = (ConfigError, ComponentError)
+STDOUT_ERRORS = (errno.EPIPE, errno.ENOSPC, errno.EBADF, errno.EIO)
 
 
 class Parser(argparse.ArgumentParser):
@@ -134,11 +136,13 @@ def _run(args) -> int:
 
 
 def describe(error: OSError) -> str:
-    """An OSError in words: ``cannot write to standard output (Broken pipe)``, ``/x/y: No space left on device``."""
-    if isinstance(error, BrokenPipeError) or (error.filename is None and error.errno is not None and
-                                              _is_stdout_broken()):
-        return f"cannot write to standard output ({error.strerror or error})"
+    """An OSError in words: ``cannot write to standard output (Broken pipe)``, ``/x/y: No space left on device``.
+
+    Every file the program writes goes through atomic_write, which names it; an error of writing that names
+    no file is standard output's (closed, or on a full device)."""
     reason = error.strerror or str(error) or type(error).__name__
+    if error.filename is None and error.errno in STDOUT_ERRORS:
+        return f"cannot write to standard output ({reason})"
     return f"{error.filename}: {reason}" if error.filename else reason
 
 

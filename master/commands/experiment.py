@@ -6,6 +6,7 @@ import time
 from pathlib import Path
 
 from master.experiment import config as configuration
+from master.outputs.files import check_output
 
 
 def add_arguments(parser) -> None:
@@ -32,6 +33,7 @@ def overrides(args) -> dict:
 def run_experiment(args) -> int:
     started = time.perf_counter()
     config = configuration.load(args.config, overrides(args), quick=args.quick)  # before torch loads: fast refusals
+    check_output(args.out, args.force)
     from master.experiment.publish import run_into
 
     failures = run_into(args.out, config, body=args.body, force=args.force, progress=True)

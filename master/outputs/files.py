@@ -57,8 +57,10 @@ def atomic_write(path: str | os.PathLike, data: str | bytes | Callable[[BinaryIO
                 file.write(data.encode("utf-8") if isinstance(data, str) else data)
         os.chmod(temporary, 0o666 & ~umask())  # mkstemp makes files private; results are ordinary files
         os.replace(temporary, path)
-    except BaseException:
+    except BaseException as error:
         os.unlink(temporary)
+        if isinstance(error, OSError) and error.filename is None and error.errno is not None:
+            raise OSError(error.errno, error.strerror, str(path)) from error  # a full disk names the file
         raise
 
 
