@@ -13,6 +13,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from master.outputs.files import atomic_write  # noqa: E402
 from master.outputs.tables import cells, mean_sd  # noqa: E402
 
 COLOURS = {"left": "tab:blue", "center": "tab:gray", "right": "tab:red"}
@@ -78,9 +79,13 @@ def jacobian_images(images: dict[str, np.ndarray], path):
 
 
 def save(figure, path):
+    """Write the figure to ``path`` whole or not at all (a sweep's figures are rewritten in place)."""
     figure.tight_layout()
-    figure.savefig(path, dpi=110, metadata=METADATA)
-    plt.close(figure)
+    try:
+        atomic_write(path, lambda file: figure.savefig(file, format=Path(path).suffix.lstrip(".") or "png", dpi=110,
+                                                        metadata=METADATA))
+    finally:
+        plt.close(figure)
 
 
 def write_all(folder: Path, trials, times, per_step: dict[str, np.ndarray], jacobians: dict | None) -> list[str]:
