@@ -11,6 +11,12 @@ Before anything runs, :func:`check_contract` checks the file against a
 contract (by default :data:`BODY_CONTRACT`, DESIGN.md "Body FMU contract") and
 the constructor raises one ComponentError that lists every problem found.
 
+Every call into an FMU runs under a wall-clock limit (``step_timeout``, seconds; None: none) and with
+SIGINT and SIGTERM kept out of the FMU's own code (:class:`_Watch`): a call over its limit is stopped and
+fails its trial with a StepFailure naming the FMU, the call, the trial and the time; a signal received
+during a call stops the call, and then takes its usual course (KeyboardInterrupt) once the call has
+returned, instead of being turned by the FMU into a failed step.
+
 Example::
 
     body = FMUComponent("Body.fmu")           # name "body", checked against BODY_CONTRACT
@@ -23,7 +29,10 @@ import collections
 import ctypes
 import os
 import shutil
+import signal
 import sys
+import threading
+import time
 import zipfile
 from dataclasses import dataclass
 from xml.etree import ElementTree as ET
@@ -162,6 +171,146 @@ def _release() -> None:
         shutil.rmtree(folder, ignore_errors=True)
 
 
+# -- time limits and signals during calls into an FMU ------------------------------------------------
+class CallStopped(Exception):
+    """Raised inside a call into an FMU (a pythonfmu slave runs Python in the calling thread) to end it:
+    it is over its time limit, or the process received SIGINT or SIGTERM. The FMU fails the call."""
+
+
+def _default_on_stuck(message: str) -> None:
+    sys.stderr.write(message + "\n")
+    sys.stderr.flush()
+    os._exit(1)
+
+
+# Called (from the watchdog thread) with a one-line message when a call has not returned long after its
+# limit and cannot be stopped (it runs native code that never returns to Python); it must end the
+# process. The command line replaces it to remove its staging folder first.
+on_stuck = _default_on_stuck
+
+
+def _grace(limit: float) -> float:
+    """Seconds past the limit before a call that ignores being stopped counts as stuck for good."""
+    return min(max(limit, 2.0), 10.0)
+
+
+class _Call:
+    """One component's calls into its FMU instances, under way in the main thread (at most one at a time)."""
+
+    __slots__ = ("label", "what", "t", "trial", "limit", "started", "inside", "overdue", "signal", "next_kick")
+
+    def __init__(self, label: str, what: str, t: float, limit: float | None):
+        self.label, self.what, self.t, self.limit = label, what, t, limit
+        self.trial, self.started, self.inside, self.overdue, self.signal, self.next_kick = 0, 0.0, False, False, None, 0.0
+
+
+class _Watch:
+    """SIGINT, SIGTERM and SIGALRM handlers (main thread) and one watchdog thread, for FMU calls.
+
+    While a call is inside the FMU, SIGINT/SIGTERM raise CallStopped there (so the FMU fails the call
+    cleanly, as with any exception of its own) and are remembered; the adapter takes them up when the
+    call has returned. Outside a call they go to the handlers that were there before. The watchdog
+    thread sends SIGALRM to the main thread when a call passes its limit (again every second), which
+    raises CallStopped inside it; a call still running ``_grace`` seconds later is stuck in native code,
+    and ``on_stuck`` ends the process. Calls from other threads get only the watchdog's last resort.
+    """
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self):
+        self.users = 0
+        self.previous: dict[int, object] = {}
+        self.calls: dict[int, _Call] = {}  # thread ident -> its call in progress
+        self.thread = None
+
+    # handlers: installed while any FMUComponent is instantiated in the main thread
+    def attach(self) -> None:
+        if threading.current_thread() is not threading.main_thread():
+            return
+        if self.users == 0:
+            for number in (*self.SIGNALS, signal.SIGALRM):
+                previous = signal.getsignal(number)
+                self.previous[number] = signal.SIG_DFL if previous is None else previous
+                signal.signal(number, self._on_signal)
+        self.users += 1
+
+    def detach(self) -> None:
+        if threading.current_thread() is not threading.main_thread() or self.users == 0:
+            return
+        self.users -= 1
+        if self.users == 0:
+            for number, previous in self.previous.items():
+                if signal.getsignal(number) == self._on_signal:
+                    signal.signal(number, previous)
+            self.previous.clear()
+
+    def _on_signal(self, number, frame):
+        call = self.calls.get(threading.main_thread().ident)
+        if number == signal.SIGALRM:
+            if call is not None and call.inside and call.overdue:
+                raise CallStopped(f"over the time limit of {call.limit:g} s")
+            return self._pass_on(number, frame)
+        if call is not None and call.inside:
+            call.signal = number
+            raise CallStopped(f"interrupted by {signal.Signals(number).name}")
+        return self._pass_on(number, frame)
+
+    def _pass_on(self, number, frame):
+        """What the signal would have done without us."""
+        previous = self.previous.get(number, signal.SIG_DFL)
+        if callable(previous):
+            return previous(number, frame)
+        if previous == signal.SIG_IGN or number == signal.SIGALRM:
+            return None
+        signal.signal(number, signal.SIG_DFL)  # the default action (ends the process)
+        signal.raise_signal(number)
+
+    def deliver(self, number: int) -> None:
+        """Take up a signal that arrived during a call, now that the call has returned."""
+        self._pass_on(number, None)
+
+    # the calls, and the watchdog thread
+    def begin(self, call: _Call) -> None:
+        self.calls[threading.get_ident()] = call
+        if call.limit and (self.thread is None or not self.thread.is_alive()):
+            self.thread = threading.Thread(target=self._watch, name="rhi-fmu-watchdog", daemon=True)
+            self.thread.start()
+
+    def end(self) -> None:
+        self.calls.pop(threading.get_ident(), None)
+
+    def _watch(self) -> None:
+        main = threading.main_thread().ident
+        idle_since = time.monotonic()
+        while True:
+            time.sleep(0.05)
+            now = time.monotonic()
+            calls = list(self.calls.items())
+            if not calls:
+                if now - idle_since > 5.0:  # started again by the next call that has a limit
+                    self.thread = None
+                    return
+                continue
+            idle_since = now
+            for ident, call in calls:
+                if not call.limit or not call.inside:
+                    continue
+                over = now - call.started - call.limit
+                if over < 0:
+                    continue
+                call.overdue = True
+                if over > _grace(call.limit):
+                    on_stuck(f"{call.label}: {call.what} in trial {call.trial} at t = {call.t:.6g} s has not "
+                             f"returned after {now - call.started:.0f} s (time limit {call.limit:g} s) and cannot "
+                             "be stopped (it runs native code that does not return); ending the process")
+                elif ident == main and now >= call.next_kick and self.users:
+                    call.next_kick = now + 1.0
+                    signal.pthread_kill(main, signal.SIGALRM)
+
+
+_WATCH = _Watch()
+
+
 def _parse(kind: str, text):
     if text is None:
         return None
@@ -175,10 +324,13 @@ class FMUComponent(Component):
 
     path: the .fmu file. name: instance name in the system.
     contract: variables the FMU must have (None: check only that it is a usable FMU).
+    step_timeout: seconds one call into an instance may take (None or 0: no limit); a longer call
+    fails its trial (see the module's docstring).
     """
 
-    def __init__(self, path, name: str = "body", contract=BODY_CONTRACT):
+    def __init__(self, path, name: str = "body", contract=BODY_CONTRACT, step_timeout: float | None = None):
         from fmpy import read_model_description
+        self.step_timeout = float(step_timeout) if step_timeout else None
         self.path = os.path.abspath(os.fspath(path))
         problems = check_contract(self.path, contract or ())
         if problems:
@@ -191,8 +343,22 @@ class FMUComponent(Component):
             raise ComponentError(f"{name}: {os.path.basename(self.path)} cannot be used: "
                                  + "; ".join(problems)) from None
         self.label = f"FMU {self.description.modelName!r} ({os.path.basename(self.path)})"
+        self._load(name)
         super().__init__(name, self._declare())
         self.instances, self.messages, self.failure = [], collections.deque(maxlen=20), None
+
+    def _load(self, name: str) -> None:
+        """Unzip the FMU and load its binary now, so that a library this machine cannot load is refused
+        before any work (ComponentError naming the file and the loader's reason)."""
+        identifier, unzipdir = self.description.coSimulation.modelIdentifier, ""
+        try:
+            unzipdir = extracted(self.path)
+            guard_library(unzipdir, identifier)
+        except (OSError, zipfile.BadZipFile, ValueError) as error:
+            reason = " ".join(str(error).split()).replace(os.fspath(unzipdir) + os.sep, "") or type(error).__name__
+            raise ComponentError(f"{name}: {os.path.basename(self.path)} cannot be used: its binary "
+                                 f"{library_path('', identifier).lstrip(os.sep)} does not load on this machine "
+                                 f"({reason})") from None
 
     def _declare(self) -> list[Variable]:
         """Component variables from the model description (scalar Real, Integer, Boolean only)."""
@@ -222,6 +388,8 @@ class FMUComponent(Component):
         super().instantiate(batch_size)
         unzipdir, identifier = extracted(self.path), self.description.coSimulation.modelIdentifier
         guard_library(unzipdir, identifier)
+        _WATCH.attach()
+        self._attached = True
         self._callbacks = fmi2CallbackFunctions()  # one logger for all: FMU messages explain failures
         self._callbacks.logger = fmi2CallbackLoggerTYPE(
             lambda env, instance, status, category, message: self.messages.append(
@@ -229,16 +397,24 @@ class FMUComponent(Component):
         self._callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
         self._callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
         saved_path = list(sys.path)  # a pythonfmu FMU prepends its resources to sys.path for good
+
+        def make(trial):
+            fmu = FMU2Slave(guid=self.description.guid, unzipDirectory=unzipdir,
+                            modelIdentifier=identifier, instanceName=f"{self.name}[{trial}]")
+            fmu.instantiate(callbacks=self._callbacks, loggingOn=True)
+            self.instances.append(fmu)
+
+        call = _Call(self.label, "fmi2Instantiate", 0.0, None)  # no limit: the first one loads the FMU's code
+        _WATCH.begin(call)
         try:
             for trial in range(self.batch_size):
-                fmu = FMU2Slave(guid=self.description.guid, unzipDirectory=unzipdir,
-                                modelIdentifier=identifier, instanceName=f"{self.name}[{trial}]")
-                fmu.instantiate(callbacks=self._callbacks, loggingOn=True)
-                self.instances.append(fmu)
+                if self._guarded(call, trial, lambda: make(trial)) is not None:
+                    raise RuntimeError("stopped")
         except Exception as error:
             raise ComponentError(f"{self.name}: {self.label} could not be instantiated: {error}"
                                  f"{self._reason()}") from None
         finally:
+            _WATCH.end()
             sys.path[:] = saved_path
         self._plan()
 
@@ -283,17 +459,53 @@ class FMUComponent(Component):
         self.messages.clear()
         return f" ({reason})" if reason else ""
 
-    def _each(self, what: str, t: float, action) -> None:
-        """Run ``action(fmu)`` on every instance; a status worse than warning becomes a StepFailure."""
+    def _guarded(self, call: _Call, trial: int, function):
+        """``function()``, a call into instance ``trial``, watched (see :class:`_Watch`): returns None, or the
+        FMI status of a call that failed; a call over the limit raises a StepFailure for its trial; a signal
+        received during the call takes its usual course once it has returned."""
         from fmpy.fmi1 import FMICallException
-        for trial, fmu in enumerate(self.instances):
-            try:
-                action(fmu)
-            except FMICallException as error:
-                self.failure = StepFailure(f"{self.label}: {what} returned {Status(error.status).name.lower()} "
-                                           f"in trial {trial} at t = {t:.6g} s{self._reason()}",
-                                           Status(max(error.status, Status.DISCARD)), trials=(trial,))
-                raise self.failure from None
+        status, other = None, None
+        call.trial, call.started, call.overdue, call.inside = trial, time.monotonic(), False, True
+        try:
+            function()
+        except FMICallException as error:
+            status = error.status
+        except CallStopped:  # it came just before or after the FMU's own code ran
+            status = Status.ERROR
+        except Exception as error:  # noqa: BLE001: raised again below, once a signal has been taken up
+            other = error
+        finally:
+            call.inside = False
+        if call.signal is not None:  # SIGINT/SIGTERM during the call: the usual course now (KeyboardInterrupt)
+            number, call.signal = call.signal, None
+            self.failure = self.failure or StepFailure(f"{self.label}: {call.what} interrupted in trial {trial}")
+            _WATCH.deliver(number)
+        if call.overdue and call.limit:
+            self.messages.clear()
+            self.failure = StepFailure(
+                f"{self.label}: {call.what} did not return within its time limit of {call.limit:g} s in trial "
+                f"{trial} at t = {call.t:.6g} s (stopped after {time.monotonic() - call.started:.1f} s)",
+                Status.ERROR, trials=(trial,))
+            raise self.failure
+        if other is not None:
+            raise other
+        return status
+
+    def _each(self, what: str, t: float, action) -> None:
+        """Run ``action(fmu)`` on every instance; a status worse than warning becomes a StepFailure, and so
+        does a call over the time limit; a signal received during a call is taken up once it has returned."""
+        call = _Call(self.label, what, t, self.step_timeout)
+        _WATCH.begin(call)
+        try:
+            for trial, fmu in enumerate(self.instances):
+                status = self._guarded(call, trial, lambda: action(fmu))
+                if status is not None:
+                    self.failure = StepFailure(f"{self.label}: {what} returned {Status(status).name.lower()} "
+                                               f"in trial {trial} at t = {t:.6g} s{self._reason()}",
+                                               Status(max(status, Status.DISCARD)), trials=(trial,))
+                    raise self.failure
+        finally:
+            _WATCH.end()
 
     def publish_initial(self) -> None:
         """Enter the FMUs' initialization mode and publish their initial outputs, as the native plant does
@@ -320,11 +532,22 @@ class FMUComponent(Component):
         self._get(t + h)
 
     def terminate_hook(self) -> None:
-        for fmu in self.instances:
-            try:  # a failed FMU may only be freed; a healthy one in initialization or step mode terminates
-                if self.failure is None and self.state in (INITIALIZATION, STEPPING):
-                    fmu.terminate()
-                fmu.freeInstance()
-            except Exception:
-                pass
-        self.instances = []
+        def release(fmu):  # a failed FMU may only be freed; a healthy one in initialization or step mode terminates
+            if self.failure is None and self.state in (INITIALIZATION, STEPPING):
+                fmu.terminate()
+            fmu.freeInstance()
+
+        call = _Call(self.label, "fmi2Terminate", self.stop_time or 0.0, None)
+        _WATCH.begin(call)
+        try:
+            for trial, fmu in enumerate(self.instances):
+                try:
+                    self._guarded(call, trial, lambda: release(fmu))
+                except Exception:  # noqa: BLE001: releasing what is left, whatever it says
+                    pass
+        finally:
+            _WATCH.end()
+            self.instances = []
+            if getattr(self, "_attached", False):
+                self._attached = False
+                _WATCH.detach()

@@ -62,14 +62,21 @@ def test_trials_csv_is_tidy():
 
 
 def test_staging_refuses_foreign_content_and_publishes_whole(tmp_path):
+    """--force replaces an earlier output of rhi experiment, never a folder holding anything else."""
     out = tmp_path / "run"
     out.mkdir()
     (out / "notes.txt").write_text("mine")
     with pytest.raises(ConfigError, match=r"exists and is not empty \(use --force"):
         files.staging_folder(out, force=False)
+    with pytest.raises(ConfigError, match=r"is not an earlier rhi experiment output \(it holds notes\.txt\)"):
+        files.staging_folder(out, force=True)
+    (out / "notes.txt").unlink()
+    (out / "run.json").write_text('{"command": "rhi experiment", "figures": ["a.png"]}')
+    (out / "figures").mkdir()
+    (out / "figures" / "a.png").write_bytes(b"png")
     staging = files.staging_folder(out, force=True)
     (staging / "summary.csv").write_text("x\n")
-    assert (out / "notes.txt").exists()  # untouched until the run is complete
+    assert (out / "run.json").exists()  # untouched until the run is complete
     files.publish(staging, out)
     assert [p.name for p in out.iterdir()] == ["summary.csv"]
     assert [p.name for p in tmp_path.iterdir()] == ["run"]

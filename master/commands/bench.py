@@ -18,6 +18,8 @@ def run_bench(args) -> int:
     if threads < 0:
         raise ConfigError(f"--threads {threads} must be a positive number of threads (0: all cores)")
     checkpoint = getattr(args, "checkpoint", "") or ""
+    if checkpoint and os.path.isdir(checkpoint):
+        raise ConfigError(f"--checkpoint {checkpoint} is a folder, not a checkpoint file")
     if checkpoint and not os.path.isfile(checkpoint):
         raise ConfigError(f"--checkpoint {checkpoint} does not exist")
     settings = replace(settings, threads=threads, error_checkpoint=checkpoint)

@@ -1,20 +1,47 @@
-"""The ``rhi`` command line. Each subcommand lives in its own function; errors of
-the user's making print one line on stderr and exit with status 2."""
+"""The ``rhi`` command line. Each subcommand lives in its own function.
+
+Exit status: 0 done; 2 refused (bad input: one line on stderr, nothing written); 1 a run that failed in
+part or could not finish (a failed trial, a full disk, a closed stdout: one line each, what completed is
+written); 130 interrupted by Ctrl-C (SIGINT), 143 by SIGTERM (nothing half-written is left).
+"""
 from __future__ import annotations
 
 import argparse
+import errno
 import os
+import signal
 import sys
+import threading
 
 from components.component import ComponentError
 from master.commands import experiment as experiment_command
 from master.cosim import ConfigError, SimulationError
 
 USER_ERRORS = (ConfigError, ComponentError)
+STDOUT_ERRORS = (errno.EPIPE, errno.ENOSPC, errno.EBADF, errno.EIO)
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse, with a usage error as one line (``rhi experiment: error: ...``) and exit status 2."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {' '.join(message.split())} (see {self.prog} --help)\n")
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, handled like Ctrl-C: the same clean-up, exit status 143."""
+
+
+def _interrupted(signum, frame):
+    """SIGINT or SIGTERM: the run stops (KeyboardInterrupt, or Terminated) and cleans up; a second one while
+    it cleans up is ignored, so that the clean-up and the exit are not cut short."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="rhi", description="A deep active inference model of the rubber-hand illusion, as a co-simulation.")
     parser.add_argument("--debug", action="store_true", help="show full tracebacks on errors")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
@@ -66,21 +93,103 @@ def main(argv: list[str] | None = None) -> int:
     # does not), and inherited by the processes a command starts.
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     args = build_parser().parse_args(argv)
+    from components import fmu_adapter
+
+    main_thread = threading.current_thread() is threading.main_thread()
+    handlers = {number: signal.getsignal(number) for number in (signal.SIGINT, signal.SIGTERM)} if main_thread else {}
+    previous_stuck = fmu_adapter.on_stuck
+    for number in handlers:
+        signal.signal(number, _interrupted)
+    fmu_adapter.on_stuck = _stuck_handler(args.command)
+    status = None
     try:
-        return args.run(args) or 0
+        status = _run(args)
+        return status
+    finally:
+        fmu_adapter.on_stuck = previous_stuck
+        if status not in (130, 143):  # interrupted: a second Ctrl-C must not cut the exit's clean-up short
+            for number, handler in handlers.items():
+                signal.signal(number, signal.SIG_DFL if handler is None else handler)
+
+
+def _run(args) -> int:
+    try:
+        status = args.run(args) or 0
+        sys.stdout.flush()  # a full or closed stdout fails here, not silently at exit
+        return status
     except USER_ERRORS as error:
         if args.debug:
             raise
-        print(f"rhi {args.command}: error: {error}", file=sys.stderr)
-        return 2
+        return _fail(args.command, error, 2)
     except SimulationError as error:
         if args.debug:
             raise
-        print(f"rhi {args.command}: error: {error}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print(f"rhi {args.command}: interrupted (run the same command again to resume a sweep)", file=sys.stderr)
-        return 130
+        return _fail(args.command, error, 1)
+    except KeyboardInterrupt as interrupt:
+        name = "SIGTERM" if isinstance(interrupt, Terminated) else "Ctrl-C"
+        _fail(args.command, f"interrupted by {name}; nothing half-written is left"
+                            f"{' (run the same command again to resume the sweep)' if args.command == 'sweep' else ''}",
+              0, "")
+        return 143 if isinstance(interrupt, Terminated) else 130
+    except MemoryError:
+        if args.debug:
+            raise
+        return _fail(args.command, "out of memory (lower experiment.resolution, steps or trials)", 1)
+    except OSError as error:  # the machine's, not the input's: a full disk, a closed stdout, a vanished folder
+        if args.debug:
+            raise
+        return _fail(args.command, describe(error), 1)
+
+
+def describe(error: OSError) -> str:
+    """An OSError in words: ``cannot write to standard output (Broken pipe)``, ``/x/y: No space left on device``.
+
+    Every file the program writes goes through atomic_write, which names it; an error of writing that names
+    no file is standard output's (closed, or on a full device)."""
+    reason = error.strerror or str(error) or type(error).__name__
+    if error.filename is None and error.errno in STDOUT_ERRORS:
+        return f"cannot write to standard output ({reason})"
+    return f"{error.filename}: {reason}" if error.filename else reason
+
+
+def _is_stdout_broken() -> bool:
+    try:
+        sys.stdout.flush()
+        return False
+    except (OSError, ValueError):
+        return True
+
+
+def _fail(command: str, message, status: int, prefix: str = "error: ") -> int:
+    """One line on stderr; stdout pointed at /dev/null if it cannot be written (no second error at exit)."""
+    if _is_stdout_broken():
+        try:
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, sys.stdout.fileno())
+        except (OSError, ValueError):
+            pass
+    try:
+        print(f"rhi {command}: {prefix}{' '.join(str(message).split())}", file=sys.stderr, flush=True)
+    except (OSError, ValueError):
+        pass
+    return status
+
+
+def _stuck_handler(command: str):
+    """An FMU stuck in native code past its time limit cannot be stopped in this process: the adapter's
+    watchdog thread calls this, which removes this run's staging folder and lock and ends the process
+    with status 1 and one line."""
+    def stuck(message: str) -> None:
+        from master.outputs.files import abandon_staging
+        abandon_staging()
+        try:
+            sys.stderr.write("\n")  # after a progress bar's last line
+        except (OSError, ValueError):
+            pass
+        _fail(command, message, 1)
+        os._exit(1)
+
+    return stuck
 
 
 if __name__ == "__main__":

@@ -6,6 +6,7 @@ import time
 from pathlib import Path
 
 from master.experiment import config as configuration
+from master.outputs.files import check_output
 
 
 def add_arguments(parser) -> None:
@@ -30,15 +31,16 @@ def overrides(args) -> dict:
 
 
 def run_experiment(args) -> int:
+    started = time.perf_counter()
+    config = configuration.load(args.config, overrides(args), quick=args.quick)  # before torch loads: fast refusals
+    check_output(args.out, args.force)
     from master.experiment.publish import run_into
 
-    started = time.perf_counter()
-    config = configuration.load(args.config, overrides(args), quick=args.quick)
     failures = run_into(args.out, config, body=args.body, force=args.force, progress=True)
-    print(f"wrote {args.out}: summary.csv, trials.csv, run.json, figures/ "
-          f"({time.perf_counter() - started:.0f} s)")
-    print((Path(args.out) / "summary.csv").read_text(), end="")
     for trial, error in failures.items():
         print(f"rhi experiment: trial failed and left out: {trial.decoder}/{trial.condition}/{trial.stimulation} "
               f"trial {trial.index}: {error}", file=sys.stderr)
+    print(f"wrote {args.out}: summary.csv, trials.csv, run.json, figures/ "
+          f"({time.perf_counter() - started:.0f} s)")
+    print((Path(args.out) / "summary.csv").read_text(), end="")
     return 1 if failures else 0

@@ -12,7 +12,7 @@ from master.outputs.files import atomic_write
 from master.sweeps import plan as sweeps
 from master.sweeps.folder import sweep_folder
 from master.sweeps.plots import plot_sweep
-from master.sweeps.runner import check_workers, dask_client, execute, prepare_decoders
+from master.sweeps.runner import check_decoders, check_workers, dask_client, execute, prepare_decoders
 from master.sweeps.tables import index_rows, write_tables
 
 INDEX_EVERY_S = 2.0
@@ -26,6 +26,7 @@ def run_sweep(args) -> int:
     sweep = sweeps.load(args.config)
     task = sweeps.resolve_task(sweep.task)
     out = Path(args.out)
+    check_decoders(sweep)
     with sweep_folder(out, sweep, getattr(args, "force", False)) as records:
         done = {key for key, record in records.items() if record["status"] == "ok"}
         bar = None

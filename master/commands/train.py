@@ -4,13 +4,14 @@ It reads the configuration like `rhi experiment`: ``[train]`` and the camera's `
 from __future__ import annotations
 
 from master.experiment import config as configuration
-from master.experiment.training import train_decoder, train_settings
+from master.experiment.training import check_target, train_decoder, train_settings
 
 
 def run_train(args) -> int:
-    """The body of `rhi train`: args has .decoder, .config, .out."""
+    """The body of `rhi train`: args has .decoder, .config, .out; everything checked before training."""
     config = configuration.load(args.config)
     settings = train_settings(config)
+    check_target(args.out)
     metadata = train_decoder(args.decoder, args.out, settings, blur=config["camera"]["blur"])
     errors = metadata.get("hand_error", {})
     print(f"{args.decoder} decoder ({settings.preset}, {settings.resolution} px) saved to {args.out}: "

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import copy
 import difflib
+import math
+import os
 import tomllib
 from importlib import resources
 from pathlib import Path
@@ -15,6 +17,9 @@ from pathlib import Path
 from master.cosim import ConfigError
 
 OPEN_TABLES = ("conditions", "stimulations")  # users may add entries here (a new condition, say)
+LISTS = ("decoders", "conditions", "stimulations")  # experiment.* lists: non-empty, no entry twice
+SCHEMES = ("gauss-seidel", "jacobi")
+MAX_RESOLUTION = 1024  # px; the paper's decoders work at 256
 
 
 def defaults() -> dict:
@@ -28,7 +33,14 @@ def read_toml(path: str | Path) -> dict:
             return tomllib.load(file)
     except FileNotFoundError:
         raise ConfigError(f"config file {path} does not exist") from None
-    except (OSError, tomllib.TOMLDecodeError) as error:
+    except IsADirectoryError:
+        raise ConfigError(f"config file {path} is a folder, not a TOML file") from None
+    except UnicodeDecodeError as error:
+        raise ConfigError(f"config file {path} is not UTF-8 text (byte {error.object[error.start]:#04x} at "
+                          f"position {error.start}); TOML files are UTF-8") from None
+    except OSError as error:
+        raise ConfigError(f"config file {path} cannot be read: {error.strerror or error}") from None
+    except tomllib.TOMLDecodeError as error:
         raise ConfigError(f"config file {path} cannot be read: {error}") from None
 
 
@@ -50,10 +62,14 @@ def merge(base: dict, overrides: dict, where: str = "") -> dict:
     for key, value in overrides.items():
         path = f"{where}{key}"
         if key not in base:
-            if where.rstrip(".") in OPEN_TABLES:  # a new entry: checked against an existing one's keys
+            if where.rstrip(".") in OPEN_TABLES:  # a new entry: checked against an existing one's keys and types
                 template = next(iter(base.values()), None)
-                merged[key] = merge(template, value, f"{path}.") if isinstance(template, dict) and \
-                    isinstance(value, dict) else copy.deepcopy(value)
+                if isinstance(template, dict):
+                    if not isinstance(value, dict):
+                        raise ConfigError(f"config key {path} must be a table like {where}{next(iter(base))}")
+                    merged[key] = merge(template, value, f"{path}.")
+                else:
+                    merged[key] = check_type(path, value, template) if template is not None else copy.deepcopy(value)
                 continue
             raise unknown_key(path, base)
         default = base[key]
@@ -72,6 +88,8 @@ def check_type(path: str, value, default):
     elif isinstance(default, float):
         ok = isinstance(value, (int, float)) and not isinstance(value, bool)
         value = float(value) if ok else value
+        if ok and not math.isfinite(value):
+            raise ConfigError(f"config key {path} = {value!r} must be a finite number")
     elif isinstance(default, int):
         ok = isinstance(value, int) and not isinstance(value, bool)
     elif isinstance(default, list):
@@ -112,15 +130,29 @@ def nest(dotted: dict) -> dict:
 
 
 def validate(config: dict) -> None:
-    """Ranges and cross-references; every message names the key."""
+    """Ranges, lists and cross-references, and the memory a run would need; every message names the key."""
     experiment = config["experiment"]
     for key in ("trials", "steps", "resolution"):
         if experiment[key] < 1:
             raise ConfigError(f"experiment.{key} must be at least 1, got {experiment[key]}")
     if experiment["resolution"] < 8:
         raise ConfigError(f"experiment.resolution must be at least 8 pixels, got {experiment['resolution']}")
+    if experiment["resolution"] > MAX_RESOLUTION:
+        raise ConfigError(f"experiment.resolution must be at most {MAX_RESOLUTION} pixels, got "
+                          f"{experiment['resolution']} (it would need about {size(memory_needed(config)[0])} "
+                          "of memory)")
     if not experiment["step_size"] > 0:
         raise ConfigError(f"experiment.step_size must be positive, got {experiment['step_size']}")
+    if experiment["scheme"] not in SCHEMES:
+        raise ConfigError(f"experiment.scheme = {experiment['scheme']!r} is not one of {', '.join(SCHEMES)}")
+    for key in LISTS:
+        names = experiment[key]
+        if not names:
+            raise ConfigError(f"experiment.{key} is empty: name at least one")
+        twice = sorted({str(name) for name in names if names.count(name) > 1})
+        if twice:
+            raise ConfigError(f"experiment.{key} lists {', '.join(twice)} more than once (each is run once, "
+                              "with experiment.trials trials)")
     for decoder in experiment["decoders"]:
         if decoder not in ("conv", "vae"):
             raise ConfigError(f"experiment.decoders: unknown decoder {decoder!r} (conv or vae)")
@@ -150,3 +182,53 @@ def validate(config: dict) -> None:
     if not config["decoder"]["relinearise_tolerance"] >= 0:
         raise ConfigError(f"decoder.relinearise_tolerance must be >= 0 deg, got "
                           f"{config['decoder']['relinearise_tolerance']}")
+    if not config["fmu"]["step_timeout_s"] >= 0:
+        raise ConfigError(f"fmu.step_timeout_s must be >= 0 s (0: no limit), got {config['fmu']['step_timeout_s']}")
+    needed, what = memory_needed(config)
+    available = physical_memory()
+    if available and needed > available:
+        raise ConfigError(f"this run would need about {size(needed)} of memory ({what}), more than this machine's "
+                          f"{size(available)}; lower experiment.resolution, experiment.steps or experiment.trials "
+                          "(or train.samples)")
+    from master.experiment.wiring import check_parameters  # the components' own ranges (substeps, period, ...)
+
+    check_parameters(config)
+
+
+# Bytes per trial and step of the recorded values, the tables built from them and trials.csv's rows, and
+# bytes per image pixel in a lockstep batch (camera layers, the decoder's activations and tangents):
+# generous upper bounds measured on the default run, to refuse a run that cannot fit, not to plan one.
+BYTES_PER_TRIAL_STEP = 4096
+BYTES_PER_BATCH_PIXEL = 256
+
+
+def memory_needed(config: dict) -> tuple[int, str]:
+    """About how many bytes of memory the run of ``config`` needs at its peak, and what dominates."""
+    experiment, train = config["experiment"], config.get("train", {})
+    pixels = experiment["resolution"] ** 2
+    batch = len(experiment["conditions"]) * len(experiment["stimulations"]) * experiment["trials"]
+    samples = int(train.get("samples", 0))
+    training = samples * pixels * 4 * 2  # float32 images, and the batches cut from them
+    recorded = (experiment["steps"] + 1) * batch * len(experiment["decoders"]) * BYTES_PER_TRIAL_STEP
+    images = batch * pixels * BYTES_PER_BATCH_PIXEL
+    side = f"{experiment['resolution']} x {experiment['resolution']} px"
+    return max((training, f"{samples} training images of {side}"),
+               (recorded + images, f"{batch * len(experiment['decoders'])} trials of {experiment['steps']} steps "
+                                   f"at {side}"))
+
+
+def physical_memory() -> int:
+    """Bytes of physical memory of this machine (0 if unknown)."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, OSError, ValueError):
+        return 0
+
+
+def size(count: float) -> str:
+    """Bytes in binary units: ``21.8 TiB``."""
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB", "PiB"):
+        if count < 1024 or unit == "PiB":
+            return f"{count:.1f} {unit}" if unit != "B" else f"{count:.0f} B"
+        count /= 1024
+    return f"{count:.1f} EiB"

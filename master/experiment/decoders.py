@@ -13,12 +13,14 @@ import functools
 import hashlib
 import json
 import os
+import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
 from components.body import camera, kinematics
+from components.vision.checkpoint import CheckpointError
 from components.vision.component import Decoder, GenerativeModel, jacobian_images
 from master.cosim import ConfigError
 from master.experiment.training import load_decoder, train_decoder, train_settings
@@ -32,6 +34,8 @@ def checkpoint_path(kind: str, config: dict, must_exist: bool = False) -> str:
     """The checkpoint of decoder ``kind``: the configured one, or the cached default."""
     given = config["decoder"].get(f"{kind}_checkpoint") or ""
     if given:
+        if Path(given).is_dir():
+            raise ConfigError(f"decoder.{kind}_checkpoint: {given} is a folder, not a checkpoint file")
         if not Path(given).is_file():
             raise ConfigError(f"decoder.{kind}_checkpoint: {given} does not exist")
         return given
@@ -47,6 +51,46 @@ def checkpoint_path(kind: str, config: dict, must_exist: bool = False) -> str:
         raise ConfigError(f"no trained {kind} decoder for these settings at {path}: run `rhi experiment` "
                           "once, or name a checkpoint in [decoder]")
     return str(path)
+
+
+def check_decoders(config: dict) -> None:
+    """Before any work: every checkpoint named in ``[decoder]`` loads, is of its slot's kind and fits the
+    camera (resolution, blur, ranges); every decoder still to be trained has valid ``[train]`` settings at
+    this resolution and a usable cache folder. A ConfigError or CheckpointError (one line) otherwise."""
+    needs_training = []
+    for kind in config["experiment"]["decoders"]:
+        path = checkpoint_path(kind, config)
+        if config["decoder"].get(f"{kind}_checkpoint"):
+            check_kind(kind, path, loaded(path, config["experiment"]["resolution"], config["camera"]["blur"]))
+        elif not Path(path).is_file():
+            needs_training.append(kind)
+    if needs_training:
+        train_settings(config)
+        check_cache_folder()
+
+
+def check_kind(kind: str, path: str, model: GenerativeModel) -> None:
+    """A checkpoint of another kind in the slot of ``kind`` is refused (a VAE's numbers are not conv's)."""
+    trained = model.metadata.get("kind")
+    if trained != kind:
+        raise CheckpointError(f"{path}: a {trained} decoder, given as the {kind} decoder "
+                              f"(decoder.{kind}_checkpoint / --{kind}-checkpoint); give a {kind} checkpoint")
+
+
+def check_cache_folder() -> Path:
+    """The decoder cache ($RHI_CACHE), created if missing, and writable: else one ConfigError naming it."""
+    folder = cache_folder()
+    where = f"the decoder cache {folder}" + (" (RHI_CACHE)" if os.environ.get("RHI_CACHE") else "")
+    if folder.exists() and not folder.is_dir():
+        raise ConfigError(f"{where} is not a folder")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        handle, probe = tempfile.mkstemp(dir=folder, prefix=".rhi-probe.")
+        os.close(handle)
+        os.unlink(probe)
+    except OSError as error:
+        raise ConfigError(f"{where} cannot be written: {error.strerror or error}") from None
+    return folder
 
 
 def ensure_checkpoints(config: dict, progress: bool = True) -> tuple[dict[str, str], dict[str, float]]:
@@ -77,6 +121,7 @@ def _loaded(path: str, version: int, resolution: int, blur: float) -> Generative
 def decoder_component(kind: str, path: str, config: dict) -> Decoder:
     """The exact decoder, or the linearised one of the fast mode when ``decoder.fast`` is true."""
     model = loaded(path, config["experiment"]["resolution"], config["camera"]["blur"])
+    check_kind(kind, path, model)
     if config["decoder"]["fast"]:
         from components.vision.fast import LinearisedDecoder
         return LinearisedDecoder(model, name="decoder", relinearise_tolerance=config["decoder"]["relinearise_tolerance"])

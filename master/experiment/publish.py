@@ -6,44 +6,52 @@ DIR is written in a staging folder beside it and renamed into place when complet
 from __future__ import annotations
 
 import json
-import shutil
 import time
 
 import numpy as np
 
 from master.experiment import runner as experiment
-from master.experiment.decoders import ensure_checkpoints, jacobian_pair
+from master.experiment.decoders import check_decoders, ensure_checkpoints, jacobian_pair
 from master.experiment.measures import end_of_trial
-from master.experiment.protocol import rubber_pose
+from master.experiment.protocol import plan, rubber_pose
 from master.outputs import figures, tables
+from master.outputs.files import atomic_write, check_output, output_folder, package_versions
 from master.outputs.animation import frames, gif_bytes
-from master.outputs.files import atomic_write, package_versions, publish, staging_folder
 
 
-def body_factory(path):
-    """A callable making the body component (None: the native plant) and the body's parameter names."""
+def body_factory(path, config: dict | None = None):
+    """A callable making the body component (None: the native plant) and the body's parameter names.
+
+    The FMU is checked now, before any work: the body contract (every problem listed) and that its
+    binary loads. Its calls are limited to ``[fmu] step_timeout_s`` seconds each (0: no limit).
+    """
     if path is None:
         return None, None
     from components.fmu_adapter import FMUComponent
 
-    probe = FMUComponent(path, name="body")  # checks the body contract now, listing every problem, before any work
-    return (lambda: FMUComponent(path, name="body")), set(probe.variables)
+    limit = (config or {}).get("fmu", {}).get("step_timeout_s") or None
+    probe = FMUComponent(path, name="body", step_timeout=limit)
+    return (lambda: FMUComponent(path, name="body", step_timeout=limit)), set(probe.variables)
 
 
 def run_into(out, config: dict, body: str | None = None, force: bool = False, progress: bool = False) -> dict:
     """Run the protocol of ``config`` and write DIR = ``out``; returns {failed trial: error}.
 
-    body: an FMU to use as the body (None: the native pymunk plant).
+    body: an FMU to use as the body (None: the native pymunk plant). Everything that can be checked is
+    checked before the staging folder exists and before any training: the output folder, the decoders'
+    checkpoints (kind, resolution, camera) or training settings, the body FMU.
     """
     started = time.perf_counter()
-    make_body, declared = body_factory(body)
-    staging = staging_folder(out, force)
-    try:
+    check_output(out, force)
+    check_decoders(config)
+    make_body, declared = body_factory(body, config)
+    with output_folder(out, force) as staging:
         checkpoints, training_seconds = ensure_checkpoints(config, progress=progress)
         trials, times, per_step, run_seconds, failures = experiment.run(config, checkpoints, make_body,
                                                                         progress=progress)
         final = end_of_trial(times, per_step)
-        atomic_write(staging / "summary.csv", tables.csv_text(tables.SUMMARY_COLUMNS, tables.summary(trials, final)))
+        summary = tables.summary(trials, final, planned=tables.cells(plan(config)))
+        atomic_write(staging / "summary.csv", tables.csv_text(tables.SUMMARY_COLUMNS, summary))
         atomic_write(staging / "trials.csv", tables.trials_csv(trials, times, per_step))
         jacobians = {kind: jacobian_pair(kind, checkpoints[kind], config) for kind in checkpoints}
         written = figures.write_all(staging / "figures", trials, times, per_step, jacobians)
@@ -66,8 +74,4 @@ def run_into(out, config: dict, body: str | None = None, force: bool = False, pr
             "failed_trials": [{**trial.__dict__, "error": error} for trial, error in failures.items()],
         }
         atomic_write(staging / "run.json", json.dumps(provenance, indent=2, default=str) + "\n")
-        publish(staging, out)
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
     return failures

@@ -21,7 +21,8 @@ def without_failures(run_trials, trials: list[Trial]):
     A component that names the failing trials (``StepFailure(trials=...)``, e.g. the FMU adapter on a
     NaN) costs only those: they are recorded and the rest of the batch is run again from the start,
     which gives them exactly the numbers they would have had (trials are independent). A failure
-    that names no trial stops the run. Returns (result or None, kept trials, {trial: error}).
+    that names no trial stops the run (the error carries ``.failures``, the trials blamed before it).
+    Returns (result or None, kept trials, {trial: error}).
     """
     failures: dict[Trial, str] = {}
     while trials:
@@ -29,6 +30,7 @@ def without_failures(run_trials, trials: list[Trial]):
             return run_trials(trials), trials, failures
         except SimulationError as error:
             if not error.trials:
+                error.failures = failures
                 raise
             for position in error.trials:
                 failures[trials[position]] = str(error)
@@ -59,7 +61,13 @@ def run(config: dict, checkpoints: dict[str, str], body_factory=None, progress: 
                     bar.close()
 
         began = time.perf_counter()
-        result, batch, failed = without_failures(run_trials, [t for t in protocol if t.decoder == kind])
+        mine = [t for t in protocol if t.decoder == kind]
+        try:
+            result, batch, failed = without_failures(run_trials, mine)
+        except SimulationError as error:  # blames no trial: this decoder's remaining trials all fail with it
+            failed = dict(error.failures)
+            failed.update({t: str(error) for t in mine if t not in failed})
+            result, batch = None, []
         seconds[kind] = time.perf_counter() - began
         failures.update(failed)
         if result is not None:
@@ -67,7 +75,8 @@ def run(config: dict, checkpoints: dict[str, str], body_factory=None, progress: 
             blocks.append(measures(result))
             times = result.times
     if not blocks:
-        raise SimulationError("experiment", 0.0, "every trial failed: " + "; ".join(sorted(set(failures.values()))))
+        reasons = sorted(set(failures.values())) or ["the protocol has no trial"]
+        raise SimulationError("experiment", 0.0, "every trial failed: " + "; ".join(reasons))
     per_step = {key: np.concatenate([block[key] for block in blocks], axis=1) for key in blocks[0]}
     return kept, times, per_step, seconds, failures
 

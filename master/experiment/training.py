@@ -12,6 +12,8 @@ Example::
 """
 from __future__ import annotations
 
+import os
+import tempfile
 import time
 from pathlib import Path
 
@@ -38,6 +40,29 @@ def train_settings(config: dict) -> training.TrainSettings:
         raise ConfigError(f"[train]: {error}") from None
 
 
+def check_target(out) -> Path:
+    """CKPT as a Path if a checkpoint can be written there (checked before any training): not a folder, in a
+    folder that exists and takes new files; a ConfigError naming the problem otherwise."""
+    text = str(out)
+    out = Path(out)
+    if not text.strip():
+        raise ConfigError("--out is empty: name the checkpoint file to write")
+    if out.is_dir():
+        raise ConfigError(f"--out {text} is a folder; name the checkpoint file to write (e.g. {out / 'conv.pt'})")
+    if out.exists() and not out.is_file():
+        raise ConfigError(f"--out {text} exists and is not a regular file")
+    parent = out.absolute().parent
+    if not parent.is_dir():
+        raise ConfigError(f"--out {text}: folder {parent} does not exist")
+    try:  # a folder that refuses new files (/proc, read-only, full) refuses them now, not after training
+        handle, probe = tempfile.mkstemp(dir=parent, prefix=f".{out.name}.", suffix=".probe")
+        os.close(handle)
+        os.unlink(probe)
+    except OSError as error:
+        raise ConfigError(f"--out {text}: cannot write into {parent} ({error.strerror or error})") from None
+    return out
+
+
 def data_path(folder: Path, settings: training.TrainSettings, blur: float = camera.BLUR_SIGMA) -> Path:
     """The cached data set's file: the default camera's name has no blur in it (files made before the
     blur was a parameter stay valid); another blur has its own file."""
@@ -50,9 +75,7 @@ def train_decoder(kind: str, out: str | Path, settings: training.TrainSettings |
     """Train a decoder of ``kind`` on camera images blurred by ``blur`` m and save it to ``out``;
     returns the checkpoint metadata (with the camera's blur and signature)."""
     settings = settings or training.TrainSettings()
-    out = Path(out)
-    if not out.parent.is_dir():
-        raise ConfigError(f"--out {out}: folder {out.parent} does not exist")
+    out = check_target(out)
     started = time.perf_counter()
     data = training_data.cached(data_path(out.parent, settings, blur), settings.samples, settings.resolution,
                                 settings.seed, progress, blur)

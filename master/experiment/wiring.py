@@ -156,3 +156,30 @@ def run_batch(decoder, trials: list[Trial], config: dict, body=None, progress=No
     return simulate(system, stop_time=experiment["steps"] * experiment["step_size"],
                     step_size=experiment["step_size"], scheme=experiment["scheme"], batch_size=len(trials),
                     parameters=given, record=RECORD, progress=progress)
+
+
+def check_parameters(config: dict) -> None:
+    """Before any work: every parameter the configuration gives the components (but the decoder, which
+    config.validate checks) within the range the component declares; a ConfigError naming the key."""
+    from components.component import ComponentError
+    from master.cosim import ConfigError
+    from master.experiment.protocol import plan
+
+    trials = plan(config)
+    given = parameters(trials, config)
+    try:
+        camera = Camera(resolution=config["experiment"]["resolution"])
+    except ComponentError as error:
+        raise ConfigError(f"experiment.resolution: {error}") from None
+    components = {c.name: c for c in (RubberArm(), Stimulus(), camera, Brain(), ArmPlant())}
+    for component in components.values():
+        component.instantiate(len(trials))
+    for path, value in given.items():
+        name, _, variable = path.partition(".")
+        if name not in components:
+            continue
+        try:
+            components[name].set(variable, value)
+        except ComponentError as error:
+            source = PARAMETER_SOURCES[path].split()[0]
+            raise ConfigError(f"{source}: {error}") from None

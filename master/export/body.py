@@ -12,12 +12,14 @@ Example::
 from __future__ import annotations
 
 import hashlib
+import os
 import shutil
 import sys
 import tempfile
 from pathlib import Path
 
 from master.cosim import ConfigError
+from master.outputs.files import umask
 
 # variant -> (model name, which is also the FMI model identifier; component class as module:Class)
 VARIANTS = {
@@ -35,16 +37,45 @@ def build_fmu(out, variant: str = "native", component: str | None = None, model_
     with ``extra_files`` (Python modules that define that class) bundled next to the slave.
     """
     from pythonfmu.builder import FmuBuilder
-    out = Path(out)
-    if out.suffix != ".fmu":
-        raise ConfigError(f"--out {str(out)!r} must be a file name ending in .fmu")
+    out = check_target(out)
     if variant not in VARIANTS:
         raise ConfigError(f"--variant {variant!r} is not one of {', '.join(VARIANTS)}")
     model_name = model_name or VARIANTS[variant][0]
     component = component or VARIANTS[variant][1]
     if not model_name.isidentifier():
         raise ConfigError(f"model name {model_name!r} must be an identifier (it names the FMU's library)")
-    out.parent.mkdir(parents=True, exist_ok=True)
+    try:  # built beside the target and renamed into place: FILE.fmu is whole, the old one, or absent
+        beside = Path(tempfile.mkdtemp(dir=out.parent, prefix=f".{out.name}.", suffix=".partial"))
+    except OSError as error:
+        raise ConfigError(f"cannot write into {out.parent}: {error.strerror or error}") from None
+    try:
+        built = _build(FmuBuilder, beside / out.name, model_name, component, extra_files)
+        built.chmod(0o666 & ~umask())
+        os.replace(built, out)
+    finally:
+        shutil.rmtree(beside, ignore_errors=True)
+    return out
+
+
+def check_target(out) -> Path:
+    """FILE.fmu as a Path if it can be written: a name ending in .fmu, not a folder, in a folder that exists
+    and takes new files; a ConfigError naming the problem otherwise (before anything is built)."""
+    text = str(out)
+    out = Path(out)
+    if not text.strip() or out.suffix != ".fmu" or out.name == ".fmu":
+        raise ConfigError(f"--out {text!r} must be a file name ending in .fmu")
+    if out.is_dir():
+        raise ConfigError(f"--out {text} is a folder; name the FMU file to write (ending in .fmu)")
+    if out.exists() and not out.is_file():
+        raise ConfigError(f"--out {text} exists and is not a regular file")
+    parent = out.absolute().parent
+    if not parent.is_dir():
+        what = "is not a folder" if parent.exists() else "does not exist"
+        raise ConfigError(f"cannot write {text}: {parent} {what}")
+    return out
+
+
+def _build(builder, target: Path, model_name: str, component: str, extra_files) -> Path:
     with tempfile.TemporaryDirectory(prefix="rhi_export_") as staging:
         staging = Path(staging)
         # Named after its content: in one process, FMUs with different slave code never share a module.
@@ -60,7 +91,7 @@ def build_fmu(out, variant: str = "native", component: str | None = None, model_
         files = [staging / "components", spec, *map(Path, extra_files)]
         saved_path = list(sys.path)  # the builder puts the script's folder on sys.path for good
         try:
-            built = FmuBuilder.build_FMU(script, dest=out, project_files=files)
+            built = builder.build_FMU(script, dest=target, project_files=files)
         except (ImportError, AttributeError, ValueError) as error:
             raise ConfigError(f"cannot build the {model_name} FMU from {component}: {error}") from None
         finally:

@@ -15,6 +15,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from master.outputs.files import atomic_write  # noqa: E402
 from master.outputs.tables import cells, mean_sd  # noqa: E402
 
 COLOURS = {"left": "tab:blue", "center": "tab:gray", "right": "tab:red"}
@@ -24,7 +25,7 @@ METADATA = {"Software": None}  # no version string in the file: same data, same 
 
 def bars(axes, trials, per_trial, ylabel):
     """Mean +/- sd of a per-trial value (``per_trial[trial]``) per decoder, condition and stimulation,
-    one axis of ``axes`` per stimulation."""
+    one axis of ``axes`` per stimulation; a cell with no trial (every one failed) has no bar."""
     found = cells(trials)
     decoders = list(dict.fromkeys(k[0] for k in found))
     conditions = list(dict.fromkeys(k[1] for k in found))
@@ -33,6 +34,7 @@ def bars(axes, trials, per_trial, ylabel):
     for axis, stimulation in zip(axes, stimulations):
         for d, decoder in enumerate(decoders):
             means, sds = zip(*(mean_sd(per_trial[found[(decoder, condition, stimulation)]])
+                               if (decoder, condition, stimulation) in found else (np.nan, np.nan)
                                for condition in conditions))
             axis.bar(np.arange(len(conditions)) + (d - (len(decoders) - 1) / 2) * width, means, width,
                      yerr=sds, capsize=3, label=decoder, color=[COLOURS.get(c, "k") for c in conditions],
@@ -109,9 +111,13 @@ def jacobian_images(images: dict[str, np.ndarray], path):
 
 
 def save(figure, path):
+    """Write the figure to ``path`` whole or not at all (a sweep's figures are rewritten in place)."""
     figure.tight_layout()
-    figure.savefig(path, dpi=110, metadata=METADATA)
-    plt.close(figure)
+    try:
+        atomic_write(path, lambda file: figure.savefig(file, format=Path(path).suffix.lstrip(".") or "png", dpi=110,
+                                                        metadata=METADATA))
+    finally:
+        plt.close(figure)
 
 
 def write_all(folder: Path, trials, times, per_step: dict[str, np.ndarray], jacobians: dict | None) -> list[str]:

@@ -6,11 +6,18 @@ renamed into place when complete.
 """
 from __future__ import annotations
 
+import errno
+import fcntl
+import json
 import os
 import platform
+import re
 import shutil
+import signal
 import sys
 import tempfile
+import threading
+from contextlib import contextmanager
 from importlib import metadata
 from pathlib import Path
 from typing import BinaryIO, Callable
@@ -50,8 +57,10 @@ def atomic_write(path: str | os.PathLike, data: str | bytes | Callable[[BinaryIO
                 file.write(data.encode("utf-8") if isinstance(data, str) else data)
         os.chmod(temporary, 0o666 & ~umask())  # mkstemp makes files private; results are ordinary files
         os.replace(temporary, path)
-    except BaseException:
+    except BaseException as error:
         os.unlink(temporary)
+        if isinstance(error, OSError) and error.filename is None and error.errno is not None:
+            raise OSError(error.errno, error.strerror, str(path)) from error  # a full disk names the file
         raise
 
 
@@ -65,27 +74,218 @@ def package_versions() -> dict[str, str]:
     return versions
 
 
-def staging_folder(out: str | os.PathLike, force: bool) -> Path:
-    """Check DIR can be written and return an empty staging folder beside it."""
-    out = Path(out)
-    if out.exists() and not out.is_dir():
+# What `rhi experiment` writes into DIR: --force replaces a folder holding nothing else, never another one.
+OUTPUT_ENTRIES = ("summary.csv", "trials.csv", "run.json", "figures")
+OUTPUT_COMMAND = "rhi experiment"  # run.json's "command"
+STAGING_MARK = ".rhi-staging"  # inside a staging folder until it is published: ours, and safe to clean
+_ACTIVE: dict[Path, "OutputLock"] = {}  # staging folder -> its lock, while this process writes them
+
+
+def foreign_entries(folder: Path) -> list[str]:
+    """What in ``folder`` an earlier `rhi experiment` did not write (empty: the folder is one of its outputs).
+
+    Its own output holds run.json with ``"command": "rhi experiment"``, otherwise only summary.csv,
+    trials.csv and figures/, and figures/ only the files run.json lists; none of them a link.
+    """
+    try:
+        names = sorted(entry.name for entry in folder.iterdir())
+    except OSError:
+        return ["(an unreadable folder)"]
+    try:
+        run = json.loads((folder / "run.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        run = None
+    if not isinstance(run, dict) or run.get("command") != OUTPUT_COMMAND:
+        return names or ["nothing"]
+    foreign = [name for name in names if name not in OUTPUT_ENTRIES or (folder / name).is_symlink()]
+    figures = folder / "figures"
+    if figures.is_dir() and not figures.is_symlink():
+        listed = set(run.get("figures") or [])
+        foreign += [f"figures/{entry.name}" for entry in sorted(figures.iterdir())
+                    if entry.name not in listed or entry.is_symlink() or not entry.is_file()]
+    return foreign
+
+
+def check_output(out: str | os.PathLike, force: bool) -> Path:
+    """DIR as a Path, if a run may write it: ConfigError naming the reason otherwise.
+
+    Refused even with ``force``: an empty name, the working folder or a folder above it (``.``, ``..``),
+    a file, and a non-empty folder that is not an earlier output of `rhi experiment` (foreign_entries).
+    """
+    if not str(out).strip():
+        raise ConfigError("--out is empty: name a new folder for the results")
+    path = Path(out)
+    resolved, here = path.resolve(), Path.cwd().resolve()
+    if resolved == here or resolved in here.parents or resolved == Path(resolved.anchor):
+        raise ConfigError(f"output {out} is the working folder or a folder above it; name a new folder for the "
+                          "results (--force never replaces these)")
+    if path.exists() and not path.is_dir():
         raise ConfigError(f"output {out} exists and is not a folder")
-    if out.is_dir() and any(out.iterdir()) and not force:
-        raise ConfigError(f"output folder {out} exists and is not empty (use --force to replace it)")
-    parent = out.absolute().parent
+    if path.is_symlink():
+        raise ConfigError(f"output {out} is a symbolic link; name the folder itself")
+    if path.is_dir() and any(path.iterdir()):
+        if not force:
+            raise ConfigError(f"output folder {out} exists and is not empty (use --force to replace it)")
+        foreign = foreign_entries(path)
+        if foreign:
+            shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
+            raise ConfigError(f"output folder {out} is not an earlier rhi experiment output (it holds {shown}); "
+                              "--force replaces only rhi's own results: move it or choose another --out")
+    parent = path.absolute().parent
     if not parent.is_dir():
         raise ConfigError(f"cannot write {out}: folder {parent} does not exist")
+    return path
+
+
+class OutputLock:
+    """An exclusive lock on DIR, held while a run writes it: a file ``.DIR.lock`` beside DIR, flock'ed
+    (released by the kernel if the process dies), removed when the run ends."""
+
+    def __init__(self, out: Path):
+        self.out = out
+        self.path = out.absolute().parent / f".{out.name}.lock"
+        self.file = None
+
+    def acquire(self) -> "OutputLock":
+        for _ in range(5):
+            try:
+                descriptor = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o666)
+            except OSError as error:
+                raise ConfigError(f"cannot write into {self.path.parent}: {error.strerror}") from None
+            try:
+                fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                os.close(descriptor)
+                raise ConfigError(f"another rhi run is writing {self.out} (it holds {self.path}); wait for it to "
+                                  "end or choose another --out") from None
+            try:  # the file we locked may have been removed by a run that just ended: lock the one in place
+                if os.stat(self.path).st_ino == os.fstat(descriptor).st_ino:
+                    self.file = descriptor
+                    return self
+            except FileNotFoundError:
+                pass
+            os.close(descriptor)
+        raise ConfigError(f"cannot lock {self.path}: other runs keep replacing it")
+
+    def release(self) -> None:
+        if self.file is not None:
+            try:
+                os.unlink(self.path)  # while still holding it; a run that opened it sees another inode
+            except OSError:
+                pass
+            os.close(self.file)
+            self.file = None
+
+
+def clean_stale(out: Path) -> list[str]:
+    """Remove what runs of ours into DIR left beside it when killed: ``.DIR.XXXXXXXX.partial`` staging folders
+    holding our mark (or nothing) and ``.DIR.XXXXXXXX.old`` earlier outputs; call it holding DIR's lock."""
+    pattern = re.compile(re.escape(f".{out.name}.") + r"[A-Za-z0-9_]{8}\.(partial|old)")
+    removed = []
+    parent = out.absolute().parent
+    for entry in parent.iterdir():
+        match = pattern.fullmatch(entry.name)
+        if not match or entry.is_symlink() or not entry.is_dir():
+            continue
+        ours = (entry / STAGING_MARK).is_file() or not any(entry.iterdir()) if match.group(1) == "partial" \
+            else not foreign_entries(entry)
+        if ours:
+            shutil.rmtree(entry, ignore_errors=True)
+            removed.append(entry.name)
+    return removed
+
+
+@contextmanager
+def output_folder(out: str | os.PathLike, force: bool):
+    """Write DIR whole or not at all: check it (:func:`check_output`), lock it, clean what killed runs left,
+    and yield an empty staging folder beside it; when the block ends without an error, publish the staging
+    folder as DIR (re-checking that nothing else appeared there meanwhile), else remove it."""
+    path = check_output(out, force)
+    lock = OutputLock(path).acquire()
+    try:
+        clean_stale(path)
+        existed = path.is_dir() and any(path.iterdir())
+        staging = _make_staging(path)
+        _ACTIVE[staging] = lock
+        try:
+            yield staging
+            publish(staging, path, replacing=existed, force=force)
+        except BaseException:
+            shutil.rmtree(staging, ignore_errors=True)
+            raise
+        finally:
+            _ACTIVE.pop(staging, None)
+    finally:
+        lock.release()
+
+
+def _make_staging(out: Path) -> Path:
+    parent = out.absolute().parent
     try:
         staging = Path(tempfile.mkdtemp(dir=parent, prefix=f".{out.name}.", suffix=".partial"))
+        (staging / STAGING_MARK).write_text(f"{os.getpid()}\n")
     except OSError as error:
         raise ConfigError(f"cannot write into {parent}: {error.strerror}") from None
     staging.chmod(0o777 & ~umask())  # mkdtemp makes it private; the published folder is an ordinary one
     return staging
 
 
-def publish(staging: Path, out: str | os.PathLike) -> None:
-    """Replace DIR by the finished staging folder."""
+def staging_folder(out: str | os.PathLike, force: bool) -> Path:
+    """Check DIR can be written and return an empty staging folder beside it (no lock: see output_folder)."""
+    return _make_staging(check_output(out, force))
+
+
+def publish(staging: Path, out: str | os.PathLike, replacing: bool | None = None, force: bool = True) -> None:
+    """Put the finished staging folder in DIR's place, in one rename.
+
+    DIR must be as it was checked when the run began: absent or empty, or (``replacing``) an earlier
+    output of ours, which is moved aside first and removed once the new one is in place. Anything else
+    there now (another program wrote it meanwhile) is left alone and the run is not published.
+    """
     out = Path(out)
-    if out.exists():
-        shutil.rmtree(out)
-    os.replace(staging, out)
+    (staging / STAGING_MARK).unlink(missing_ok=True)
+    if replacing is None:
+        replacing = out.is_dir() and any(out.iterdir())
+    aside = None
+    with signals_held():
+        if out.is_dir() and not out.is_symlink() and any(out.iterdir()):
+            foreign = foreign_entries(out)
+            if not replacing or foreign or not force:
+                raise ConfigError(f"output folder {out} was written by something else while this run went on "
+                                  f"(it holds {', '.join(foreign[:5]) or 'another rhi output'}); it was left as it "
+                                  "is and this run's results were not published")
+            aside = Path(tempfile.mkdtemp(dir=out.absolute().parent, prefix=f".{out.name}.", suffix=".old"))
+            os.replace(out, aside)  # onto the empty folder mkdtemp made
+        try:
+            os.replace(staging, out)  # onto nothing or an empty folder; a folder with content refuses
+        except OSError as error:
+            if aside is not None:
+                os.replace(aside, out)
+            if error.errno in (errno.ENOTEMPTY, errno.EEXIST, errno.ENOTDIR, errno.EISDIR):
+                raise ConfigError(f"output {out} appeared while this run went on; it was left as it is and this "
+                                  "run's results were not published") from None
+            raise
+    if aside is not None:
+        shutil.rmtree(aside, ignore_errors=True)
+
+
+@contextmanager
+def signals_held():
+    """SIGINT and SIGTERM wait until the block ends (in the main thread), so a rename pair is never cut."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held = {signal.SIGINT, signal.SIGTERM}
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+def abandon_staging() -> None:
+    """Remove every staging folder this process is writing and release its lock (the process is ending)."""
+    for staging, lock in list(_ACTIVE.items()):
+        shutil.rmtree(staging, ignore_errors=True)
+        lock.release()
+    _ACTIVE.clear()

@@ -48,18 +48,25 @@ def mean_sd(values, axis: int = 0):
     return values.mean(axis=axis), sd
 
 
-def summary(trials, final: dict[str, np.ndarray]) -> list[list]:
+def summary(trials, final: dict[str, np.ndarray], planned=None) -> list[list]:
     """One row per decoder x condition x stimulation, from per-trial values (``final[key][trial]``).
 
     ``final`` holds the end-of-trial values and the trial means of master.experiment.measures.end_of_trial:
     drift, force, gamma (mean only), then the action measure J a_dot (m/s^2): its mean over the
     trial and its final value, each as mean and sample sd over the cell's trials.
+    planned: every cell the protocol planned, in order (default: those of ``trials``); a planned cell with no
+    trial left (every one failed) has a row with n_trials 0 and empty statistics.
     """
+    found = cells(trials)
     rows = []
-    for (decoder, condition, stimulation), members in cells(trials).items():
+    for cell in (planned if planned is not None else found):
+        members = found.get(cell, [])
+        if not members:
+            rows.append([*cell, 0] + [""] * (len(SUMMARY_COLUMNS) - 4))
+            continue
         stats = [mean_sd(final[key][members]) for key in SUMMARY_MEASURES]
         (drift, drift_sd), (force, force_sd), (gamma, _), (accel_mean, accel_mean_sd), (accel, accel_sd) = stats
-        rows.append([decoder, condition, stimulation, len(members), number(drift), number(drift_sd),
+        rows.append([*cell, len(members), number(drift), number(drift_sd),
                      number(force), number(force_sd), number(gamma), number(accel_mean), number(accel_mean_sd),
                      number(accel), number(accel_sd)])
     return rows

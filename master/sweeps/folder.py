@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import fcntl
 import json
-import shutil
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -20,16 +19,22 @@ from master.sweeps.plan import Sweep
 
 @contextmanager
 def sweep_folder(out: Path, sweep: Sweep, force: bool):
-    """Check, lock and prepare DIR; yields the records already in it that belong to this sweep."""
-    if out.exists() and not out.is_dir():
-        raise ConfigError(f"output {out} exists and is not a folder")
-    if not out.absolute().parent.is_dir():
-        raise ConfigError(f"cannot write {out}: folder {out.absolute().parent} does not exist")
+    """Check, lock and prepare DIR; yields the records already in it that belong to this sweep.
+
+    Refused, even with ``force``: an empty name, the working folder or a folder above it, a file, and a
+    non-empty folder that holds no sweep (no sweep.json): a sweep never writes into another's files.
+    """
+    check_folder(out)
     manifest = out / "sweep.json"
-    if out.is_dir() and not manifest.exists() and any(out.iterdir()) and not force:
-        raise ConfigError(f"output folder {out} is not empty and holds no sweep (use --force to write into it)")
-    out.mkdir(exist_ok=True)
-    with open(out / ".lock", "w") as lock:
+    if out.is_dir() and not manifest.exists() and any(out.iterdir()):
+        raise ConfigError(f"output folder {out} is not empty and holds no sweep (no sweep.json); --force only "
+                          "replaces a sweep: choose another --out")
+    try:
+        out.mkdir(exist_ok=True)
+        lock = open(out / ".lock", "w")
+    except OSError as error:
+        raise ConfigError(f"cannot write {out}: {error.strerror or error}") from None
+    with lock:
         try:
             fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -48,6 +53,19 @@ def sweep_folder(out: Path, sweep: Sweep, force: bool):
         yield read_records(out, sweep)
 
 
+def check_folder(out: Path) -> None:
+    """ConfigError unless DIR names a folder a sweep may create or use (see :func:`sweep_folder`)."""
+    if not str(out).strip():
+        raise ConfigError("--out is empty: name a folder for the sweep")
+    resolved, here = Path(out).resolve(), Path.cwd().resolve()
+    if resolved == here or resolved in here.parents or resolved == Path(resolved.anchor):
+        raise ConfigError(f"output {out} is the working folder or a folder above it; name a folder for the sweep")
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"output {out} exists and is not a folder")
+    if not out.absolute().parent.is_dir():
+        raise ConfigError(f"cannot write {out}: folder {out.absolute().parent} does not exist")
+
+
 def start_over(out: Path, sweep: Sweep) -> None:
     """Write the new manifest; drop every file of an older sweep except trials this one shares."""
     (out / "trials").mkdir(exist_ok=True)
@@ -57,7 +75,11 @@ def start_over(out: Path, sweep: Sweep) -> None:
             path.unlink()
     for name in ("index.csv", "summary.csv"):
         (out / name).unlink(missing_ok=True)
-    shutil.rmtree(out / "figures", ignore_errors=True)
+    if (out / "figures").is_dir():  # the sweep's plots only; anything else put there stays
+        for plot in (out / "figures").glob("*.png"):
+            plot.unlink()
+        if not any((out / "figures").iterdir()):
+            (out / "figures").rmdir()
     manifest = {"fingerprint": sweep.fingerprint, "task": sweep.task, "swept_keys": sweep.keys,
                 "points": [{"point": n, "parameters": p, "configuration": c}
                            for n, (p, c) in enumerate(zip(sweep.points, sweep.configs))],

@@ -55,6 +55,21 @@ def check_workers(client, task: str) -> None:
                               "install this package on every worker (see README, Sweeps)")
 
 
+def check_decoders(sweep: Sweep) -> None:
+    """Before the sweep starts: every point's decoders (checkpoints named, or training settings and cache),
+    for the experiment's own trial function; a ConfigError naming the point otherwise."""
+    if sweep.task != DEFAULT_TASK:
+        return
+    from master.experiment.decoders import check_decoders as check
+
+    from master.sweeps.plan import describe
+    for number, config in enumerate(sweep.configs):
+        try:
+            check(config)
+        except (ConfigError, ValueError) as error:  # ValueError: a CheckpointError (ComponentError)
+            raise ConfigError(f"sweep point {number} ({describe(sweep.points[number])}): {error}") from None
+
+
 def prepare_decoders(sweep: Sweep) -> None:
     """The experiment's trials load trained decoders; train any missing default here, once, never on
     the workers (a remote worker must see the same checkpoint paths, see README)."""

@@ -1,0 +1,902 @@
+"""Reliability (issue 15): no data loss, no traceback, no silent wrong answer.
+
+Part 1 reproduces each of the issue's ten defect groups in-process, where that is the fastest honest
+check. Part 2 is the catalogue: bad inputs and faults run through the real command line in
+subprocesses (cwd a fresh folder, RHI_CACHE a fresh folder), each asserting its exit status, one line
+on stderr for a refusal (or the partial results of a run that failed in part), no "Traceback"
+anywhere, and the file system unchanged outside the output (a snapshot of the case's folder before and
+after). No case trains the default decoders: tiny checkpoints are trained once for the module.
+"""
+from __future__ import annotations
+
+import errno
+import hashlib
+import json
+import math
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+import zipfile
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Callable
+
+import numpy as np
+import pytest
+
+from master.cosim import ConfigError
+
+REPO = Path(__file__).resolve().parents[1]
+ENV = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
+
+FAULTY_PLANTS = '''
+import itertools, os, signal, time
+import numpy as np
+from components.body.plant import ArmPlant
+
+_made = itertools.count()  # instances made in this process, across FMU instances of one FMU
+
+
+class _Third(ArmPlant):
+    """The third instance made in a process misbehaves from t = 0.1 s on (the first batch's trial 2)."""
+    def instantiate(self, batch_size=1):
+        super().instantiate(batch_size)
+        self.number = next(_made)
+
+    def faulty(self, t):
+        return self.number == 2 and t >= 0.1 - 1e-9
+
+
+class NanThirdArmPlant(_Third):
+    def step(self, t, h):
+        super().step(t, h)
+        if self.faulty(t):
+            self.values["hand_y"] = np.full(self.batch_size, np.nan)
+
+
+class HangingArmPlant(_Third):
+    """Blocks in its step (an hour), after touching $RHI_TEST_HANG_MARKER."""
+    def step(self, t, h):
+        if self.faulty(t):
+            marker = os.environ.get("RHI_TEST_HANG_MARKER")
+            if marker:
+                open(marker, "w").close()
+            time.sleep(3600)
+        super().step(t, h)
+
+
+class DeafArmPlant(_Third):
+    """Blocks in its step with every signal blocked, as native code that never returns would."""
+    def step(self, t, h):
+        if self.faulty(t):
+            signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGALRM, signal.SIGINT, signal.SIGTERM})
+            time.sleep(3600)
+        super().step(t, h)
+'''
+
+
+# -- shared resources: tiny checkpoints and FMUs, made once ---------------------------------------------
+@dataclass
+class Resources:
+    folder: Path
+    conv: str          # a tiny conv decoder at 32 px (what --quick renders)
+    vae: str           # a tiny VAE at 32 px
+    fmus: dict         # name -> path: native, NanThirdArmPlant, HangingArmPlant, DeafArmPlant, unloadable
+
+
+@pytest.fixture(scope="module")
+def resources(tmp_path_factory) -> Resources:
+    from components.vision.training import TrainSettings
+    from master.experiment.training import train_decoder
+    from master.export.body import build_fmu
+
+    folder = tmp_path_factory.mktemp("resources")
+    settings = TrainSettings(preset="tiny", samples=40, epochs=1, batch_size=20, resolution=32, quality_poses=0,
+                             threads=1)
+    checkpoints = {}
+    for kind in ("conv", "vae"):
+        checkpoints[kind] = str(folder / f"tiny-{kind}.pt")
+        train_decoder(kind, checkpoints[kind], settings, progress=False)
+    plants = folder / "rhi_test_faulty_plants.py"
+    plants.write_text(FAULTY_PLANTS)
+    fmus = {"native": str(build_fmu(folder / "native.fmu", "native"))}
+    for name in ("NanThirdArmPlant", "HangingArmPlant", "DeafArmPlant"):
+        fmus[name] = str(build_fmu(folder / f"{name}.fmu", component=f"rhi_test_faulty_plants:{name}",
+                                   model_name=name, extra_files=[plants]))
+    fmus["HangingArmPlant-b"] = str(shutil.copy(fmus["HangingArmPlant"], folder / "HangingArmPlant-b.fmu"))
+    fmus["unloadable"] = str(folder / "Unloadable.fmu")
+    with zipfile.ZipFile(fmus["native"]) as old, zipfile.ZipFile(fmus["unloadable"], "w") as new:
+        for item in old.infolist():
+            new.writestr(item, b"not a shared library\n" * 400 if item.filename.endswith(".so") else old.read(item))
+    return Resources(folder, checkpoints["conv"], checkpoints["vae"], fmus)
+
+
+# ======================================================================================================
+# Part 1: each defect group of the issue, reproduced in-process
+# ======================================================================================================
+
+# -- 1. data loss: --out . / "" / .. / a foreign folder with --force ----------------------------------
+@pytest.mark.parametrize("out", [".", "", "..", "./", "work/..", "/"])
+def test_1_the_working_folder_and_those_above_it_are_refused_even_with_force(tmp_path, monkeypatch, out):
+    from master.outputs import files
+
+    work = tmp_path / "work"
+    work.mkdir()
+    (work / "thesis.tex").write_text("precious")
+    monkeypatch.chdir(work)
+    with pytest.raises(ConfigError, match="working folder or a folder above it|--out is empty"):
+        with files.output_folder(out, force=True):
+            pass
+    assert (work / "thesis.tex").read_text() == "precious" and sorted(os.listdir(tmp_path)) == ["work"]
+
+
+def test_1_force_replaces_only_rhi_s_own_output(tmp_path):
+    from master.outputs import files
+
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    (foreign / "run.json").write_text('{"command": "my own tool"}')  # a run.json, but not ours
+    with pytest.raises(ConfigError, match="not an earlier rhi experiment output"):
+        files.check_output(foreign, force=True)
+    ours = tmp_path / "ours"
+    ours.mkdir()
+    (ours / "run.json").write_text('{"command": "rhi experiment", "figures": ["a.png"]}')
+    (ours / "figures").mkdir()
+    (ours / "figures" / "a.png").write_text("png")
+    (ours / "figures" / "notes.txt").write_text("mine")  # added by the user: not ours any more
+    with pytest.raises(ConfigError, match=r"it holds figures/notes\.txt"):
+        files.check_output(ours, force=True)
+    (ours / "figures" / "notes.txt").unlink()
+    with files.output_folder(ours, force=True) as staging:
+        (staging / "summary.csv").write_text("new\n")
+    assert sorted(os.listdir(ours)) == ["summary.csv"] and sorted(os.listdir(tmp_path)) == ["foreign", "ours"]
+
+
+# -- 2. a concurrent run: the lock, and publish's re-check ----------------------------------------------
+def test_2_a_second_run_into_the_same_folder_is_refused_while_the_first_holds_it(tmp_path):
+    from master.outputs import files
+
+    out = tmp_path / "race"
+    with files.output_folder(out, force=False) as staging:
+        (staging / "summary.csv").write_text("first\n")
+        with pytest.raises(ConfigError, match="another rhi run is writing"):
+            with files.output_folder(out, force=True):
+                pass
+    assert (out / "summary.csv").read_text() == "first\n"
+    assert sorted(os.listdir(tmp_path)) == ["race"]  # the lock file went with the run
+
+
+def test_2_publish_leaves_alone_what_appeared_meanwhile(tmp_path):
+    from master.outputs import files
+
+    out = tmp_path / "race"
+    with pytest.raises(ConfigError, match="appeared while this run went on|written by something else"):
+        with files.output_folder(out, force=True) as staging:
+            (staging / "summary.csv").write_text("second\n")
+            out.mkdir()  # another program (not rhi: rhi would have met the lock) writes DIR meanwhile
+            (out / "summary.csv").write_text("first\n")
+    assert (out / "summary.csv").read_text() == "first\n" and sorted(os.listdir(tmp_path)) == ["race"]
+
+
+# -- 3. a checkpoint of the wrong kind ---------------------------------------------------------------------
+def test_3_a_vae_checkpoint_in_the_conv_slot_is_refused_before_any_work(resources):
+    from components.vision.checkpoint import CheckpointError
+    from master.experiment import config as configuration
+    from master.experiment.decoders import check_decoders, decoder_component
+
+    config = configuration.load(overrides={"decoder.conv_checkpoint": resources.vae, "experiment.decoders": ["conv"]},
+                                quick=True)
+    with pytest.raises(CheckpointError, match="a vae decoder, given as the conv decoder"):
+        check_decoders(config)
+    with pytest.raises(CheckpointError, match="a vae decoder, given as the conv decoder"):
+        decoder_component("conv", resources.vae, config)
+
+
+# -- 4. duplicates in the protocol's lists ---------------------------------------------------------------
+@pytest.mark.parametrize("key, value", [("decoders", ["conv", "conv"]), ("conditions", ["left", "left"]),
+                                        ("stimulations", ["sync", "async", "sync"])])
+def test_4_a_list_naming_an_entry_twice_is_refused_naming_the_key(key, value):
+    from master.experiment import config as configuration
+
+    with pytest.raises(ConfigError, match=rf"experiment\.{key} lists {value[0]} more than once"):
+        configuration.load(overrides={f"experiment.{key}": value})
+
+
+# -- 5. a cell whose every trial failed ----------------------------------------------------------------
+def test_5_a_cell_without_trials_has_an_empty_row_and_no_bar(tmp_path):
+    from master.experiment import Trial
+    from master.outputs import figures, tables
+
+    planned = [Trial("conv", c, s, 0, 0, 0.0, 0.0, 0.1) for c in ("left", "center") for s in ("sync", "async")]
+    kept = [t for t in planned if (t.condition, t.stimulation) != ("center", "sync")]
+    steps = np.linspace(0, 1, 5)[:, None] * np.array([[1.0, 2.0, 3.0]])
+    per_step = {"drift_cm": steps, "force_x_n": steps, "gamma": steps / 3}
+    rows = tables.summary(kept, {k: v[-1] for k, v in per_step.items()}, planned=tables.cells(planned))
+    assert [row[:4] for row in rows] == [["conv", "left", "sync", 1], ["conv", "left", "async", 1],
+                                         ["conv", "center", "sync", 0], ["conv", "center", "async", 1]]
+    assert rows[2][4:] == ["", "", "", "", ""]
+    written = figures.write_all(tmp_path, kept, np.linspace(0, 1, 5), per_step, None)
+    assert "a_drift_final.png" in written
+
+
+def test_5_a_decoder_whose_whole_batch_failed_costs_only_its_trials(monkeypatch):
+    """A failure blaming no trial ends that decoder's batch; the other decoder's trials still run."""
+    from master.cosim import SimulationError
+    from master.experiment import config as configuration
+    from master.experiment import runner
+
+    config = configuration.load(quick=True)
+
+    def fake_run_batch(decoder, batch, config, body, progress):
+        if batch[0].decoder == "conv":
+            raise SimulationError("decoder", 0.0, "out of memory")
+        return SimpleNamespace(times=np.arange(3.0))
+
+    monkeypatch.setattr(runner, "run_batch", fake_run_batch)
+    monkeypatch.setattr("master.experiment.decoders.decoder_component", lambda kind, path, config: None)
+    monkeypatch.setattr(runner, "measures", lambda result: {"drift_cm": np.zeros((3, 6))})
+    kept, _, per_step, _, failures = runner.run(config, {"conv": "c.pt", "vae": "v.pt"})
+    assert {t.decoder for t in kept} == {"vae"} and len(failures) == 6
+    assert all("out of memory" in error for error in failures.values())
+
+
+# -- 6. a hung FMU and Ctrl-C during an FMU call ------------------------------------------------------
+def run_fmu(path, timeout, batch_size=4):
+    from components.fmu_adapter import FMUComponent
+    from master import System, simulate
+    from tests.toys import Constant
+
+    system = System([Constant("shoulder", unit="deg/s"), Constant("elbow", unit="deg/s"),
+                     FMUComponent(path, step_timeout=timeout)],
+                    [("shoulder.y", "body.u_shoulder"), ("elbow.y", "body.u_elbow")])
+    return simulate(system, 0.3, 0.02, batch_size=batch_size, record=["body.q_shoulder"],
+                    parameters={"shoulder.value": 0.5, "elbow.value": 0.0, "body.held": True})
+
+
+def test_6_a_step_over_the_time_limit_fails_its_trial_naming_fmu_call_and_time(resources):
+    from master.cosim import SimulationError
+
+    began = time.monotonic()
+    with pytest.raises(SimulationError, match=r"FMU 'HangingArmPlant' \(HangingArmPlant\.fmu\): fmi2DoStep did "
+                                              r"not return within its time limit of 0\.5 s in trial 2 at t = 0\.1 s"
+                       ) as caught:
+        run_fmu(resources.fmus["HangingArmPlant"], 0.5)
+    assert caught.value.trials == (2,) and time.monotonic() - began < 30
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the adapter's handlers are gone
+
+
+def test_6_ctrl_c_during_an_fmu_call_is_an_interrupt_not_a_failed_trial(resources, tmp_path, monkeypatch):
+    """Python's default SIGINT handler raises KeyboardInterrupt inside the FMU's own Python code, which the FMU
+    used to turn into a 'fatal' status (a failed trial, and the run went on)."""
+    import threading
+
+    marker = tmp_path / "hanging"
+    monkeypatch.setenv("RHI_TEST_HANG_MARKER", str(marker))
+
+    def interrupt():
+        while not marker.exists():
+            time.sleep(0.02)
+        time.sleep(0.2)
+        os.kill(os.getpid(), signal.SIGINT)
+
+    threading.Thread(target=interrupt, daemon=True).start()
+    with pytest.raises(KeyboardInterrupt):
+        run_fmu(resources.fmus["HangingArmPlant-b"], 60.0, batch_size=3)  # a copy: its own count of instances
+
+
+# -- 7. export-body, atomically ----------------------------------------------------------------------------
+def test_7_export_builds_beside_the_target_and_renames(tmp_path, monkeypatch):
+    from master.export.body import build_fmu
+
+    target = tmp_path / "Body.fmu"
+    target.write_bytes(b"the old FMU")
+    real_write = zipfile.ZipFile.write
+
+    def full_disk(self, *args, **kwargs):
+        if len(self.namelist()) > 3:
+            raise OSError(errno.ENOSPC, "No space left on device", self.filename)
+        return real_write(self, *args, **kwargs)
+
+    monkeypatch.setattr(zipfile.ZipFile, "write", full_disk)
+    with pytest.raises(OSError, match="No space left"):
+        build_fmu(target, "native")
+    assert target.read_bytes() == b"the old FMU" and sorted(os.listdir(tmp_path)) == ["Body.fmu"]
+    monkeypatch.setattr(zipfile.ZipFile, "write", real_write)
+    assert build_fmu(target, "native") == target and zipfile.is_zipfile(target)
+    assert sorted(os.listdir(tmp_path)) == ["Body.fmu"]
+
+
+@pytest.mark.parametrize("out, says", [("/proc/v.fmu", "cannot write into /proc"), ("afile.txt/v.fmu", "is not a folder"),
+                                       ("existing.fmu", "is a folder"), ("", "must be a file name ending in .fmu")])
+def test_7_unwritable_export_targets_are_refused_before_building(tmp_path, monkeypatch, out, says):
+    from master.export.body import build_fmu
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "afile.txt").write_text("x")
+    (tmp_path / "existing.fmu").mkdir()
+    with pytest.raises(ConfigError, match=says):
+        build_fmu(out, "native")
+    assert sorted(os.listdir(tmp_path)) == ["afile.txt", "existing.fmu"] and not os.listdir(tmp_path / "existing.fmu")
+
+
+# -- 8. inputs that used to end in a traceback ----------------------------------------------------------
+def test_8_config_files_that_are_not_utf8_or_not_numbers_are_named(tmp_path):
+    from master.experiment import config as configuration
+
+    path = tmp_path / "c.toml"
+    path.write_bytes(b"\xff\xfe[experiment]\n")
+    with pytest.raises(ConfigError, match=r"is not UTF-8 text \(byte 0xff at position 0\)"):
+        configuration.load(path)
+    path.write_text('[experiment]\nconditions = ["far"]\n[conditions]\nfar = "very"\n')
+    with pytest.raises(ConfigError, match=r"config key conditions\.far = 'very' must be a float"):
+        configuration.load(path)
+    path.write_text('[stimulations.slow]\ndelay_min = "x"\n')
+    with pytest.raises(ConfigError, match=r"stimulations\.slow\.delay_min = 'x' must be a float"):
+        configuration.load(path)
+
+
+def test_8_resolution_and_memory_have_upper_bounds_naming_the_memory():
+    from master.experiment import config as configuration
+
+    with pytest.raises(ConfigError, match=r"experiment\.resolution must be at most 1024 pixels, got 100000 \(it "
+                                          r"would need about [\d.]+ TiB of memory\)"):
+        configuration.load(overrides={"experiment.resolution": 100000}, quick=True)
+    with pytest.raises(ConfigError, match=r"would need about [\d.]+ [TP]iB of memory \(60 trials of 1000000000 "
+                                          r"steps at 64 x 64 px\), more than this machine's"):
+        configuration.load(overrides={"experiment.steps": 10 ** 9})
+
+
+def test_8_the_decoder_cache_must_be_a_folder(tmp_path, monkeypatch):
+    from master.experiment import config as configuration
+    from master.experiment.decoders import check_decoders
+
+    (tmp_path / "cache").write_text("a file")
+    monkeypatch.setenv("RHI_CACHE", str(tmp_path / "cache"))
+    with pytest.raises(ConfigError, match=r"the decoder cache .*cache \(RHI_CACHE\) is not a folder"):
+        check_decoders(configuration.load(quick=True))
+
+
+def test_8_an_fmu_whose_binary_does_not_load_is_refused_when_opened(resources):
+    from components.component import ComponentError
+    from components.fmu_adapter import FMUComponent
+
+    with pytest.raises(ComponentError, match=r"Unloadable\.fmu cannot be used: its binary binaries/linux64/ArmBody"
+                                             r"\.so does not load on this machine \(.*invalid ELF header"):
+        FMUComponent(resources.fmus["unloadable"])
+
+
+def test_8_train_checks_its_output_before_training(tmp_path):
+    from master.experiment.training import check_target
+
+    with pytest.raises(ConfigError, match="is a folder; name the checkpoint file"):
+        check_target(tmp_path)
+    with pytest.raises(ConfigError, match=r"cannot write into /proc"):
+        check_target("/proc/conv.pt")
+    assert check_target(tmp_path / "conv.pt") == tmp_path / "conv.pt" and os.listdir(tmp_path) == []
+
+
+# -- 9. messages -----------------------------------------------------------------------------------------
+@pytest.mark.parametrize("key, value, says", [
+    ("experiment.decoders", [], r"experiment\.decoders is empty"),
+    ("experiment.conditions", [], r"experiment\.conditions is empty"),
+    ("decoder.visual_variance", math.nan, r"config key decoder\.visual_variance = nan must be a finite number"),
+    ("brain.gamma0", math.inf, r"config key brain\.gamma0 = inf must be a finite number"),
+    ("experiment.scheme", "jakobi", r"experiment\.scheme = 'jakobi' is not one of gauss-seidel, jacobi"),
+    ("decoder.conv_checkpoint", "/", r"decoder\.conv_checkpoint: / is a folder, not a checkpoint file"),
+])
+def test_9_named_messages(key, value, says):
+    from master.experiment import config as configuration
+    from master.experiment.decoders import check_decoders
+
+    with pytest.raises(ConfigError, match=says):
+        check_decoders(configuration.load(overrides={key: value}))
+
+
+def test_9_every_sweep_point_is_validated_before_the_sweep_starts(tmp_path):
+    from master.sweeps import plan as sweeps
+
+    path = tmp_path / "s.toml"
+    path.write_text('[sweep]\n[sweep.grid]\n"experiment.scheme" = ["gauss-seidel", "jakobi"]\n')
+    with pytest.raises(ConfigError, match=r"sweep point 1 \(experiment\.scheme=\"jakobi\"\): experiment\.scheme"):
+        sweeps.load(path)
+    path.write_text('[sweep]\n[sweep.grid]\n"body.substeps" = [10, 0]\n')
+    with pytest.raises(ConfigError, match=r"sweep point 1 .*body\.substeps = 0 is outside its range"):
+        sweeps.load(path)
+
+
+def test_9_usage_errors_are_one_line(capsys):
+    from master.commands.cli import main
+
+    for argv in (["experiment"], ["experiment", "--trials", "many", "--out", "x"], ["fly"], []):
+        with pytest.raises(SystemExit) as caught:
+            main(argv)
+        assert caught.value.code == 2
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("rhi") and ": error: " in lines[0], lines
+
+
+def test_9_stale_staging_of_ours_is_cleaned_and_nothing_else(tmp_path):
+    from master.outputs import files
+
+    out = tmp_path / "run"
+    ours = files.staging_folder(out, force=False)  # as a killed run leaves it: marked as ours
+    (ours / "summary.csv").write_text("half")
+    empty = tmp_path / ".run.abcdefgh.partial"  # killed before it was marked
+    empty.mkdir()
+    theirs = tmp_path / ".run.zzzzzzzz.partial"  # same pattern, not ours: left alone
+    theirs.mkdir()
+    (theirs / "keep.txt").write_text("mine")
+    with files.output_folder(out, force=False) as staging:
+        (staging / "summary.csv").write_text("whole\n")
+    assert sorted(os.listdir(tmp_path)) == [".run.zzzzzzzz.partial", "run"]
+    assert (theirs / "keep.txt").read_text() == "mine"
+
+
+# -- 10. late validation ----------------------------------------------------------------------------------
+@pytest.mark.parametrize("key, value, says", [
+    ("experiment.resolution", 12, r"\[train\]: .*resolution = 12 does not fit"),
+    ("train.preset", "huge", r"\[train\]: train setting preset = 'huge' is unknown"),
+    ("body.substeps", 0, r"body\.substeps: body\.substeps = 0 is outside its range \[1, 10000\]"),
+    ("stimulus.period", 0.0, r"stimulus\.period: stimulus\.period = 0\.0 is outside its range"),
+])
+def test_10_settings_are_checked_before_the_staging_folder_and_training(tmp_path, monkeypatch, key, value, says):
+    from master.experiment import config as configuration
+    from master.experiment.publish import run_into
+
+    import tempfile
+
+    def no_staging(*args, **kwargs):
+        raise AssertionError("a staging folder was made before the settings were checked")
+
+    monkeypatch.setenv("RHI_CACHE", str(tmp_path / "cache"))
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(tempfile, "mkdtemp", no_staging)
+    with pytest.raises((ConfigError, ValueError), match=says):
+        run_into("out", configuration.load(overrides={key: value}, quick=True))
+    assert os.listdir(tmp_path) == []  # no cache made, nothing trained, no staging
+
+
+def test_10_a_bad_checkpoint_is_found_before_the_other_decoder_is_trained(tmp_path, monkeypatch):
+    from components.vision.checkpoint import CheckpointError
+    from master.experiment import config as configuration
+    from master.experiment.publish import run_into
+
+    monkeypatch.setenv("RHI_CACHE", str(tmp_path / "cache"))
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "vae.pt").write_text("not a checkpoint")
+    config = configuration.load(overrides={"decoder.vae_checkpoint": str(tmp_path / "vae.pt")}, quick=True)
+    with pytest.raises(CheckpointError, match="not a decoder checkpoint"):
+        run_into("out", config)
+    assert sorted(os.listdir(tmp_path)) == ["vae.pt"]  # no cache made, no conv trained, no staging
+
+
+# ======================================================================================================
+# Part 2: the catalogue, through the real command line
+# ======================================================================================================
+CONV_ONLY = '[experiment]\ndecoders = ["conv"]\n'
+TIMEOUT_1S = CONV_ONLY + "[fmu]\nstep_timeout_s = 1.0\n"
+SWEEP_HEAD = ('[experiment]\ndecoders = ["conv"]\nconditions = ["left"]\nstimulations = ["sync"]\n'
+              '[sweep]\ntrials = 1\nworkers = 1\ntask = "tests.sweep_tasks:fake_outcome"\n')
+FULL_DISK_RUN = """
+import errno, sys
+import master.experiment.publish as publish
+written = publish.atomic_write
+def atomic_write(path, data):  # the disk fills up while the results are written
+    if str(path).endswith("trials.csv"):
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+    return written(path, data)
+publish.atomic_write = atomic_write
+from master.commands.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+FULL_DISK_EXPORT = """
+import errno, sys, zipfile
+write = zipfile.ZipFile.write
+def full(self, *args, **kwargs):  # the disk fills up after a few files of the FMU
+    if len(self.namelist()) > 3:
+        raise OSError(errno.ENOSPC, "No space left on device", self.filename)
+    return write(self, *args, **kwargs)
+zipfile.ZipFile.write = full
+from master.commands.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+@dataclass
+class Case:
+    """One bad input or fault. ``args`` (after ``rhi``) may name the module's resources: {conv}, {vae},
+    {fmu:NAME}. The case runs in a fresh folder ``work`` (inside a folder that is snapshot), with a fresh
+    RHI_CACHE."""
+
+    name: str
+    args: list[str]
+    status: int                 # 2 refused; 1 failed in part (partial results) or the machine's fault; 130, 143
+    says: str                   # in stderr's last line (the only line for status 2)
+    out: str | None = None      # the one path under work that may change (None: nothing may)
+    files: dict = field(default_factory=dict)  # made in work first: name -> text, bytes or None (a folder)
+    stdout: str = "pipe"        # "pipe", "closed" (a pipe nobody reads) or "full" (/dev/full)
+    interrupt: int | None = None  # sent when the hanging FMU blocks
+    python: str | None = None   # run ``python -c`` this (a fault injected) instead of ``python -m master``
+    cache_is_file: bool = False
+    check: Callable | None = None  # more: check(work, result)
+
+
+def experiment(*args, config="conv_only.toml", ckpt=True, steps="20"):
+    """`rhi experiment --quick` with the tiny conv decoder, conv only, a few steps."""
+    return (["experiment", "--quick", "--config", config] + (["--conv-checkpoint", "{conv}"] if ckpt else [])
+            + (["--steps", steps] if steps else []) + list(args))
+
+
+def toml(text):
+    return {"conv_only.toml": CONV_ONLY, "c.toml": text}
+
+
+def summary_rows(work, out="out"):
+    import csv
+    with open(work / out / "summary.csv") as file:
+        return list(csv.DictReader(file))
+
+
+def partial_results(work, result):
+    rows = summary_rows(work)
+    assert [(r["condition"], r["stimulation"], r["n_trials"]) for r in rows] == [
+        ("left", "sync", "1"), ("left", "async", "1"), ("center", "sync", "0"), ("center", "async", "1"),
+        ("right", "sync", "1"), ("right", "async", "1")]
+    assert rows[2]["drift_cm_mean"] == "" and rows[0]["drift_cm_mean"] != ""
+    run = json.loads((work / "out" / "run.json").read_text())
+    assert [(t["condition"], t["stimulation"]) for t in run["failed_trials"]] == [("center", "sync")]
+    assert (work / "out" / "figures" / "a_drift_final.png").is_file()
+    assert "conv/center/sync trial 0" in result.stderr
+
+
+def whole_results(work, result):
+    assert len(summary_rows(work)) == 6 and (work / "out" / "run.json").is_file()
+
+
+CASES = [
+    # -- 1. the output folder: never anything but our own output --------------------------------------
+    Case("out_dot_force", experiment("--out", ".", "--force"), 2, "is the working folder",
+         files={"conv_only.toml": CONV_ONLY, "thesis.tex": "precious"}),
+    Case("out_empty_force", experiment("--out", "", "--force"), 2, "--out is empty",
+         files={"conv_only.toml": CONV_ONLY, "thesis.tex": "precious"}),
+    Case("out_dotdot_force", experiment("--out", "..", "--force"), 2, "is the working folder or a folder above it",
+         files={"conv_only.toml": CONV_ONLY}),
+    Case("out_cwd_by_another_name", experiment("--out", "../work", "--force"), 2, "is the working folder",
+         files={"conv_only.toml": CONV_ONLY}),
+    Case("out_foreign_force", experiment("--out", "results", "--force"), 2,
+         "is not an earlier rhi experiment output (it holds notes.txt)",
+         files={"conv_only.toml": CONV_ONLY, "results/notes.txt": "mine"}),
+    Case("out_foreign_run_json_force", experiment("--out", "results", "--force"), 2,
+         "is not an earlier rhi experiment output",
+         files={"conv_only.toml": CONV_ONLY, "results/run.json": '{"command": "my tool"}'}),
+    Case("out_not_empty", experiment("--out", "results"), 2, "exists and is not empty (use --force",
+         files={"conv_only.toml": CONV_ONLY, "results/x.txt": "x"}),
+    Case("out_is_a_file", experiment("--out", "results", "--force"), 2, "exists and is not a folder",
+         files={"conv_only.toml": CONV_ONLY, "results": "a file"}),
+    Case("out_under_proc", experiment("--out", "/proc/rhi-run"), 2, "cannot write into /proc",
+         files={"conv_only.toml": CONV_ONLY}),
+    Case("out_parent_missing", experiment("--out", "no/such/run"), 2, "does not exist",
+         files={"conv_only.toml": CONV_ONLY}),
+    # -- 3, 9, 10. checkpoints: kind, folder, resolution, found before any training ---------------------
+    Case("vae_as_conv_checkpoint", ["experiment", "--quick", "--config", "conv_only.toml", "--conv-checkpoint", "{vae}",
+                                    "--out", "out"], 2, "a vae decoder, given as the conv decoder",
+         files={"conv_only.toml": CONV_ONLY}),
+    Case("checkpoint_is_a_folder", experiment("--out", "out", ckpt=False) + ["--conv-checkpoint", "ckpts"], 2,
+         "ckpts is a folder, not a checkpoint file", files={"conv_only.toml": CONV_ONLY, "ckpts": None}),
+    Case("checkpoint_missing", experiment("--out", "out", ckpt=False) + ["--conv-checkpoint", "none.pt"], 2,
+         "none.pt does not exist", files={"conv_only.toml": CONV_ONLY}),
+    Case("checkpoint_other_resolution", experiment("--resolution", "64", "--out", "out"), 2,
+         "trained at resolution 32 px but the camera renders 64 px", files={"conv_only.toml": CONV_ONLY}),
+    Case("bad_vae_found_before_conv_is_trained", ["experiment", "--quick", "--vae-checkpoint", "vae.pt", "--out", "out"],
+         2, "vae.pt: not a decoder checkpoint", files={"vae.pt": "not a checkpoint"}),
+    Case("cache_is_a_file", experiment("--out", "out", ckpt=False), 2, "(RHI_CACHE) is not a folder",
+         files={"conv_only.toml": CONV_ONLY}, cache_is_file=True),
+    # -- 4, 8, 9, 10. configuration ----------------------------------------------------------------------
+    Case("config_not_utf8", experiment("--out", "out", config="c.toml"), 2, "is not UTF-8 text",
+         files={"c.toml": b"\xff\xfe[experiment]\n"}),
+    Case("config_is_a_folder", experiment("--out", "out", config="c.toml"), 2, "is a folder, not a TOML file",
+         files={"c.toml": None}),
+    Case("config_unknown_key", experiment("--out", "out", config="c.toml"), 2, "did you mean brain.gamma0?",
+         files={"c.toml": "[brain]\ngama0 = 0.1\n"}),
+    Case("resolution_100000", experiment("--resolution", "100000", "--out", "out"), 2,
+         "experiment.resolution must be at most 1024 pixels, got 100000 (it would need about",
+         files={"conv_only.toml": CONV_ONLY}),
+    Case("steps_beyond_memory", experiment("--out", "out", steps="1000000000"), 2, "more than this machine's",
+         files={"conv_only.toml": CONV_ONLY}),
+    Case("duplicate_decoders", experiment("--out", "out", config="c.toml"), 2, "experiment.decoders lists conv more",
+         files=toml('[experiment]\ndecoders = ["conv", "conv"]\n')),
+    Case("duplicate_conditions", experiment("--out", "out", config="c.toml"), 2,
+         "experiment.conditions lists left more", files=toml('[experiment]\nconditions = ["left", "left"]\n')),
+    Case("empty_decoders", experiment("--out", "out", config="c.toml"), 2, "experiment.decoders is empty",
+         files=toml("[experiment]\ndecoders = []\n")),
+    Case("empty_conditions", experiment("--out", "out", config="c.toml"), 2, "experiment.conditions is empty",
+         files=toml("[experiment]\nconditions = []\n")),
+    Case("condition_not_a_number", experiment("--out", "out", config="c.toml"), 2,
+         "config key conditions.far = 'very' must be a float",
+         files=toml('[experiment]\nconditions = ["far"]\n[conditions]\nfar = "very"\n')),
+    Case("visual_variance_nan", experiment("--out", "out", config="c.toml"), 2,
+         "decoder.visual_variance = nan must be a finite number", files=toml("[decoder]\nvisual_variance = nan\n")),
+    Case("scheme_unknown", experiment("--out", "out", config="c.toml"), 2, "experiment.scheme = 'jakobi' is not one of",
+         files=toml('[experiment]\nscheme = "jakobi"\n')),
+    Case("substeps_zero", experiment("--out", "out", config="c.toml"), 2, "body.substeps = 0 is outside its range",
+         files=toml("[body]\nsubsteps = 0\n")),
+    Case("period_zero", experiment("--out", "out", config="c.toml"), 2, "stimulus.period = 0.0 is outside its range",
+         files=toml("[stimulus]\nperiod = 0.0\n")),
+    Case("preset_unknown", experiment("--out", "out", config="c.toml", ckpt=False), 2,
+         "train setting preset = 'huge' is unknown", files=toml('[train]\npreset = "huge"\n')),
+    Case("resolution_misfits_preset", experiment("--resolution", "12", "--out", "out", ckpt=False), 2,
+         "resolution = 12 does not fit", files={"conv_only.toml": CONV_ONLY}),
+    Case("step_timeout_negative", experiment("--out", "out", config="c.toml"), 2, "fmu.step_timeout_s must be >= 0",
+         files=toml("[fmu]\nstep_timeout_s = -1.0\n")),
+    # -- 8. bodies -------------------------------------------------------------------------------------
+    Case("fmu_not_a_zip", experiment("--body", "Body.fmu", "--out", "out"), 2, "Body.fmu cannot be used",
+         files={"conv_only.toml": CONV_ONLY, "Body.fmu": "not a zip"}),
+    Case("fmu_binary_does_not_load", experiment("--body", "{fmu:unloadable}", "--out", "out"), 2,
+         "does not load on this machine", files={"conv_only.toml": CONV_ONLY}),
+    # -- 9. usage errors in one line ------------------------------------------------------------------
+    Case("usage_missing_out", ["experiment", "--quick"], 2, "the following arguments are required: --out"),
+    Case("usage_not_a_number", ["experiment", "--trials", "many", "--out", "o"], 2, "invalid int value: 'many'"),
+    Case("usage_unknown_command", ["fly"], 2, "invalid choice: 'fly'"),
+    # -- 8, 9. rhi train ---------------------------------------------------------------------------------
+    Case("train_unknown_table", ["train", "--decoder", "conv", "--config", "c.toml", "--out", "c.pt"], 2,
+         "unknown config key trian (did you mean train?)", files={"c.toml": "[trian]\nepochs = 1\n"}),
+    Case("train_config_not_utf8", ["train", "--decoder", "conv", "--config", "c.toml", "--out", "c.pt"], 2,
+         "is not UTF-8 text", files={"c.toml": b"[train]\nepochs = \xe9\n"}),
+    Case("train_out_is_a_folder", ["train", "--decoder", "conv", "--out", "ckpts"], 2, "ckpts is a folder",
+         files={"ckpts": None}),
+    Case("train_out_under_proc", ["train", "--decoder", "conv", "--out", "/proc/conv.pt"], 2, "cannot write into /proc"),
+    # -- 7. rhi export-body ------------------------------------------------------------------------------
+    Case("export_under_proc", ["export-body", "--out", "/proc/v.fmu"], 2, "cannot write into /proc"),
+    Case("export_under_a_file", ["export-body", "--out", "afile.txt/v.fmu"], 2, "is not a folder",
+         files={"afile.txt": "x"}),
+    Case("export_onto_a_folder", ["export-body", "--out", "existing.fmu"], 2, "existing.fmu is a folder",
+         files={"existing.fmu": None}),
+    Case("export_unknown_variant", ["export-body", "--variant", "springy", "--out", "v.fmu"], 2,
+         "--variant 'springy' is not one of native, kinematic"),
+    Case("export_not_fmu", ["export-body", "--out", "v.zip"], 2, "must be a file name ending in .fmu"),
+    # -- 1, 8, 9. rhi sweep ------------------------------------------------------------------------------
+    Case("sweep_out_under_proc", ["sweep", "--config", "s.toml", "--out", "/proc/x"], 2, "cannot write /proc/x",
+         files={"s.toml": SWEEP_HEAD}),
+    Case("sweep_out_dot_force", ["sweep", "--config", "s.toml", "--out", ".", "--force"], 2, "is the working folder",
+         files={"s.toml": SWEEP_HEAD, "thesis.tex": "precious"}),
+    Case("sweep_foreign_force", ["sweep", "--config", "s.toml", "--out", "results", "--force"], 2,
+         "holds no sweep", files={"s.toml": SWEEP_HEAD, "results/figures/mine.png": "mine"}),
+    Case("sweep_scheme_of_a_point", ["sweep", "--config", "s.toml", "--out", "sw"], 2,
+         "sweep point 1 (experiment.scheme=\"jakobi\")",
+         files={"s.toml": SWEEP_HEAD + '[sweep.grid]\n"experiment.scheme" = ["gauss-seidel", "jakobi"]\n'}),
+    Case("sweep_condition_not_a_number", ["sweep", "--config", "s.toml", "--out", "sw"], 2,
+         "conditions.far = 'very' must be a float", files={"s.toml": '[conditions]\nfar = "very"\n' + SWEEP_HEAD}),
+    Case("sweep_not_utf8", ["sweep", "--config", "s.toml", "--out", "sw"], 2, "is not UTF-8 text",
+         files={"s.toml": b"\xff[sweep]\n"}),
+    # -- rhi bench ---------------------------------------------------------------------------------------
+    Case("bench_checkpoint_is_a_folder", ["bench", "--quick", "--checkpoint", "ckpts"], 2, "is a folder",
+         files={"ckpts": None}),
+    # -- 5, 6. faults in the body: the rest is written, exit 1 -------------------------------------------
+    Case("fmu_nan_in_the_only_trial_of_a_cell", experiment("--body", "{fmu:NanThirdArmPlant}", "--out", "out"), 1,
+         "trial failed and left out: conv/center/sync trial 0", out="out", files={"conv_only.toml": CONV_ONLY},
+         check=partial_results),
+    Case("fmu_step_over_its_time_limit", experiment("--body", "{fmu:HangingArmPlant}", "--out", "out", config="c.toml"),
+         1, "did not return within its time limit of 1 s in trial 2 at t = 0.1 s", out="out",
+         files={"c.toml": TIMEOUT_1S}, check=partial_results),
+    Case("fmu_stuck_in_native_code", experiment("--body", "{fmu:DeafArmPlant}", "--out", "out", config="c.toml"), 1,
+         "cannot be stopped (it runs native code that does not return); ending the process",
+         files={"c.toml": TIMEOUT_1S}),
+    # -- 6, 9. signals: status 130 / 143, nothing half-written -------------------------------------------
+    Case("ctrl_c_in_an_fmu_step", experiment("--body", "{fmu:HangingArmPlant}", "--out", "out"), 130,
+         "interrupted by Ctrl-C; nothing half-written is left", files={"conv_only.toml": CONV_ONLY},
+         interrupt=signal.SIGINT),
+    Case("sigterm_in_an_fmu_step", experiment("--body", "{fmu:HangingArmPlant}", "--out", "out"), 143,
+         "interrupted by SIGTERM; nothing half-written is left", files={"conv_only.toml": CONV_ONLY},
+         interrupt=signal.SIGTERM),
+    # -- 7, 8. the machine's faults: a full disk, a closed or full stdout ---------------------------------
+    Case("disk_full_while_writing_results", experiment("--out", "out"), 1, "trials.csv: No space left on device",
+         files={"conv_only.toml": CONV_ONLY}, python=FULL_DISK_RUN),
+    Case("disk_full_while_exporting", ["export-body", "--out", "Body.fmu"], 1, "No space left on device",
+         files={"Body.fmu": b"the old FMU"}, python=FULL_DISK_EXPORT),
+    Case("stdout_closed", experiment("--out", "out"), 1, "cannot write to standard output", out="out",
+         files={"conv_only.toml": CONV_ONLY}, stdout="closed", check=whole_results),
+    Case("stdout_full", experiment("--out", "out"), 1, "cannot write to standard output", out="out",
+         files={"conv_only.toml": CONV_ONLY}, stdout="full", check=whole_results),
+]
+
+
+@dataclass
+class Result:
+    status: int
+    stdout: str
+    stderr: str
+    before: dict   # snapshot of the case's folder before the run
+    after: dict    # and after
+    cache: list    # what RHI_CACHE holds after the run
+    work: Path     # the case's working folder
+    seconds: float = 0.0
+
+
+def snapshot(folder: Path) -> dict:
+    """Every entry under ``folder``, hidden ones too: relative path -> (kind, size, content hash)."""
+    found = {}
+    for path in sorted(folder.rglob("*")):
+        relative = str(path.relative_to(folder))
+        if path.is_symlink():
+            found[relative] = ("link", os.readlink(path))
+        elif path.is_dir():
+            found[relative] = ("folder",)
+        else:
+            found[relative] = ("file", path.stat().st_size, hashlib.sha256(path.read_bytes()).hexdigest())
+    return found
+
+
+def expand(argument: str, resources: Resources) -> str:
+    names = {"{conv}": resources.conv, "{vae}": resources.vae,
+             **{f"{{fmu:{name}}}": path for name, path in resources.fmus.items()}}
+    return names.get(argument, argument)
+
+
+def run_case(case: Case, resources: Resources, root: Path) -> Result:
+    folder, cache, marker = root / case.name, root / f"{case.name}.cache", root / f"{case.name}.hanging"
+    work = folder / "work"
+    work.mkdir(parents=True)
+    for name, content in case.files.items():
+        path = work / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if content is None:
+            path.mkdir()
+        elif isinstance(content, bytes):
+            path.write_bytes(content)
+        else:
+            path.write_text(content)
+    if case.cache_is_file:
+        cache.write_text("a file where the cache should be")
+    before = snapshot(folder)
+    env = {**ENV, "RHI_CACHE": str(cache), "RHI_TEST_HANG_MARKER": str(marker)}
+    command = [sys.executable] + (["-c", case.python] if case.python else ["-m", "master"])
+    command += [expand(argument, resources) for argument in case.args]
+    reader, stdout = None, subprocess.PIPE
+    if case.stdout == "closed":
+        reader, writer = os.pipe()
+        os.close(reader)
+        stdout = writer
+    elif case.stdout == "full":
+        stdout = open("/dev/full", "w")
+    began = time.monotonic()
+    process = subprocess.Popen(command, cwd=work, env=env, stdout=stdout, stderr=subprocess.PIPE, text=True)
+    if case.stdout == "closed":
+        os.close(stdout)
+    elif case.stdout == "full":
+        stdout.close()
+    if case.interrupt is not None:
+        deadline = time.monotonic() + 180
+        while not marker.exists() and process.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.3)
+        process.send_signal(case.interrupt)
+    try:
+        out, err = process.communicate(timeout=300)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        out, err = process.communicate()
+    cached = sorted(p.name for p in cache.iterdir()) if cache.is_dir() else []
+    return Result(process.returncode, out or "", err or "", before, snapshot(folder), cached, work,
+                  time.monotonic() - began)
+
+
+@pytest.fixture(scope="module")
+def catalogue(resources, tmp_path_factory) -> dict[str, Result]:
+    """Every case of CASES, two at a time (one per core)."""
+    root = tmp_path_factory.mktemp("catalogue")
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        futures = {case.name: pool.submit(run_case, case, resources, root) for case in CASES}
+    return {name: future.result() for name, future in futures.items()}
+
+
+def last_line(text: str) -> str:
+    lines = [line for line in text.replace("\r", "\n").splitlines() if line.strip()]
+    return lines[-1] if lines else ""
+
+
+@pytest.mark.parametrize("case", CASES, ids=[case.name for case in CASES])
+def test_catalogue(catalogue, case):
+    result = catalogue[case.name]
+    shown = f"status {result.status}, stderr: {result.stderr[-1500:]!r}"
+    assert result.status == case.status, shown
+    assert "Traceback" not in result.stderr + result.stdout, shown
+    if case.status == 2:
+        lines = result.stderr.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("rhi") and ": error: " in lines[0], shown
+    assert case.says in last_line(result.stderr), shown
+    work = "work/" + (case.out or "\0")
+    changed = {path for path in set(result.before) | set(result.after)
+               if result.before.get(path) != result.after.get(path)}
+    outside = sorted(path for path in changed if path != work.rstrip("/") and not path.startswith(work + "/"))
+    assert not outside, f"changed outside the output: {outside}"
+    if case.status != 0:  # nothing trained: a run that fails stops before training or uses the tiny checkpoints
+        assert not [name for name in result.cache if name.endswith((".pt", ".npz"))], result.cache
+    if case.check is not None:
+        case.check(result.work, result)
+
+
+# -- cases in several steps ------------------------------------------------------------------------------
+def start(resources, work, *args, marker=None):
+    env = {**ENV, "RHI_CACHE": str(work.parent / "cache")}
+    if marker is not None:
+        env["RHI_TEST_HANG_MARKER"] = str(marker)
+    return subprocess.Popen([sys.executable, "-m", "master", *[expand(a, resources) for a in args]], cwd=work,
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def wait_for(marker: Path, process) -> None:
+    deadline = time.monotonic() + 180
+    while not marker.exists():
+        assert process.poll() is None and time.monotonic() < deadline, process.communicate()[1][-2000:]
+        time.sleep(0.05)
+    time.sleep(0.3)
+
+
+def test_catalogue_a_second_run_is_refused_while_the_first_writes(resources, tmp_path):
+    """Issue case 2: two runs into one DIR used to both print 'wrote' and the second replaced the first."""
+    work, marker = tmp_path / "work", tmp_path / "hanging"
+    work.mkdir()
+    (work / "conv_only.toml").write_text(CONV_ONLY)
+    first = start(resources, work, *experiment("--body", "{fmu:HangingArmPlant}", "--out", "race"), marker=marker)
+    try:
+        wait_for(marker, first)
+        second = start(resources, work, *experiment("--out", "race"))
+        _, err = second.communicate(timeout=300)
+        assert second.returncode == 2 and len(err.strip().splitlines()) == 1, err
+        assert "another rhi run is writing race" in err and "Traceback" not in err
+    finally:
+        first.send_signal(signal.SIGINT)
+        _, err = first.communicate(timeout=300)
+    assert first.returncode == 130 and "Traceback" not in err, err
+    assert sorted(os.listdir(work)) == ["conv_only.toml"]
+
+
+def test_catalogue_a_killed_run_s_staging_is_cleaned_by_the_next(resources, tmp_path):
+    """SIGKILL leaves the staging folder and the lock file; the next run into DIR removes ours, not others'."""
+    work, marker = tmp_path / "work", tmp_path / "hanging"
+    work.mkdir()
+    (work / "conv_only.toml").write_text(CONV_ONLY)
+    theirs = work / ".out.zzzzzzzz.partial"  # the same pattern, not ours: it stays
+    theirs.mkdir()
+    (theirs / "keep.txt").write_text("mine")
+    killed = start(resources, work, *experiment("--body", "{fmu:HangingArmPlant}", "--out", "out"), marker=marker)
+    wait_for(marker, killed)
+    killed.kill()
+    killed.communicate(timeout=60)
+    left = sorted(os.listdir(work))
+    assert ".out.lock" in left and len([n for n in left if n.endswith(".partial")]) == 2, left
+    again = start(resources, work, *experiment("--out", "out"))
+    _, err = again.communicate(timeout=300)
+    assert again.returncode == 0 and "Traceback" not in err, err[-2000:]
+    assert sorted(os.listdir(work)) == [".out.zzzzzzzz.partial", "conv_only.toml", "out"]
+    assert (theirs / "keep.txt").read_text() == "mine"
+
+
+def test_catalogue_force_replaces_our_output_whole_and_nothing_else(resources, tmp_path):
+    work = tmp_path / "work"
+    work.mkdir()
+    (work / "conv_only.toml").write_text(CONV_ONLY)
+    first = start(resources, work, *experiment("--out", "out"))
+    assert first.communicate(timeout=300) and first.returncode == 0
+    old = (work / "out" / "summary.csv").read_bytes()
+    second = start(resources, work, *experiment("--out", "out", "--force", "--trials", "2"))
+    _, err = second.communicate(timeout=300)
+    assert second.returncode == 0 and "Traceback" not in err, err[-2000:]
+    assert (work / "out" / "summary.csv").read_bytes() != old
+    assert sorted(os.listdir(work)) == ["conv_only.toml", "out"]  # no .old or .partial left
+    (work / "out" / "notes.txt").write_text("mine")
+    third = start(resources, work, *experiment("--out", "out", "--force"))
+    _, err = third.communicate(timeout=300)
+    assert third.returncode == 2 and "it holds notes.txt" in err and len(err.strip().splitlines()) == 1, err
+    assert (work / "out" / "notes.txt").read_text() == "mine"
+
+
+def test_catalogue_size():
+    """How many bad inputs and faults the catalogue runs through the command line (stated in the README)."""
+    assert len(CASES) + 3 >= 60
+
