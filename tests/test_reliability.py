@@ -215,12 +215,15 @@ def test_5_a_cell_without_trials_has_an_empty_row_and_no_bar(tmp_path):
     planned = [Trial("conv", c, s, 0, 0, 0.0, 0.0, 0.1) for c in ("left", "center") for s in ("sync", "async")]
     kept = [t for t in planned if (t.condition, t.stimulation) != ("center", "sync")]
     steps = np.linspace(0, 1, 5)[:, None] * np.array([[1.0, 2.0, 3.0]])
-    per_step = {"drift_cm": steps, "force_x_n": steps, "gamma": steps / 3}
-    rows = tables.summary(kept, {k: v[-1] for k, v in per_step.items()}, planned=tables.cells(planned))
+    from master.experiment.measures import end_of_trial
+
+    per_step = {"drift_cm": steps, "force_x_n": steps, "gamma": steps / 3, "action_accel_x_m_s2": steps}
+    times = np.linspace(0, 1, 5)
+    rows = tables.summary(kept, end_of_trial(times, per_step), planned=tables.cells(planned))
     assert [row[:4] for row in rows] == [["conv", "left", "sync", 1], ["conv", "left", "async", 1],
                                          ["conv", "center", "sync", 0], ["conv", "center", "async", 1]]
-    assert rows[2][4:] == ["", "", "", "", ""]
-    written = figures.write_all(tmp_path, kept, np.linspace(0, 1, 5), per_step, None)
+    assert rows[2][4:] == [""] * (len(tables.SUMMARY_COLUMNS) - 4)
+    written = figures.write_all(tmp_path, kept, times, per_step, None)
     assert "a_drift_final.png" in written
 
 
