@@ -80,5 +80,15 @@ def test_rhi_experiment_with_the_c_body_gives_the_python_kinematic_summary(bodie
 
 
 def test_a_bad_output_path_is_named(tmp_path):
-    with pytest.raises(ConfigError, match="must be a file name ending in .fmu"):
+    with pytest.raises(ConfigError, match=".fmu"):
         build_c_fmu(tmp_path / "body.zip")
+    with pytest.raises(ConfigError):
+        build_c_fmu(tmp_path / "no" / "such" / "body.fmu")
+
+
+def test_rhi_export_body_builds_the_c_variant(tmp_path):
+    done = subprocess.run([sys.executable, "-m", "master", "export-body", "--variant", "kinematic-c", "--out",
+                           str(tmp_path / "C.fmu")], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert "variant kinematic-c" in done.stdout and validate_fmu(str(tmp_path / "C.fmu")) == []
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["C.fmu"]  # written whole, nothing left beside it

@@ -57,7 +57,8 @@ def build_parser() -> argparse.ArgumentParser:
     experiment.set_defaults(run=experiment_command.run_experiment)
 
     export = commands.add_parser("export-body", help="export the body plant as an FMI 2.0 FMU")
-    export.add_argument("--variant", metavar="NAME", help="native (default: the pymunk plant) or kinematic")
+    export.add_argument("--variant", metavar="NAME",
+                        help="native (default: the pymunk plant), kinematic, or kinematic-c (the kinematic arm in C)")
     export.add_argument("--out", metavar="FILE.fmu", required=True)
     export.set_defaults(run=lambda args: __import__("master.commands.export_body", fromlist=["_"]).run_export(args))
 

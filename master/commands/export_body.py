@@ -4,13 +4,13 @@ from __future__ import annotations
 import os
 import time
 
-from master.export.body import build_fmu
+from master.export.body import export_body
 
 
 def run_export(args) -> int:
     """The ``rhi export-body`` command: args.variant (None: native), args.out."""
     started = time.perf_counter()
-    path = build_fmu(args.out, args.variant or "native")
+    path = export_body(args.out, args.variant or "native")
     print(f"wrote {path} ({os.path.getsize(path) / 1024:.0f} KiB, variant {args.variant or 'native'}) "
           f"in {time.perf_counter() - started:.2f} s")
     return 0

@@ -26,6 +26,8 @@ VARIANTS = {
     "native": ("ArmBody", "components.body.plant:ArmPlant"),
     "kinematic": ("KinematicArmBody", "components.body.variants:KinematicArm"),
 }
+C_VARIANT = "kinematic-c"  # the kinematic arm written in C (master/export/c_body.py)
+VARIANT_NAMES = (*VARIANTS, C_VARIANT)
 PACKAGE = Path(__file__).resolve().parents[2] / "components"
 
 
@@ -39,7 +41,7 @@ def build_fmu(out, variant: str = "native", component: str | None = None, model_
     from pythonfmu.builder import FmuBuilder
     out = check_target(out)
     if variant not in VARIANTS:
-        raise ConfigError(f"--variant {variant!r} is not one of {', '.join(VARIANTS)}")
+        raise ConfigError(f"--variant {variant!r} is not one of {', '.join(VARIANT_NAMES)}")
     model_name = model_name or VARIANTS[variant][0]
     component = component or VARIANTS[variant][1]
     if not model_name.isidentifier():
@@ -55,6 +57,14 @@ def build_fmu(out, variant: str = "native", component: str | None = None, model_
     finally:
         shutil.rmtree(beside, ignore_errors=True)
     return out
+
+
+def export_body(out, variant: str = "native") -> Path:
+    """The body FMU of ``variant`` at ``out``: a pythonfmu one (VARIANTS), or the body written in C (C_VARIANT)."""
+    if variant == C_VARIANT:
+        from master.export.c_body import build_c_fmu
+        return build_c_fmu(out)
+    return build_fmu(out, variant)
 
 
 def check_target(out) -> Path:

@@ -21,6 +21,7 @@ from pathlib import Path
 
 from components.body.variants import KinematicArm
 from master.cosim import ConfigError
+from master.export.body import check_target
 from master.outputs.files import atomic_write
 
 SOURCE = Path(__file__).resolve().parents[2] / "bodies" / "kinematic_c" / "kinematic_arm.c"
@@ -41,9 +42,7 @@ def build_c_fmu(out: str | os.PathLike) -> Path:
     """Compile the C body and write the FMU at ``out`` (a path ending in .fmu), whole or not at all."""
     import fmpy
 
-    out = Path(out)
-    if out.suffix != ".fmu":
-        raise ConfigError(f"--out {str(out)!r} must be a file name ending in .fmu")
+    out = check_target(out)
     compiler = os.environ.get("CC") or shutil.which("gcc") or shutil.which("cc")
     if not compiler:
         raise ConfigError("no C compiler found (set CC, or install gcc) to build the C body")
@@ -64,6 +63,5 @@ def build_c_fmu(out: str | os.PathLike) -> Path:
                 archive.writestr("modelDescription.xml", component.model_description())
                 archive.write(library, binary)
 
-        out.parent.mkdir(parents=True, exist_ok=True)
         atomic_write(out, write)
     return out
