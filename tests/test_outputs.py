@@ -67,27 +67,28 @@ def test_staging_refuses_foreign_content_and_publishes_whole(tmp_path):
     out.mkdir()
     (out / "notes.txt").write_text("mine")
     with pytest.raises(ConfigError, match=r"exists and is not empty \(use --force"):
-        files.staging_folder(out, force=False)
+        with files.output_folder(out, force=False):
+            pass
     with pytest.raises(ConfigError, match=r"is not an earlier rhi experiment output \(it holds notes\.txt\)"):
-        files.staging_folder(out, force=True)
+        with files.output_folder(out, force=True):
+            pass
     (out / "notes.txt").unlink()
     (out / "run.json").write_text('{"command": "rhi experiment", "figures": ["a.png"]}')
     (out / "figures").mkdir()
     (out / "figures" / "a.png").write_bytes(b"png")
-    staging = files.staging_folder(out, force=True)
-    (staging / "summary.csv").write_text("x\n")
-    assert (out / "run.json").exists()  # untouched until the run is complete
-    files.publish(staging, out)
+    with files.output_folder(out, force=True) as staging:
+        (staging / "summary.csv").write_text("x\n")
+        assert (out / "run.json").exists()  # untouched until the run is complete
     assert [p.name for p in out.iterdir()] == ["summary.csv"]
     assert [p.name for p in tmp_path.iterdir()] == ["run"]
 
 
 def test_staging_needs_an_existing_parent(tmp_path):
     with pytest.raises(ConfigError, match="does not exist"):
-        files.staging_folder(tmp_path / "no" / "such", force=False)
+        files.check_output(tmp_path / "no" / "such", force=False)
     (tmp_path / "file").write_text("")
     with pytest.raises(ConfigError, match="is not a folder"):
-        files.staging_folder(tmp_path / "file", force=False)
+        files.check_output(tmp_path / "file", force=False)
 
 
 def test_a_failing_trial_is_dropped_and_the_rest_rerun():

@@ -427,7 +427,7 @@ def test_9_stale_staging_of_ours_is_cleaned_and_nothing_else(tmp_path):
     from master.outputs import files
 
     out = tmp_path / "run"
-    ours = files.staging_folder(out, force=False)  # as a killed run leaves it: marked as ours
+    ours = files._make_staging(files.check_output(out, force=False))  # as a killed run leaves it: marked ours
     (ours / "summary.csv").write_text("half")
     empty = tmp_path / ".run.abcdefgh.partial"  # killed before it was marked
     empty.mkdir()

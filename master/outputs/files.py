@@ -230,11 +230,6 @@ def _make_staging(out: Path) -> Path:
     return staging
 
 
-def staging_folder(out: str | os.PathLike, force: bool) -> Path:
-    """Check DIR can be written and return an empty staging folder beside it (no lock: see output_folder)."""
-    return _make_staging(check_output(out, force))
-
-
 def publish(staging: Path, out: str | os.PathLike, replacing: bool | None = None, force: bool = True) -> None:
     """Put the finished staging folder in DIR's place, in one rename.
 
