@@ -12,8 +12,6 @@ Example::
 """
 from __future__ import annotations
 
-import os
-import tempfile
 import time
 from pathlib import Path
 
@@ -26,7 +24,7 @@ from components.vision.component import GenerativeModel
 from master.cosim import ConfigError
 from master.experiment import training_data
 from master.experiment.quality import hand_error
-from master.outputs.files import atomic_write
+from master.outputs.files import atomic_write, check_output_file
 
 SIGNATURE_TOLERANCE = 1e-3  # relative; the signature moves by far more when the camera changes
 
@@ -41,26 +39,8 @@ def train_settings(config: dict) -> training.TrainSettings:
 
 
 def check_target(out) -> Path:
-    """CKPT as a Path if a checkpoint can be written there (checked before any training): not a folder, in a
-    folder that exists and takes new files; a ConfigError naming the problem otherwise."""
-    text = str(out)
-    out = Path(out)
-    if not text.strip():
-        raise ConfigError("--out is empty: name the checkpoint file to write")
-    if out.is_dir():
-        raise ConfigError(f"--out {text} is a folder; name the checkpoint file to write (e.g. {out / 'conv.pt'})")
-    if out.exists() and not out.is_file():
-        raise ConfigError(f"--out {text} exists and is not a regular file")
-    parent = out.absolute().parent
-    if not parent.is_dir():
-        raise ConfigError(f"--out {text}: folder {parent} does not exist")
-    try:  # a folder that refuses new files (/proc, read-only, full) refuses them now, not after training
-        handle, probe = tempfile.mkstemp(dir=parent, prefix=f".{out.name}.", suffix=".probe")
-        os.close(handle)
-        os.unlink(probe)
-    except OSError as error:
-        raise ConfigError(f"--out {text}: cannot write into {parent} ({error.strerror or error})") from None
-    return out
+    """CKPT as a Path if a checkpoint can be written there (checked before any training)."""
+    return check_output_file(out, "checkpoint file")
 
 
 def data_path(folder: Path, settings: training.TrainSettings, blur: float = camera.BLUR_SIGMA) -> Path:

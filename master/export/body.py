@@ -19,7 +19,7 @@ import tempfile
 from pathlib import Path
 
 from master.cosim import ConfigError
-from master.outputs.files import umask
+from master.outputs.files import check_output_file, umask
 
 # variant -> (model name, which is also the FMI model identifier; component class as module:Class)
 VARIANTS = {
@@ -68,21 +68,8 @@ def export_body(out, variant: str = "native") -> Path:
 
 
 def check_target(out) -> Path:
-    """FILE.fmu as a Path if it can be written: a name ending in .fmu, not a folder, in a folder that exists
-    and takes new files; a ConfigError naming the problem otherwise (before anything is built)."""
-    text = str(out)
-    out = Path(out)
-    if not text.strip() or out.suffix != ".fmu" or out.name == ".fmu":
-        raise ConfigError(f"--out {text!r} must be a file name ending in .fmu")
-    if out.is_dir():
-        raise ConfigError(f"--out {text} is a folder; name the FMU file to write (ending in .fmu)")
-    if out.exists() and not out.is_file():
-        raise ConfigError(f"--out {text} exists and is not a regular file")
-    parent = out.absolute().parent
-    if not parent.is_dir():
-        what = "is not a folder" if parent.exists() else "does not exist"
-        raise ConfigError(f"cannot write {text}: {parent} {what}")
-    return out
+    """FILE.fmu as a Path if an FMU can be written there (checked before anything is built)."""
+    return check_output_file(out, "FMU file", ".fmu")
 
 
 def _build(builder, target: Path, model_name: str, component: str, extra_files) -> Path:

@@ -106,6 +106,32 @@ def foreign_entries(folder: Path) -> list[str]:
     return foreign
 
 
+def check_output_file(out: str | os.PathLike, noun: str, suffix: str = "") -> Path:
+    """``out`` as a Path if a ``noun`` (e.g. "checkpoint file") can be written there, checked before any work:
+    a name (ending in ``suffix`` when one is given), not a folder, in a folder that exists and takes new
+    files (/proc, read-only, full: refused now, not after the work). A ConfigError names the problem."""
+    text = str(out)
+    out = Path(out)
+    if suffix and (out.suffix != suffix or out.name == suffix):
+        raise ConfigError(f"--out {text!r} must be a file name ending in {suffix}")
+    if not text.strip():
+        raise ConfigError(f"--out is empty: name the {noun} to write")
+    if out.is_dir():
+        raise ConfigError(f"--out {text} is a folder; name the {noun} to write")
+    if out.exists() and not out.is_file():
+        raise ConfigError(f"--out {text} exists and is not a regular file")
+    parent = out.absolute().parent
+    if not parent.is_dir():
+        raise ConfigError(f"cannot write {text}: {parent} {'is not a folder' if parent.exists() else 'does not exist'}")
+    try:
+        handle, probe = tempfile.mkstemp(dir=parent, prefix=f".{out.name}.", suffix=".probe")
+        os.close(handle)
+        os.unlink(probe)
+    except OSError as error:
+        raise ConfigError(f"cannot write into {parent} ({error.strerror or error})") from None
+    return out
+
+
 def check_output(out: str | os.PathLike, force: bool) -> Path:
     """DIR as a Path, if a run may write it: ConfigError naming the reason otherwise.
 
