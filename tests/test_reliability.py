@@ -261,7 +261,16 @@ def run_fmu(path, timeout, batch_size=4):
                     parameters={"shoulder.value": 0.5, "elbow.value": 0.0, "body.held": True})
 
 
-def test_6_a_step_over_the_time_limit_fails_its_trial_naming_fmu_call_and_time(resources):
+@pytest.fixture
+def python_sigint():
+    """Python's own SIGINT handler for the test (a shell starts background jobs with SIGINT ignored, and Python
+    then keeps it ignored), and whatever was there put back after."""
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, before)
+
+
+def test_6_a_step_over_the_time_limit_fails_its_trial_naming_fmu_call_and_time(resources, python_sigint):
     from master.cosim import SimulationError
 
     began = time.monotonic()
@@ -273,7 +282,8 @@ def test_6_a_step_over_the_time_limit_fails_its_trial_naming_fmu_call_and_time(r
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the adapter's handlers are gone
 
 
-def test_6_ctrl_c_during_an_fmu_call_is_an_interrupt_not_a_failed_trial(resources, tmp_path, monkeypatch):
+def test_6_ctrl_c_during_an_fmu_call_is_an_interrupt_not_a_failed_trial(resources, tmp_path, monkeypatch,
+                                                                       python_sigint):
     """Python's default SIGINT handler raises KeyboardInterrupt inside the FMU's own Python code, which the FMU
     used to turn into a 'fatal' status (a failed trial, and the run went on)."""
     import threading
