@@ -219,11 +219,12 @@ def test_5_a_cell_without_trials_has_an_empty_row_and_no_bar(tmp_path):
 
     per_step = {"drift_cm": steps, "force_x_n": steps, "gamma": steps / 3, "action_accel_x_m_s2": steps}
     times = np.linspace(0, 1, 5)
-    rows = tables.summary(kept, end_of_trial(times, per_step), planned=tables.cells(planned))
+    final = end_of_trial(times, per_step)
+    rows = tables.summary(kept, final, planned=tables.cells(planned))
     assert [row[:4] for row in rows] == [["conv", "left", "sync", 1], ["conv", "left", "async", 1],
                                          ["conv", "center", "sync", 0], ["conv", "center", "async", 1]]
     assert rows[2][4:] == [""] * (len(tables.SUMMARY_COLUMNS) - 4)
-    written = figures.write_all(tmp_path, kept, times, per_step, None)
+    written = figures.write_all(tmp_path, kept, times, per_step, final, None)
     assert "a_drift_final.png" in written
 
 

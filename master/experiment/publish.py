@@ -54,7 +54,7 @@ def run_into(out, config: dict, body: str | None = None, force: bool = False, pr
         atomic_write(staging / "summary.csv", tables.csv_text(tables.SUMMARY_COLUMNS, summary))
         atomic_write(staging / "trials.csv", tables.trials_csv(trials, times, per_step))
         jacobians = {kind: jacobian_pair(kind, checkpoints[kind], config) for kind in checkpoints}
-        written = figures.write_all(staging / "figures", trials, times, per_step, jacobians)
+        written = figures.write_all(staging / "figures", trials, times, per_step, final, jacobians)
         shown = next((i for i, t in enumerate(trials) if (t.condition, t.stimulation) == ("left", "sync")), 0)
         balls = np.stack([per_step["ball_x_m"][:, shown], per_step["ball_y_m"][:, shown]], axis=1)
         mu = np.stack([per_step["mu_shoulder_deg"][:, shown], per_step["mu_elbow_deg"][:, shown]], axis=1)

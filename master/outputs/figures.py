@@ -120,13 +120,18 @@ def save(figure, path):
         plt.close(figure)
 
 
-def write_all(folder: Path, trials, times, per_step: dict[str, np.ndarray], jacobians: dict | None) -> list[str]:
-    """Write every panel into ``folder``; returns the file names."""
+def write_all(folder: Path, trials, times, per_step: dict[str, np.ndarray], final: dict[str, np.ndarray],
+              jacobians: dict | None) -> list[str]:
+    """Write every panel into ``folder``; returns the file names.
+
+    per_step: the measures per step, (steps + 1, B); final: the per-trial values behind summary.csv
+    (master.experiment.measures.end_of_trial), so the bars show exactly what the table reports.
+    """
     folder.mkdir(parents=True, exist_ok=True)
     stimulations = list(dict.fromkeys(t.stimulation for t in trials))
     final_bars(trials, per_step["drift_cm"], "final drift (cm)", folder / "a_drift_final.png")
     accel = per_step["action_accel_x_m_s2"]
-    action_bars(trials, per_step["force_x_n"][-1], accel[1:].mean(axis=0), folder / "d_force_final.png")
+    action_bars(trials, final["force_x_n"], final["action_accel_mean_x_m_s2"], folder / "d_force_final.png")
     for letter_drift, letter_force, stimulation in zip("bc", "ef", stimulations):
         over_time(trials, times, per_step["drift_cm"], stimulation, "drift (cm)",
                   folder / f"{letter_drift}_drift_{stimulation}.png")
