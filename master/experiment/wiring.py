@@ -16,8 +16,9 @@ from components.body.plant import ArmPlant
 from components.body.rubber_arm import RubberArm
 from components.brain.integrator import Brain
 from components.stimulus import Stimulus
-from master.cosim import System, simulate
-from master.experiment.protocol import Trial
+from components.component import ComponentError
+from master.cosim import ConfigError, System, simulate
+from master.experiment.protocol import Trial, plan
 
 # Gauss-Seidel order within one step (DESIGN.md): the decoder reads the brain's mu of time t and the
 # image of time t; the brain then integrates; the body finally receives the new action.
@@ -161,10 +162,6 @@ def run_batch(decoder, trials: list[Trial], config: dict, body=None, progress=No
 def check_parameters(config: dict) -> None:
     """Before any work: every parameter the configuration gives the components (but the decoder, which
     config.validate checks) within the range the component declares; a ConfigError naming the key."""
-    from components.component import ComponentError
-    from master.cosim import ConfigError
-    from master.experiment.protocol import plan
-
     trials = plan(config)
     given = parameters(trials, config)
     try:
