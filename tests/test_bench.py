@@ -26,7 +26,9 @@ MODES = ("baseline", "exact_single", "exact_batched", "exact_batched_optimised",
 # The targets of issue 8 (README, Performance), written here rather than read from master/bench/report.py.
 ISSUE_TARGETS = {"exact_batched_peak_fraction_paper": (">=", 0.5), "fast_protocol_agent_steps_per_s": (">=", 1500),
                  "fast_drift_relative_error": ("<=", 0.01), "master_step_vs_fmpy_simulate_fmu": ("<=", 1.2),
-                 "protocol_peak_rss_mb": ("<", 2048)}
+                 "protocol_peak_rss_mb": ("<", 2048),
+                 # issue 16: the default run from an empty cache
+                 "default_run_wall_s": ("<=", 100), "default_run_cpu_utilisation": (">=", 1.7)}
 
 
 @pytest.fixture(scope="module")
@@ -103,6 +105,8 @@ def test_error_overhead_memory_and_targets(report):
     assert report["targets"]["exact_batched_peak_fraction_paper"]["met"] is None  # no paper preset in quick
     assert report["targets"]["fast_drift_relative_error"]["met"] is True
     assert report["targets"]["protocol_peak_rss_mb"]["met"] is True  # a tiny protocol: far below 2 GB
+    assert report["default_run"] == {"skipped": "default_run = False"}  # timed in test_default_run_is_timed_whole
+    assert report["targets"]["default_run_wall_s"]["met"] is None
     json.dumps(report)  # --json must be able to print it
 
 
@@ -110,6 +114,18 @@ def test_table_names_every_mode_and_target(report):
     text = table(report)
     for word in (*MODES, *report["targets"], "GFLOP/s", "fmpy.simulate_fmu", "peak memory"):
         assert word in text
+
+
+def test_default_run_is_timed_whole(quick_cache):
+    """The default-run measure at --quick size: wall and CPU seconds of the child, and the run's own account."""
+    from master.bench.default_run import default_run
+
+    run = default_run(quick=True, cache=str(quick_cache))
+    assert run["cpu_utilisation"] == run["cpu_s"] / run["wall_s"] and run["cpu_s"] > 0
+    timings = run["timings_s"]
+    assert 0 < timings["total"] < run["wall_s"]  # the run's own clock starts after Python and its imports
+    assert 0 < max(timings["trials"].values()) < timings["total"]  # each batch is a part of the run
+    assert set(run["fast_mode"]) == {"conv", "vae"} and timings["training"] == {}  # trained already: none here
 
 
 def test_command_arguments_and_their_errors(tmp_path):

@@ -8,7 +8,7 @@ arbitrary object::
 
 The metadata (JSON) records the decoder kind and preset sizes, the resolution, the
 training ranges (rest pose and half-ranges, degrees), the training-data hash, the
-validation MSE, the seconds spent and the training settings. Every problem with a
+validation MSE and the training settings (no wall time: same settings, same bytes). Every problem with a
 file (missing, truncated, not a checkpoint, wrong shapes, not matching the camera)
 raises one :class:`CheckpointError` naming the file and what is wrong.
 
@@ -35,7 +35,7 @@ from components.vision.networks import VisualModel, build, sizes_from_dict
 
 FORMAT = "rhi-visual-decoder/1"
 REQUIRED = {"kind": str, "preset": str, "sizes": dict, "resolution": int, "rest_pose": list,
-            "half_ranges": list, "data_hash": str, "validation_mse": float, "seconds": float}
+            "half_ranges": list, "data_hash": str, "validation_mse": float}
 ZIP_MAGIC = b"PK\x03\x04"  # torch.save writes a zip archive
 ANGLE_TOLERANCE = 1e-6  # deg: ranges are stored as JSON floats, which round-trip exactly
 

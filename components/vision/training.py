@@ -48,8 +48,8 @@ class TrainSettings:
     kl_weight: float = 1.0          # VAE only: weight of the KL term against the per-pixel MSE
     prior_variance: float = 0.001   # VAE only: variance of the prior around the true normalised angles
     quality_poses: int = 100        # held-out poses for the hand-error measure after training (0: skip)
-    threads: int = 0                # torch threads (0: every core this process may use); runs are
-                                    # bitwise reproducible for a fixed thread count
+    threads: int = 1                # torch threads (0: every core this process may use); a run is bitwise
+                                    # reproducible for a fixed count, so the default is one count everywhere
 
     def __post_init__(self):
         positive_ints = ("samples", "epochs", "batch_size", "patience", "resolution")
@@ -208,12 +208,14 @@ def train(kind: str, poses_deg: np.ndarray, images: np.ndarray, rest_pose, half_
 
 def checkpoint_metadata(kind: str, settings: TrainSettings, rest_pose, half_ranges, data_hash: str,
                         report: dict) -> dict:
-    """The JSON metadata stored with a trained decoder (see checkpoint.REQUIRED)."""
+    """The JSON metadata stored with a trained decoder (see checkpoint.REQUIRED).
+
+    Nothing of the run's wall time is stored: the same settings give the same checkpoint bytes."""
     return {"kind": kind, "preset": settings.preset, "sizes": sizes_dict(preset(settings.preset)),
             "resolution": settings.resolution, "rest_pose": [float(a) for a in rest_pose],
             "half_ranges": [float(a) for a in half_ranges], "data_hash": data_hash,
             "validation_mse": float(report["validation_mse"]),
-            "validation_loss": float(report["validation_loss"]), "seconds": float(report["seconds"]),
+            "validation_loss": float(report["validation_loss"]),
             "best_epoch": report["best_epoch"], "epochs_run": report["epochs_run"],
             "settings": settings.as_dict(), "torch": torch.__version__,
             **({"latent_error_deg": report["latent_error_deg"]} if "latent_error_deg" in report else {})}

@@ -18,6 +18,8 @@ def targets(report: dict) -> dict:
         "fast_drift_relative_error": (error.get("relative_error"), "<=", 0.01),
         "master_step_vs_fmpy_simulate_fmu": (overhead["wall_ratio"], "<=", 1.2),
         "protocol_peak_rss_mb": (protocol["peak_rss_mb"], "<", 2048.0),
+        "default_run_wall_s": (report["default_run"].get("wall_s"), "<=", 100.0),
+        "default_run_cpu_utilisation": (report["default_run"].get("cpu_utilisation"), ">=", 1.7),
     }
     met = {">=": lambda v, t: v >= t, "<=": lambda v, t: v <= t, "<": lambda v, t: v < t}
     return {name: {"value": value, "target": f"{op} {target:g}",
@@ -63,6 +65,11 @@ def table(report: dict) -> str:
                  f"steps, {os.path.basename(e['decoder'])}): max {e['max_error_cm']:.4f} cm of the largest drift "
                  f"{e['largest_drift_cm']:.3f} cm = {100 * e['relative_error']:.2f} %, "
                  f"{e['decoder_points_per_trial']:.1f} decoder points/trial, {e['speedup']:.1f}x faster")
+    d = report["default_run"]
+    lines.append(f"default run: {d['skipped']}" if "skipped" in d else
+                 f"default run, {d['command']}: {d['wall_s']:.1f} s wall, {d['cpu_s']:.1f} s CPU = "
+                 f"{100 * d['cpu_utilisation']:.0f} % (fast mode: "
+                 + ", ".join(f"{kind} {'yes' if fast else 'no'}" for kind, fast in d["fast_mode"].items()) + ")")
     o = report["master_overhead"]
     lines += [f"body FMU per step: fmpy.simulate_fmu {1e3 * o['fmpy_step_s']:.3f} ms, this master "
               f"{1e3 * o['master_step_s']:.3f} ms ({o['wall_ratio']:.2f}x; master loop "

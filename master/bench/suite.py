@@ -42,6 +42,7 @@ from components.vision.networks import build
 from master.experiment import config as configuration
 from master import experiment
 from master.bench.baseline import PaperStyleAgent
+from master.bench.default_run import default_run
 from master.bench.report import targets
 from master.experiment.training_data import HALF_RANGES
 
@@ -65,11 +66,12 @@ class BenchSettings:
     matmul_size: int = 2048
     threads: int = 0             # torch threads; 0: the cores this process may use
     seed: int = 0
+    default_run: bool = True     # time `rhi experiment` from an empty decoder cache (master/bench/default_run.py)
 
 
 QUICK = BenchSettings(presets=(("tiny", 32),), batch=6, max_steps=3, budget_s=0.5, protocol_steps=10,
                       protocol_preset=("tiny", 32), error_trials=1, error_steps=30, error_model="untrained",
-                      fmu_steps=20, matmul_size=256)
+                      fmu_steps=20, matmul_size=256, default_run=False)
 
 
 def untrained(preset: str, resolution: int, seed: int) -> GenerativeModel:
@@ -235,6 +237,7 @@ def run_suite(settings: BenchSettings = BenchSettings()) -> dict:
     report["protocol_fast"]["projected_agent_steps_per_s"] = projected(report["protocol_fast"], report["fast_error"],
                                                                       settings)
     report["master_overhead"] = master_overhead(settings.fmu_steps)
+    report["default_run"] = default_run() if settings.default_run else {"skipped": "default_run = False"}
     report["memory"] = {"bench_peak_rss_mb": peak_rss_mb(),
                         "protocol_peak_rss_mb": report["protocol_fast"]["peak_rss_mb"]}
     report["machine"]["load_average_before"], report["machine"]["load_average_after"] = load_before, os.getloadavg()

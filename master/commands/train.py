@@ -12,12 +12,12 @@ def run_train(args) -> int:
     config = configuration.load(args.config)
     settings = train_settings(config)
     check_target(args.out)
-    metadata = train_decoder(args.decoder, args.out, settings, blur=config["camera"]["blur"])
+    metadata, seconds = train_decoder(args.decoder, args.out, settings, blur=config["camera"]["blur"])
     errors = metadata.get("hand_error", {})
     print(f"{args.decoder} decoder ({settings.preset}, {settings.resolution} px) saved to {args.out}: "
           f"validation MSE {metadata['validation_mse']:.3g} after {metadata['epochs_run']} epochs "
-          f"(best {metadata['best_epoch']}), {metadata['seconds']:.0f} s training + "
-          f"{metadata['data_seconds']:.0f} s data")
+          f"(best {metadata['best_epoch']}), {seconds['training']:.0f} s training + "
+          f"{seconds['data']:.0f} s data")
     if errors:
         print(f"hand error on {errors['poses']} held-out poses: read off the prediction "
               f"{errors['read_off']['mean_cm']:.2f} cm mean ({errors['read_off']['max_cm']:.2f} max), "

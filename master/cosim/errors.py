@@ -32,3 +32,6 @@ class SimulationError(RuntimeError):
         super().__init__(f"{component} failed the step at t = {time:.6g} s ({status}): {reason}")
         self.component, self.time, self.reason, self.status = component, time, reason, status
         self.trials = tuple(trials)  # batch positions the component blamed; () = the whole batch
+
+    def __reduce__(self):  # pickles whole, e.g. out of a worker process
+        return type(self), (self.component, self.time, self.reason, self.status, self.trials), self.__dict__

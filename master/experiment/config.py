@@ -135,6 +135,9 @@ def validate(config: dict) -> None:
     for key in ("trials", "steps", "resolution"):
         if experiment[key] < 1:
             raise ConfigError(f"experiment.{key} must be at least 1, got {experiment[key]}")
+    if experiment["batch_trials"] < 0:
+        raise ConfigError(f"experiment.batch_trials must be 0 (all of a decoder's trials) or more, got "
+                          f"{experiment['batch_trials']}")
     if experiment["resolution"] < 8:
         raise ConfigError(f"experiment.resolution must be at least 8 pixels, got {experiment['resolution']}")
     if experiment["resolution"] > MAX_RESOLUTION:
@@ -208,9 +211,10 @@ def memory_needed(config: dict) -> tuple[int, str]:
     pixels = experiment["resolution"] ** 2
     batch = len(experiment["conditions"]) * len(experiment["stimulations"]) * experiment["trials"]
     samples = int(train.get("samples", 0))
-    training = samples * pixels * 4 * 2  # float32 images, and the batches cut from them
-    recorded = (experiment["steps"] + 1) * batch * len(experiment["decoders"]) * BYTES_PER_TRIAL_STEP
-    images = batch * pixels * BYTES_PER_BATCH_PIXEL
+    decoders = len(experiment["decoders"])  # trained side by side, and their batches run side by side
+    training = samples * pixels * 4 * 2 * decoders  # float32 images, and the batches cut from them
+    recorded = (experiment["steps"] + 1) * batch * decoders * BYTES_PER_TRIAL_STEP
+    images = batch * decoders * pixels * BYTES_PER_BATCH_PIXEL
     side = f"{experiment['resolution']} x {experiment['resolution']} px"
     return max((training, f"{samples} training images of {side}"),
                (recorded + images, f"{batch * len(experiment['decoders'])} trials of {experiment['steps']} steps "

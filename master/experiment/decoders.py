@@ -1,10 +1,12 @@
 """The experiment's decoders: which checkpoint each uses, training the defaults once, the component.
 
-A checkpoint named in ``[decoder]`` is used as given. Otherwise the default decoder
-is trained once with the ``[train]`` settings at the experiment's resolution on the
-camera's images at ``[camera] blur`` and cached under ``$RHI_CACHE`` (default
-``~/.cache/rhi``), named by a hash of what made it (the settings, and the blur when it is
-not the default), so a changed setting trains a new one and an unchanged one is reused.
+A checkpoint named in ``[decoder]`` is used as given. Otherwise the default decoder is the one
+trained with the ``[train]`` settings at the experiment's resolution on the camera's images at
+``[camera] blur``, named by a hash of what made it (the settings, and the blur when it is not the
+default): the package ships the checkpoints of the default settings (``SHIPPED``, which `rhi train`
+reproduces byte for byte, README), and any other is trained once, the decoders side by side
+(:mod:`master.experiment.parallel`), and cached under ``$RHI_CACHE`` (default ``~/.cache/rhi``),
+so a changed setting trains a new one and an unchanged one is reused.
 Either way a loaded checkpoint is checked against the camera at the configured blur.
 """
 from __future__ import annotations
@@ -13,6 +15,7 @@ import functools
 import hashlib
 import json
 import os
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -23,7 +26,10 @@ from components.body import camera, kinematics
 from components.vision.checkpoint import CheckpointError
 from components.vision.component import Decoder, GenerativeModel, jacobian_images
 from master.cosim import ConfigError
-from master.experiment.training import load_decoder, train_decoder, train_settings
+from master.experiment.parallel import run_jobs
+from master.experiment.training import load_decoder, prepare_data, train_decoder, train_settings
+
+SHIPPED = Path(__file__).parent / "checkpoints"  # the default decoders, named as the cache names them
 
 
 def cache_folder() -> Path:
@@ -46,7 +52,10 @@ def checkpoint_path(kind: str, config: dict, must_exist: bool = False) -> str:
     # decoder cached before the blur was a parameter is unchanged.
     identity = [kind, settings] + ([{"camera_blur": blur}] if blur != camera.BLUR_SIGMA else [])
     key = hashlib.sha256(json.dumps(identity, sort_keys=True).encode()).hexdigest()[:16]
-    path = cache_folder() / f"{kind}-r{settings['resolution']}-{settings['preset']}-{key}.pt"
+    name = f"{kind}-r{settings['resolution']}-{settings['preset']}-{key}.pt"
+    path = cache_folder() / name
+    if not path.is_file() and (SHIPPED / name).is_file():
+        return str(SHIPPED / name)
     if must_exist and not path.is_file():
         raise ConfigError(f"no trained {kind} decoder for these settings at {path}: run `rhi experiment` "
                           "once, or name a checkpoint in [decoder]")
@@ -94,16 +103,25 @@ def check_cache_folder() -> Path:
 
 
 def ensure_checkpoints(config: dict, progress: bool = True) -> tuple[dict[str, str], dict[str, float]]:
-    """Every decoder the experiment needs, training (and caching) the missing defaults."""
-    paths, seconds = {}, {}
-    for kind in config["experiment"]["decoders"]:
-        paths[kind] = checkpoint_path(kind, config)
-        if not Path(paths[kind]).is_file():
-            Path(paths[kind]).parent.mkdir(parents=True, exist_ok=True)
-            began = time.perf_counter()
-            train_decoder(kind, paths[kind], train_settings(config), progress=progress,
-                          blur=config["camera"]["blur"])
-            seconds[kind] = time.perf_counter() - began
+    """Every decoder the experiment needs, training (and caching) the missing defaults side by side.
+
+    The training set is rendered (or read from the cache) once, here; then each missing decoder trains
+    in its own process. Returns the checkpoint of each decoder and the seconds spent: on the training
+    set ("data") and training each decoder (its process's wall time, hand-error measure included).
+    """
+    paths = {kind: checkpoint_path(kind, config) for kind in config["experiment"]["decoders"]}
+    missing = [kind for kind, path in paths.items() if not Path(path).is_file()]
+    if not missing:
+        return paths, {}
+    began = time.perf_counter()
+    settings, blur = train_settings(config), config["camera"]["blur"]
+    prepare_data(check_cache_folder(), settings, blur, progress)
+    seconds = {"data": time.perf_counter() - began}
+    if progress:
+        print(f"training the {' and '.join(missing)} decoder{'s' * (len(missing) > 1)} side by side "
+              f"({settings.preset}, {settings.resolution} px) into {cache_folder()}", file=sys.stderr)
+    trained = run_jobs(train_decoder, [(kind, paths[kind], settings, False, blur) for kind in missing])
+    seconds.update({kind: sum(spent.values()) for kind, (_, spent) in zip(missing, trained)})
     return paths, seconds
 
 
@@ -118,11 +136,12 @@ def _loaded(path: str, version: int, resolution: int, blur: float) -> Generative
     return load_decoder(path, resolution, blur)
 
 
-def decoder_component(kind: str, path: str, config: dict) -> Decoder:
-    """The exact decoder, or the linearised one of the fast mode when ``decoder.fast`` is true."""
+def decoder_component(kind: str, path: str, config: dict, fast: bool | None = None) -> Decoder:
+    """The exact decoder, or the linearised one of the fast mode when ``fast`` (default: ``decoder.fast``)
+    is true."""
     model = loaded(path, config["experiment"]["resolution"], config["camera"]["blur"])
     check_kind(kind, path, model)
-    if config["decoder"]["fast"]:
+    if config["decoder"]["fast"] if fast is None else fast:
         from components.vision.fast import LinearisedDecoder
         return LinearisedDecoder(model, name="decoder", relinearise_tolerance=config["decoder"]["relinearise_tolerance"])
     return Decoder(model, name="decoder")

@@ -11,27 +11,14 @@ import time
 import numpy as np
 
 from master.experiment import runner as experiment
+from master.experiment.runner import body_factory
 from master.experiment.decoders import check_decoders, ensure_checkpoints, jacobian_pair
+from master.experiment.fast_check import verdicts
 from master.experiment.measures import end_of_trial
 from master.experiment.protocol import plan, rubber_pose
 from master.outputs import figures, tables
 from master.outputs.files import atomic_write, check_output, output_folder, package_versions
 from master.outputs.animation import frames, gif_bytes
-
-
-def body_factory(path, config: dict | None = None):
-    """A callable making the body component (None: the native plant) and the body's parameter names.
-
-    The FMU is checked now, before any work: the body contract (every problem listed) and that its
-    binary loads. Its calls are limited to ``[fmu] step_timeout_s`` seconds each (0: no limit).
-    """
-    if path is None:
-        return None, None
-    from components.fmu_adapter import FMUComponent
-
-    limit = (config or {}).get("fmu", {}).get("step_timeout_s") or None
-    probe = FMUComponent(path, name="body", step_timeout=limit)
-    return (lambda: FMUComponent(path, name="body", step_timeout=limit)), set(probe.variables)
 
 
 def run_into(out, config: dict, body: str | None = None, force: bool = False, progress: bool = False) -> dict:
@@ -44,11 +31,14 @@ def run_into(out, config: dict, body: str | None = None, force: bool = False, pr
     started = time.perf_counter()
     check_output(out, force)
     check_decoders(config)
-    make_body, declared = body_factory(body, config)
+    declared = body_factory(body, config)[1]
     with output_folder(out, force) as staging:
         checkpoints, training_seconds = ensure_checkpoints(config, progress=progress)
-        trials, times, per_step, run_seconds, failures = experiment.run(config, checkpoints, make_body,
-                                                                        progress=progress)
+        began = time.perf_counter()
+        modes = verdicts(config, checkpoints)
+        check_seconds = time.perf_counter() - began
+        trials, times, per_step, run_seconds, failures = experiment.run(
+            config, checkpoints, body, progress=progress, fast={kind: mode["fast"] for kind, mode in modes.items()})
         final = end_of_trial(times, per_step)
         summary = tables.summary(trials, final, planned=tables.cells(plan(config)))
         atomic_write(staging / "summary.csv", tables.csv_text(tables.SUMMARY_COLUMNS, summary))
@@ -65,10 +55,10 @@ def run_into(out, config: dict, body: str | None = None, force: bool = False, pr
             "command": "rhi experiment", "configuration": config, "body": body or "native pymunk plant",
             "body_keys_not_declared": sorted(f"body.{key}" for key in config["body"]
                                              if declared is not None and key not in declared),
-            "checkpoints": checkpoints, "seeds": {"master": config["experiment"]["seed"],
+            "checkpoints": checkpoints, "fast_mode": modes, "seeds": {"master": config["experiment"]["seed"],
                                                   "trials": [t.__dict__ for t in trials]},
             "versions": package_versions(),
-            "timings_s": {"training": training_seconds, "trials": run_seconds,
+            "timings_s": {"training": training_seconds, "fast_check": check_seconds, "trials": run_seconds,
                           "total": time.perf_counter() - started},
             "figures": written + [name],
             "failed_trials": [{**trial.__dict__, "error": error} for trial, error in failures.items()],

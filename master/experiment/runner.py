@@ -1,7 +1,8 @@
 """The rubber-hand experiment: the protocol in lockstep batches, one per decoder, failures isolated.
 
 One batch per decoder: every condition x stimulation x trial of that decoder advances together
-(the batch dimension), so one decoder call serves them all.
+(the batch dimension), so one decoder call serves them all; the decoders' batches run side by side,
+each in its own process (:mod:`master.experiment.parallel`).
 """
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import numpy as np
 
 from master.cosim import SimulationError
 from master.experiment.measures import end_of_trial, measures
+from master.experiment.parallel import run_jobs
 from master.experiment.protocol import Trial, make_trial, plan
 from master.experiment.wiring import run_batch
 
@@ -38,47 +40,95 @@ def without_failures(run_trials, trials: list[Trial]):
     return None, trials, failures
 
 
-def run(config: dict, checkpoints: dict[str, str], body_factory=None, progress: bool = False):
-    """Every trial of the protocol, one lockstep batch per decoder.
+def run(config: dict, checkpoints: dict[str, str], body: str | None = None, progress: bool = False,
+        processes: int | None = None, fast: dict[str, bool] | None = None):
+    """Every trial of the protocol, one lockstep batch per decoder, the batches side by side.
 
+    body: an FMU to use as the body (None: the native plant). processes: most batches at once (default:
+    the usable cores; 1: one after the other, here); the numbers do not depend on it. fast: per decoder,
+    whether it runs in the fast mode (default: ``decoder.fast`` for all).
     Returns (trials, times, per_step, seconds, failures): ``per_step[key]`` has shape
     (steps + 1, n_trials) in the order of ``trials`` (the protocol's order, less any failed trial);
-    ``failures`` maps each failed trial to its error.
+    ``seconds`` maps each decoder to its batches' wall time (summed); ``failures`` maps each failed trial to
+    its error.
     """
-    from master.experiment.decoders import decoder_component  # torch is imported only when a run needs it
-
+    kinds = config["experiment"]["decoders"]
+    fast = fast or {kind: config["decoder"]["fast"] for kind in kinds}
+    batches = lockstep_batches(config)
+    jobs = [(config, batch[0].decoder, checkpoints[batch[0].decoder], batch, body, position if progress else None,
+             fast[batch[0].decoder]) for position, batch in enumerate(batches)]
     kept, blocks, seconds, failures, times = [], [], {}, {}, None
-    protocol = plan(config)
-    for kind in config["experiment"]["decoders"]:
-        def run_trials(batch, kind=kind):
-            bar = progress_bar(f"{kind} trials x{len(batch)}", config["experiment"]["steps"]) if progress else None
-            body = body_factory() if body_factory else None
-            try:
-                return run_batch(decoder_component(kind, checkpoints[kind], config), batch, config, body,
-                                 bar.update_to if bar else None)
-            finally:
-                if bar:
-                    bar.close()
-
-        began = time.perf_counter()
-        mine = [t for t in protocol if t.decoder == kind]
-        try:
-            result, batch, failed = without_failures(run_trials, mine)
-        except SimulationError as error:  # blames no trial: this decoder's remaining trials all fail with it
-            failed = dict(error.failures)
-            failed.update({t: str(error) for t in mine if t not in failed})
-            result, batch = None, []
-        seconds[kind] = time.perf_counter() - began
+    for trials, (batch, result, spent, failed) in zip(batches, run_jobs(decoder_batch, jobs, processes)):
+        seconds[trials[0].decoder] = seconds.get(trials[0].decoder, 0.0) + spent
         failures.update(failed)
         if result is not None:
             kept += batch
-            blocks.append(measures(result))
-            times = result.times
+            blocks.append(result["measures"])
+            times = result["times"]
     if not blocks:
         reasons = sorted(set(failures.values())) or ["the protocol has no trial"]
         raise SimulationError("experiment", 0.0, "every trial failed: " + "; ".join(reasons))
     per_step = {key: np.concatenate([block[key] for block in blocks], axis=1) for key in blocks[0]}
     return kept, times, per_step, seconds, failures
+
+
+def lockstep_batches(config: dict) -> list[list[Trial]]:
+    """The protocol cut into lockstep batches: each decoder's trials in the protocol's order, in batches of
+    ``experiment.batch_trials`` (0: one batch per decoder); the cut depends on the configuration alone."""
+    size = config["experiment"]["batch_trials"]
+    batches = []
+    for kind in config["experiment"]["decoders"]:
+        mine = [trial for trial in plan(config) if trial.decoder == kind]
+        batches += [mine[start:start + (size or len(mine))] for start in range(0, len(mine), size or len(mine))]
+    return batches
+
+
+def decoder_batch(config: dict, kind: str, checkpoint: str, trials: list[Trial], body: str | None,
+                  progress: int | None = None, fast: bool | None = None):
+    """One lockstep batch of one decoder's trials, a failing trial dropped and recorded (a job of :func:`run`).
+
+    progress: the line of this batch's progress bar (None: no bar). fast: as for ``decoder_component``.
+
+    Returns (kept trials, {"times", "measures"} or None, seconds, {failed trial: error}).
+    """
+    from master.experiment.decoders import decoder_component  # torch is imported only when a run needs it
+
+    make_body = body_factory(body, config)[0]
+
+    def run_trials(batch):
+        bar = None if progress is None else progress_bar(f"{kind} trials x{len(batch)}",
+                                                         config["experiment"]["steps"], progress)
+        try:
+            return run_batch(decoder_component(kind, checkpoint, config, fast), batch, config,
+                             make_body() if make_body else None, bar.update_to if bar else None)
+        finally:
+            if bar:
+                bar.close()
+
+    began = time.perf_counter()
+    try:
+        result, kept, failed = without_failures(run_trials, trials)
+    except SimulationError as error:  # blames no trial: this decoder's remaining trials all fail with it
+        failed = dict(error.failures)
+        failed.update({t: str(error) for t in trials if t not in failed})
+        result, kept = None, []
+    outcome = None if result is None else {"times": result.times, "measures": measures(result)}
+    return kept, outcome, time.perf_counter() - began, failed
+
+
+def body_factory(path, config: dict | None = None):
+    """A callable making the body component (None: the native plant) and the body's parameter names.
+
+    The FMU is checked now, before any work: the body contract (every problem listed) and that its
+    binary loads. Its calls are limited to ``[fmu] step_timeout_s`` seconds each (0: no limit).
+    """
+    if path is None:
+        return None, None
+    from components.fmu_adapter import FMUComponent
+
+    limit = (config or {}).get("fmu", {}).get("step_timeout_s") or None
+    probe = FMUComponent(path, name="body", step_timeout=limit)
+    return (lambda: FMUComponent(path, name="body", step_timeout=limit)), set(probe.variables)
 
 
 def trial_outcome(config: dict, decoder: str, condition: str, stimulation: str, index: int,
@@ -98,9 +148,9 @@ def trial_outcome(config: dict, decoder: str, condition: str, stimulation: str, 
             "seed": trial.seed, **{k: v for k, v in final.items() if k not in ("drift_cm", "force_x_n", "gamma")}}
 
 
-def progress_bar(description: str, total: int):
+def progress_bar(description: str, total: int, position: int = 0):
     from tqdm import tqdm
 
-    bar = tqdm(total=total, desc=description, unit="step", leave=False)
+    bar = tqdm(total=total, desc=description, unit="step", leave=False, position=position)
     bar.update_to = lambda done, _total: bar.update(done - bar.n)
     return bar

@@ -7,7 +7,7 @@ checkpoint, so conv and vae trained into the same folder share them.
 
 Example::
 
-    metadata = train_decoder("conv", "results/conv.pt", settings)            # blur=camera.BLUR_SIGMA
+    metadata, seconds = train_decoder("conv", "results/conv.pt", settings)   # blur=camera.BLUR_SIGMA
     model = load_decoder("results/conv.pt", resolution=64)
 """
 from __future__ import annotations
@@ -50,30 +50,39 @@ def data_path(folder: Path, settings: training.TrainSettings, blur: float = came
     return folder / f"decoder-data-r{settings.resolution}-n{settings.samples}-s{settings.seed}{blurred}.npz"
 
 
+def prepare_data(folder: Path, settings: training.TrainSettings, blur: float = camera.BLUR_SIGMA,
+                 progress: bool = False) -> training_data.TrainingData:
+    """The training set of ``settings`` at ``blur``, read from ``folder``'s cache or rendered into it."""
+    return training_data.cached(data_path(folder, settings, blur), settings.samples, settings.resolution,
+                                settings.seed, progress, blur)
+
+
 def train_decoder(kind: str, out: str | Path, settings: training.TrainSettings | None = None,
-                  progress: bool = True, blur: float = camera.BLUR_SIGMA) -> dict:
-    """Train a decoder of ``kind`` on camera images blurred by ``blur`` m and save it to ``out``;
-    returns the checkpoint metadata (with the camera's blur and signature)."""
+                  progress: bool = True, blur: float = camera.BLUR_SIGMA) -> tuple[dict, dict]:
+    """Train a decoder of ``kind`` on camera images blurred by ``blur`` m and save it to ``out``.
+
+    Returns the checkpoint metadata (with the camera's blur and signature) and the wall time of each
+    part, s (data, training, quality), which the checkpoint does not store.
+    """
     settings = settings or training.TrainSettings()
     out = check_target(out)
     started = time.perf_counter()
-    data = training_data.cached(data_path(out.parent, settings, blur), settings.samples, settings.resolution,
-                                settings.seed, progress, blur)
-    data_seconds = time.perf_counter() - started
+    data = prepare_data(out.parent, settings, blur, progress)
+    seconds = {"data": time.perf_counter() - started}
     model, report = training.train(kind, data.poses, data.images, data.rest_pose, data.half_ranges, settings,
                                    progress)
+    seconds["training"] = report["seconds"]
     metadata = training.checkpoint_metadata(kind, settings, data.rest_pose, data.half_ranges,
                                             data.content_hash, report)
-    metadata["data_seconds"] = data_seconds
     metadata["camera_blur"] = float(blur)
     metadata["camera_signature"] = training_data.camera_signature(settings.resolution, blur)
     if settings.quality_poses:
         began = time.perf_counter()
         metadata["hand_error"] = hand_error(GenerativeModel(model.decoder, data.rest_pose, data.half_ranges),
                                             settings.quality_poses, blur=blur)
-        metadata["quality_seconds"] = time.perf_counter() - began
+        seconds["quality"] = time.perf_counter() - began
     atomic_write(out, lambda file: checkpoint.write(file, model, metadata))
-    return metadata
+    return metadata, seconds
 
 
 def load_decoder(path: str | Path, resolution: int, blur: float = camera.BLUR_SIGMA) -> GenerativeModel:

@@ -1,0 +1,90 @@
+"""Whether the fast (linearised) decoder may stand in for the exact one, checked per decoder.
+
+The fast mode's error is not bounded by a formula: the decoders are ReLU networks, so g(mu) has kinks
+and a pointwise bound on the linearisation error is far looser than what reaches the drift. So the
+bound is checked where it matters, on the drift: each configured condition's first trial of the first
+stimulation runs to the end twice in one lockstep batch, with the exact and with the fast decoder,
+and the fast mode passes when every final drift is within ``DRIFT_BOUND`` of the largest exact one.
+
+A verdict depends on the checkpoint's bytes and on every setting that moves a trial, so it is stored
+under a hash of both: in the decoder cache, or shipped beside the package's default checkpoints
+(``SHIPPED``), and any other decoder or configuration is checked once, when first run.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import numpy as np
+
+from master.experiment.decoders import SHIPPED, cache_folder, check_cache_folder, decoder_component
+from master.experiment.measures import end_of_trial, measures
+from master.experiment.parallel import run_jobs
+from master.experiment.protocol import make_trial
+from master.experiment.wiring import run_batch
+from master.outputs.files import atomic_write
+
+DRIFT_BOUND = 0.01  # largest final-drift error of the fast mode, relative to the largest exact drift checked
+NOT_TRIAL_SETTINGS = {"experiment": {"decoders", "trials", "batch_trials"}, "decoder": {"conv_checkpoint", "vae_checkpoint", "fast"},
+                      "train": None, "fmu": None}  # what does not move a checked trial (None: the whole table)
+
+
+def verdict_key(checkpoint: str, config: dict) -> str:
+    """sha256 of the checkpoint's bytes and of the settings that move a trial (hex, 16 characters)."""
+    settings = {table: {key: value for key, value in values.items() if key not in NOT_TRIAL_SETTINGS.get(table, ())}
+                for table, values in config.items() if table not in NOT_TRIAL_SETTINGS or NOT_TRIAL_SETTINGS[table]}
+    digest = hashlib.sha256(Path(checkpoint).read_bytes())
+    digest.update(json.dumps(settings, sort_keys=True, default=str).encode())
+    return digest.hexdigest()[:16]
+
+
+def checked_trials(config: dict, kind: str) -> list:
+    """The trials the check runs: each configured condition, trial 0 of the first stimulation."""
+    stimulation = config["experiment"]["stimulations"][0]
+    return [make_trial(config, kind, condition, stimulation, 0) for condition in config["experiment"]["conditions"]]
+
+
+def check(config: dict, kind: str, checkpoint: str) -> dict:
+    """Run the checked trials with the exact and the fast decoder; the verdict (a job of :func:`verdicts`).
+
+    Returns
+    -------
+    dict
+        ``fast`` (bool: the fast mode passed), ``relative_error`` (largest |fast - exact| final drift
+        over the largest |exact| one), ``bound``, ``trials`` (condition names) and the final drifts, cm.
+    """
+    trials = checked_trials(config, kind)
+    drifts = {}
+    for mode in (False, True):
+        result = run_batch(decoder_component(kind, checkpoint, config, fast=mode), trials, config)
+        drifts[mode] = end_of_trial(result.times, measures(result))["drift_cm"]
+    scale = float(np.abs(drifts[False]).max())
+    error = float(np.abs(drifts[True] - drifts[False]).max() / scale) if scale > 0 else float("inf")
+    return {"fast": error <= DRIFT_BOUND, "reason": f"checked: drift error {error:.2%} of the largest drift "
+                                                    f"({'within' if error <= DRIFT_BOUND else 'beyond'} {DRIFT_BOUND:.0%})",
+            "relative_error": error, "bound": DRIFT_BOUND,
+            "trials": [f"{t.condition} {t.stimulation} 0" for t in trials],
+            "drift_exact_cm": drifts[False].tolist(), "drift_fast_cm": drifts[True].tolist()}
+
+
+def verdicts(config: dict, checkpoints: dict[str, str]) -> dict[str, dict]:
+    """Per decoder: whether it runs fast, and why. ``[decoder] fast = false`` runs every decoder exact;
+    ``true`` runs each decoder fast if its check passes (stored, or run now, the decoders side by side)."""
+    if not config["decoder"]["fast"]:
+        return {kind: {"fast": False, "reason": "decoder.fast = false"} for kind in checkpoints}
+    found, missing = {}, []
+    for kind, checkpoint in checkpoints.items():
+        name = f"fast-check-{kind}-{verdict_key(checkpoint, config)}.json"
+        stored = next((folder / name for folder in (cache_folder(), SHIPPED) if (folder / name).is_file()), None)
+        if stored:
+            found[kind] = json.loads(stored.read_text())
+        else:
+            missing.append((kind, cache_folder() / name))
+    if missing:
+        check_cache_folder()
+        for (kind, path), verdict in zip(missing, run_jobs(check, [(config, kind, checkpoints[kind])
+                                                                  for kind, _ in missing])):
+            atomic_write(path, json.dumps(verdict, indent=2) + "\n")
+            found[kind] = verdict
+    return {kind: found[kind] for kind in checkpoints}

@@ -1,0 +1,61 @@
+"""The fast mode's check (master.experiment.fast_check): its verdict's numbers, where it is kept, when it is redone."""
+import json
+
+import numpy as np
+import pytest
+
+from master.experiment import config as configuration
+from master.experiment import fast_check, runner
+from master.experiment.decoders import checkpoint_path
+from master.experiment.measures import end_of_trial
+from master.experiment.protocol import make_trial
+
+
+@pytest.fixture
+def quick(quick_cache, monkeypatch, tmp_path):
+    """The --quick configuration over a copy of the session's decoders in a cache of this test's own."""
+    for path in quick_cache.glob("*.pt"):
+        (tmp_path / path.name).write_bytes(path.read_bytes())
+    monkeypatch.setenv("RHI_CACHE", str(tmp_path))
+    config = configuration.load(quick=True, overrides={"experiment.decoders": ["conv"], "decoder.fast": True})
+    return config, {"conv": checkpoint_path("conv", config, must_exist=True)}
+
+
+def test_the_verdict_compares_the_fast_and_exact_drifts_of_the_protocol_s_own_trials(quick, tmp_path):
+    config, checkpoints = quick
+    verdict = fast_check.verdicts(config, checkpoints)["conv"]
+    exact = np.array(verdict["drift_exact_cm"])
+    fast = np.array(verdict["drift_fast_cm"])
+    assert verdict["relative_error"] == pytest.approx(np.abs(fast - exact).max() / np.abs(exact).max(), rel=1e-12)
+    assert verdict["fast"] == (verdict["relative_error"] <= fast_check.DRIFT_BOUND)
+    # The exact drifts are those of the experiment run exact: same trials and seeds, in a batch of another size
+    # (the decoder's float32 sums then differ in their last bits, hence the tolerance).
+    trials, times, per_step, _, _ = runner.run({**config, "decoder": {**config["decoder"], "fast": False}},
+                                               checkpoints, processes=1)
+    final = end_of_trial(times, per_step)["drift_cm"]
+    for name, drift in zip(verdict["trials"], exact):
+        condition, stimulation, index = name.split()
+        assert drift == pytest.approx(final[trials.index(make_trial(config, "conv", condition, stimulation,
+                                                                    int(index)))], rel=1e-6, abs=1e-9)
+    stored = list(tmp_path.glob("fast-check-conv-*.json"))
+    assert len(stored) == 1 and json.loads(stored[0].read_text()) == verdict
+
+
+def test_a_stored_verdict_is_reused_and_a_trial_setting_asks_for_a_new_one(quick, monkeypatch):
+    config, checkpoints = quick
+    first = fast_check.verdicts(config, checkpoints)
+    monkeypatch.setattr(fast_check, "check", lambda *job: pytest.fail("checked again"))
+    more_trials = {**config, "experiment": {**config["experiment"], "trials": 4}}
+    assert fast_check.verdicts(more_trials, checkpoints) == first  # the trial count moves no checked trial
+    assert fast_check.verdict_key(checkpoints["conv"], config) != fast_check.verdict_key(
+        checkpoints["conv"], {**config, "decoder": {**config["decoder"], "visual_variance": 30.0}})
+
+
+def test_a_decoder_beyond_the_bound_runs_exact_and_fast_false_checks_nothing(quick, monkeypatch):
+    config, checkpoints = quick
+    monkeypatch.setattr(fast_check, "DRIFT_BOUND", -1.0)  # no error is within it
+    verdict = fast_check.verdicts(config, checkpoints)["conv"]
+    assert verdict["fast"] is False and "beyond" in verdict["reason"]
+    monkeypatch.setattr(fast_check, "check", lambda *job: pytest.fail("checked with fast = false"))
+    exact = {**config, "decoder": {**config["decoder"], "fast": False}}
+    assert fast_check.verdicts(exact, checkpoints) == {"conv": {"fast": False, "reason": "decoder.fast = false"}}

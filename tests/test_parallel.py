@@ -1,0 +1,32 @@
+"""master.experiment.parallel: jobs side by side in spawned processes give what they give one after the other."""
+import pytest
+
+from master.cosim import SimulationError
+from master.experiment import parallel
+
+
+def job(seed: int, fail: bool = False):
+    """A job whose numbers use torch (threads, BLAS): a matrix product seeded per job."""
+    import torch
+
+    if fail:
+        raise SimulationError("body", 0.5, "NaN in q", trials=(1,))
+    generator = torch.Generator().manual_seed(seed)
+    a = torch.randn(64, 64, generator=generator, dtype=torch.float64)
+    return seed, torch.get_num_threads(), (a @ a.T @ a).sum().item()
+
+
+def test_jobs_in_processes_equal_jobs_here_in_order():
+    jobs = [(seed,) for seed in (3, 1, 2)]
+    here = parallel.run_jobs(job, jobs, processes=1)
+    side_by_side = parallel.run_jobs(job, jobs, processes=2)
+    assert [result[0] for result in side_by_side] == [3, 1, 2]       # the order of the jobs
+    assert all(result[1] == parallel.JOB_THREADS for result in side_by_side + here)  # one torch thread each
+    assert side_by_side == here                                      # bit for bit
+
+
+def test_a_job_s_error_reaches_the_caller_whole():
+    with pytest.raises(SimulationError) as raised:
+        parallel.run_jobs(job, [(1,), (2, True)], processes=2)
+    assert raised.value.trials == (1,) and raised.value.component == "body" and raised.value.time == 0.5
+    assert str(raised.value) == str(SimulationError("body", 0.5, "NaN in q", trials=(1,)))
