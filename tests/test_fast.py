@@ -10,6 +10,7 @@ from components.component import ComponentError
 from components.vision.component import Decoder, GenerativeModel, resolution_weight, visual_drive
 from components.vision import optimised as optimisation
 from components.vision.fast import DEFAULT_TOLERANCE, LinearisedDecoder
+from master.experiment.fast_check import DRIFT_BOUND
 from components.vision.optimised import SubPixelTransposedConv, TangentModel, optimised
 from components.vision.networks import normalise
 from master import experiment
@@ -300,7 +301,7 @@ def quick_conv(quick_cache):
 
 
 def test_fast_drift_is_the_exact_drift_to_the_first_order_error_of_its_drive(quick_conv):
-    """The trained --quick conv decoder, the quick protocol's six trials (300 steps), default tolerance 0.01 deg.
+    """The trained --quick conv decoder, the quick protocol's six trials (300 steps), the default tolerance.
 
     The bound. The fast belief obeys the exact belief's equation but for its drive, which differs from the exact
     drive at the same mu and image by the defect delta_n (recorded each step). To first order the belief error
@@ -308,8 +309,9 @@ def test_fast_drift_is_the_exact_drift_to_the_first_order_error_of_its_drive(qui
     sum_n h gamma_n |delta_n| (1 - h/Sigma_p)^(N-1-n). Neglected: the visual term's own response to e, at a rate
     gamma * visual_stiffness, checked here to stay below 20 % of the proprioceptive rate 1/Sigma_p; hence the
     factor 1.25. Measured: |e_N| / E from 0.93 to 3.6 over tolerances 0.0025-0.08 deg and both quick decoders
-    (0.97-3.0 here). The final drift error is then within 0.1 % of the largest drift (the README's claim for the
-    default tolerance; measured 0.058 %) and within the hand's Jacobian times 1.25 E."""
+    (0.97-3.0 here). The final drift error is then within the hand's Jacobian times 1.25 E, and within the fast
+    check's bound (master.experiment.fast_check.DRIFT_BOUND) of the largest drift; the final error does not fall
+    monotonically with the tolerance (README, Fast mode)."""
     config = configuration.load(quick=True)
     trials = [t for t in experiment.plan(config) if t.decoder == "conv"]
     exact = experiment.run_batch(Decoder(quick_conv, threads=1), trials, config)
@@ -333,4 +335,4 @@ def test_fast_drift_is_the_exact_drift_to_the_first_order_error_of_its_drive(qui
     drift_exact, drift_fast = (experiment.measures(run)["drift_cm"][-1] for run in (exact, fast))
     hand = np.linalg.norm(kinematics.jacobian(*fast.values["brain.mu"][-1].T)[:, 0, :], axis=1)  # m/deg, |dx/dq|
     assert (np.abs(drift_fast - drift_exact) <= 100 * hand * 1.25 * bound + 1e-9).all()
-    assert np.abs(drift_fast - drift_exact).max() <= 1e-3 * np.abs(drift_exact).max()
+    assert np.abs(drift_fast - drift_exact).max() <= DRIFT_BOUND * np.abs(drift_exact).max()

@@ -22,7 +22,7 @@ The prediction output is computed only if read (:class:`~components.component.De
 
 Example::
 
-    decoder = LinearisedDecoder("conv.pt", relinearise_tolerance=0.01)
+    decoder = LinearisedDecoder("conv.pt", relinearise_tolerance=0.005)
     ...simulate as with Decoder...; decoder.decoder_points   # linearisations the decoder evaluated
 """
 from __future__ import annotations
@@ -36,7 +36,7 @@ from components.variables import Variable
 from components.vision.component import Decoder, jacobian_gram, largest_eigenvalue, visual_error
 from components.vision.optimised import optimised
 
-DEFAULT_TOLERANCE = 0.01  # deg: final drift within 0.1 % of the exact integrator's (README, fast mode)
+DEFAULT_TOLERANCE = 0.005  # deg: every cell's final drift within 1 % of the exact integrator's (README, Fast mode)
 
 
 def linearised_terms(projected, squared, gram, step):

@@ -136,15 +136,17 @@ def _loaded(path: str, version: int, resolution: int, blur: float) -> Generative
     return load_decoder(path, resolution, blur)
 
 
-def decoder_component(kind: str, path: str, config: dict, fast: bool | None = None) -> Decoder:
+def decoder_component(kind: str, path: str, config: dict, fast: bool | None = None,
+                      threads: int | None = None) -> Decoder:
     """The exact decoder, or the linearised one of the fast mode when ``fast`` (default: ``decoder.fast``)
-    is true."""
+    is true; on ``threads`` torch threads (default: the usable cores)."""
     model = loaded(path, config["experiment"]["resolution"], config["camera"]["blur"])
     check_kind(kind, path, model)
     if config["decoder"]["fast"] if fast is None else fast:
         from components.vision.fast import LinearisedDecoder
-        return LinearisedDecoder(model, name="decoder", relinearise_tolerance=config["decoder"]["relinearise_tolerance"])
-    return Decoder(model, name="decoder")
+        return LinearisedDecoder(model, name="decoder", relinearise_tolerance=config["decoder"]["relinearise_tolerance"],
+                                 threads=threads)
+    return Decoder(model, name="decoder", threads=threads)
 
 
 def jacobian_pair(kind: str, path: str, config: dict) -> np.ndarray:

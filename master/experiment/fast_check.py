@@ -20,7 +20,7 @@ import numpy as np
 
 from master.experiment.decoders import SHIPPED, cache_folder, check_cache_folder, decoder_component
 from master.experiment.measures import end_of_trial, measures
-from master.experiment.parallel import run_jobs
+from master.experiment.parallel import JOB_THREADS, run_jobs
 from master.experiment.protocol import make_trial
 from master.experiment.wiring import run_batch
 from master.outputs.files import atomic_write
@@ -57,7 +57,7 @@ def check(config: dict, kind: str, checkpoint: str) -> dict:
     trials = checked_trials(config, kind)
     drifts = {}
     for mode in (False, True):
-        result = run_batch(decoder_component(kind, checkpoint, config, fast=mode), trials, config)
+        result = run_batch(decoder_component(kind, checkpoint, config, mode, JOB_THREADS), trials, config)
         drifts[mode] = end_of_trial(result.times, measures(result))["drift_cm"]
     scale = float(np.abs(drifts[False]).max())
     error = float(np.abs(drifts[True] - drifts[False]).max() / scale) if scale > 0 else float("inf")

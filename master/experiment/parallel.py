@@ -3,7 +3,8 @@
 A job's numbers must not depend on the schedule. So each job runs in a spawned process (nothing
 inherited from the parent's torch or OpenMP state) with one torch thread, whichever job runs beside
 it; with a single job, or a single usable core, the jobs run here in turn with one torch thread too,
-and give the same bytes. An interruption (Ctrl-C, SIGTERM) terminates the workers at once.
+and give the same bytes. A job that builds a component which sets torch's threads itself (a
+decoder) gives it ``JOB_THREADS``. An interruption (Ctrl-C, SIGTERM) terminates the workers at once.
 
 Example::
 
@@ -26,8 +27,15 @@ def usable_cores() -> int:
         return os.cpu_count() or 1
 
 
+def process_count(jobs: int, processes: int | None = None) -> int:
+    """How many processes :func:`run_jobs` uses for ``jobs`` jobs (1: none, the jobs run here)."""
+    return max(1, min(processes or usable_cores(), jobs))
+
+
 def _start_worker() -> None:
-    """A worker leaves Ctrl-C to the parent (which terminates it) and uses one torch thread."""
+    """A worker leaves Ctrl-C to the parent (which terminates it) and uses one torch thread, whose OpenMP
+    waits yield the core (as `rhi` sets for itself, master.commands.cli) rather than spin."""
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     import torch
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -52,8 +60,7 @@ def run_jobs(function, jobs: list[tuple], processes: int | None = None) -> list:
     list
         Each job's result, in the order of ``jobs``. A job's exception is raised here.
     """
-    processes = min(processes or usable_cores(), len(jobs))
-    if processes <= 1:
+    if process_count(len(jobs), processes) <= 1:
         import torch
 
         threads = torch.get_num_threads()
@@ -62,7 +69,7 @@ def run_jobs(function, jobs: list[tuple], processes: int | None = None) -> list:
             return [function(*job) for job in jobs]
         finally:
             torch.set_num_threads(threads)
-    pool = multiprocessing.get_context("spawn").Pool(processes, initializer=_start_worker)
+    pool = multiprocessing.get_context("spawn").Pool(process_count(len(jobs), processes), initializer=_start_worker)
     try:
         pending = [pool.apply_async(function, job) for job in jobs]
         results = [result.get() for result in pending]

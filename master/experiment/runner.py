@@ -12,7 +12,7 @@ import numpy as np
 
 from master.cosim import SimulationError
 from master.experiment.measures import end_of_trial, measures
-from master.experiment.parallel import run_jobs
+from master.experiment.parallel import JOB_THREADS, process_count, run_jobs
 from master.experiment.protocol import Trial, make_trial, plan
 from master.experiment.wiring import run_batch
 
@@ -55,8 +55,10 @@ def run(config: dict, checkpoints: dict[str, str], body: str | None = None, prog
     kinds = config["experiment"]["decoders"]
     fast = fast or {kind: config["decoder"]["fast"] for kind in kinds}
     batches = lockstep_batches(config)
-    jobs = [(config, batch[0].decoder, checkpoints[batch[0].decoder], batch, body, position if progress else None,
-             fast[batch[0].decoder]) for position, batch in enumerate(batches)]
+    side_by_side = process_count(len(batches), processes) > 1  # each bar its own line, else all on one
+    jobs = [(config, batch[0].decoder, checkpoints[batch[0].decoder], batch, body,
+             (position if side_by_side else 0) if progress else None, fast[batch[0].decoder])
+            for position, batch in enumerate(batches)]
     kept, blocks, seconds, failures, times = [], [], {}, {}, None
     for trials, (batch, result, spent, failed) in zip(batches, run_jobs(decoder_batch, jobs, processes)):
         seconds[trials[0].decoder] = seconds.get(trials[0].decoder, 0.0) + spent
@@ -99,7 +101,7 @@ def decoder_batch(config: dict, kind: str, checkpoint: str, trials: list[Trial],
         bar = None if progress is None else progress_bar(f"{kind} trials x{len(batch)}",
                                                          config["experiment"]["steps"], progress)
         try:
-            return run_batch(decoder_component(kind, checkpoint, config, fast), batch, config,
+            return run_batch(decoder_component(kind, checkpoint, config, fast, JOB_THREADS), batch, config,
                              make_body() if make_body else None, bar.update_to if bar else None)
         finally:
             if bar:
