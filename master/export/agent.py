@@ -115,14 +115,16 @@ def parameter_paths(system: System) -> list[str]:
     """The inner parameters that are the agent's parameters: every scalar one the experiment sets
     (``wiring.PARAMETER_SOURCES``) but those fixed when the agent is built (constructor arguments,
     the blur the decoder was trained on) and the derived ones (the brain's start belief, the rest pose)."""
-    paths = []
-    for name, component in system.components.items():
-        for variable in component.variables.values():
-            path = f"{name}.{variable.name}"
-            if (variable.causality == "parameter" and variable.type != "Array" and path in wiring.PARAMETER_SOURCES
-                    and path not in wiring.CONSTRUCTED and path not in FIXED_AT_BUILD and path not in wiring.DERIVED):
-                paths.append(path)
-    return paths
+    return [f"{name}.{variable.name}" for name, component in system.components.items()
+            for variable in component.variables.values()
+            if variable.causality == "parameter" and variable.type != "Array" and exposed(f"{name}.{variable.name}")]
+
+
+def exposed(path: str) -> bool:
+    """Whether the experiment's parameter ``path`` (``component.variable``) is an agent parameter: set by the
+    experiment, not the body's, not fixed when the agent is built, not derived."""
+    return (path in wiring.PARAMETER_SOURCES and not path.startswith(BODY + ".") and path not in wiring.CONSTRUCTED
+            and path not in FIXED_AT_BUILD and path not in wiring.DERIVED)
 
 
 def configured(path: str, variable: Variable, config: dict):
