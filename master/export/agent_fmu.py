@@ -119,3 +119,35 @@ def build_agent_fmu(out, kind: str, config: dict, checkpoint: str) -> Path:
                 sys.path[:] = saved_path
 
         return built_beside(out, build)
+
+
+def export_agent(out, config: dict, kind: str | None = None) -> tuple[Path, str]:
+    """``rhi export-agent``: check everything, train the decoder if it is the default and not cached yet
+    (as ``rhi experiment`` does), and build the agent FMU at ``out``.
+
+    Parameters
+    ----------
+    out : path
+        The FMU to write (checked before any work).
+    config : dict
+        A loaded configuration; ``decoder.<kind>_checkpoint`` names a checkpoint, or the default is used.
+    kind : str, optional
+        ``conv`` or ``vae`` (default: the configuration's first decoder).
+
+    Returns
+    -------
+    (Path, str)
+        The FMU and the checkpoint it carries.
+    """
+    from master.experiment.decoders import check_decoders, ensure_checkpoints
+    from master.experiment.wiring import check_parameters
+
+    kind = kind or config["experiment"]["decoders"][0]
+    if kind not in ("conv", "vae"):
+        raise ConfigError(f"--decoder {kind!r} is not one of conv, vae")
+    out = check_target(out)
+    config = {**config, "experiment": {**config["experiment"], "decoders": [kind]}}
+    check_parameters(config)
+    check_decoders(config)
+    checkpoints, _ = ensure_checkpoints(config, progress=False)
+    return build_agent_fmu(out, kind, config, checkpoints[kind]), checkpoints[kind]

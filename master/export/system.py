@@ -462,3 +462,77 @@ def final_drift_cm(values: dict, agent: str = AGENT, body: str = BODY) -> float:
     perceived, _ = kinematics.forward(values[f"{agent}.mu_shoulder"][-1], values[f"{agent}.mu_elbow"][-1])
     real, _ = kinematics.forward(values[f"{body}.q_shoulder"][-1], values[f"{body}.q_elbow"][-1])
     return float(100.0 * (perceived - real))
+
+
+def parse_trial(text: str, config: dict, kind: str) -> Trial:
+    """``left/sync/0`` -> the protocol's trial of decoder ``kind`` (ConfigError naming what is unknown)."""
+    from master.experiment.protocol import make_trial
+
+    parts = text.split("/")
+    if len(parts) != 3 or not parts[2].isdigit():
+        raise ConfigError(f"--trial {text!r} must be CONDITION/STIMULATION/INDEX, e.g. left/sync/0")
+    condition, stimulation, index = parts[0], parts[1], int(parts[2])
+    for table, value in (("conditions", condition), ("stimulations", stimulation)):
+        if value not in config[table]:
+            raise ConfigError(f"--trial {text!r}: no {table[:-1]} {value!r} (have: {', '.join(config[table])})")
+    return make_trial(config, kind, condition, stimulation, index)
+
+
+def export_system(out, config: dict, kind: str | None = None, variant: str = "native", body: str | None = None,
+                  trial: str | None = None) -> Path:
+    """``rhi export-system``: the agent FMU, a body FMU (``variant`` exported, or the user's ``body``, checked
+    against the body contract) and the SSP package around them, at ``out``; everything checked first.
+
+    Parameters
+    ----------
+    out : path
+        The .ssp to write.
+    config : dict
+        A loaded configuration (protocol, step size, steps, parameters, decoder).
+    kind : str, optional
+        The decoder (default: the configuration's first).
+    variant : str
+        The body exported with ``rhi export-body`` (native, kinematic, kinematic-c), when ``body`` is None.
+    body : str, optional
+        A body FMU of one's own.
+    trial : str, optional
+        ``CONDITION/STIMULATION/INDEX``: the trial the SSD binds (default: the protocol's first).
+
+    Returns
+    -------
+    Path
+        ``out``.
+    """
+    from components.fmu_adapter import BODY_CONTRACT, check_contract
+    from master.export.agent_fmu import export_agent
+    from master.export.body import VARIANT_NAMES, export_body
+
+    out = check_output_file(out, "SSP file", ".ssp")
+    kind = kind or config["experiment"]["decoders"][0]
+    bound = parse_trial(trial, config, kind) if trial else None
+    if body is not None:
+        problems = check_contract(body, BODY_CONTRACT)
+        if problems:
+            raise ConfigError(f"--body {body} cannot be used ({len(problems)} problem{'s' * (len(problems) > 1)}): "
+                              + "; ".join(problems))
+    elif variant not in VARIANT_NAMES:
+        raise ConfigError(f"--body-variant {variant!r} is not one of {', '.join(VARIANT_NAMES)}")
+    with tempfile.TemporaryDirectory(prefix="rhi_system_") as folder:
+        agent, _ = export_agent(Path(folder) / "Agent.fmu", config, kind)
+        body = body or str(export_body(Path(folder) / "Body.fmu", variant))
+        return build_ssp(out, str(agent), body, config, kind, bound)
+
+
+def write_csv(out, values: dict) -> Path:
+    """The run's values as CSV (``time`` first, one row per step), written whole or not at all."""
+    import csv
+    import io
+
+    names = ["time"] + sorted(k for k in values if k != "time")
+    text = io.StringIO()
+    writer = csv.writer(text, lineterminator="\n")
+    writer.writerow(names)
+    for row in zip(*(values[name] for name in names)):
+        writer.writerow([repr(float(v)) for v in row])
+    atomic_write(out, text.getvalue())
+    return Path(out)
