@@ -230,3 +230,31 @@ def test_rhi_export_agent_writes_a_valid_fmu_and_refuses_in_one_line(quick, tmp_
         lines = done.stderr.strip().splitlines()
         assert done.returncode == 2 and len(lines) == 1 and message in lines[0], (args, done.stderr)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["A.fmu", "folder.fmu"]  # nothing half-written
+
+
+def test_the_readme_table_of_ports_is_the_agents_declarations(quick):
+    """README's table of the agent FMU's ports, row by row, against the agent's declared variables."""
+    import math
+
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    section = text[text.index("| port | causality | type | unit | range | start | meaning |"):]
+    rows = section[:section.index("\n\n")].splitlines()[2:]
+    agent = Agent(quick["decoder"]["conv_checkpoint"], "conv", quick)
+
+    def number(v, kind):
+        return {"−∞": -math.inf, "∞": math.inf}[v] if v in ("−∞", "∞") else (int(v) if kind == "Integer" else float(v))
+
+    assert [row.split("|")[1].strip().strip("`") for row in rows] == list(agent.variables)
+    for row in rows:
+        name, causality, kind, unit, bounds, start, meaning = (cell.strip() for cell in row.split("|")[1:-1])
+        variable = agent.variables[name.strip("`")]
+        assert (causality, kind, unit, meaning) == (variable.causality, variable.type, variable.unit or "1",
+                                                    variable.description), name
+        low, high = (number(v.strip(), kind) for v in bounds.strip("[]").split(","))
+        assert low == (-math.inf if variable.min is None else variable.min), name
+        assert high == (math.inf if variable.max is None else variable.max), name
+        if variable.causality == "output":
+            assert start == ""
+        else:
+            value = {"NaN": math.nan, "∞": math.inf}.get(start) if start in ("NaN", "∞") else float(start)
+            assert value == variable.start or (math.isnan(value) and math.isnan(variable.start)), name
