@@ -91,6 +91,7 @@ def inner_system(decoder, config: dict) -> System:
 
 
 def touches_body(connection) -> bool:
+    """Whether a :class:`~master.cosim.Connection` has the body at either end."""
     return BODY in (connection.source.partition(".")[0], connection.target.partition(".")[0])
 
 
