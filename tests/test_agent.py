@@ -258,3 +258,14 @@ def test_the_readme_table_of_ports_is_the_agents_declarations(quick):
         else:
             value = {"NaN": math.nan, "∞": math.inf}.get(start) if start in ("NaN", "∞") else float(start)
             assert value == variable.start or (math.isnan(value) and math.isnan(variable.start)), name
+
+
+def test_an_agent_without_a_body_or_with_a_bad_delay_law_fails_naming_why(quick):
+    from components.component import ComponentError
+    from master.cosim import SimulationError
+
+    checkpoint = quick["decoder"]["conv_checkpoint"]
+    with pytest.raises(SimulationError, match=r"agent failed the step at t = 0 s .*q_shoulder is not finite \(nan\)"):
+        simulate(System([Agent(checkpoint, "conv", quick)], []), 0.02, 0.02)
+    with pytest.raises(ComponentError, match=r"stimulus.delay_max = \[0.1\] is below delay_min = \[0.5\]"):
+        simulate(System([Agent(checkpoint, "conv", quick)], []), 0.02, 0.02, parameters={"agent.delay_min": 0.5})

@@ -227,23 +227,28 @@ class Agent(Component):
             if all(np.array_equal(used[k], self._used[k]) for k in used):
                 return
             self._session.close()
+        if self._used is not None:  # its components ran (or failed to start): a terminated one cannot start again
             self._system = self._build()
+        self._session, self._used = None, used
         try:
             self._session = Session(self._system, self.start_time, self.stop_time, "gauss-seidel", self.batch_size,
                                     self.inner_parameters())
         except SimulationError as error:
             raise StepFailure(str(error), trials=error.trials) from None
-        self._used = used
         self._publish()
 
     def publish_initial(self):
         """Build the inner session (the FMI initialization of the five components) and publish its outputs,
-        readable in initialization mode."""
-        self._start()
+        readable in initialization mode. A failure is reported when initialization ends, where masters look
+        (:meth:`initialize` starts again, and fails again)."""
+        try:
+            self._start()
+        except (StepFailure, ComponentError):
+            pass
 
     def initialize(self):
         """As :meth:`publish_initial`, again only if a parameter changed in initialization mode."""
-        self._start()
+        self._start()  # again after a failed start: the parameters may have been mended since
 
     def step(self, t, h):
         session = self._session
