@@ -412,7 +412,7 @@ def run_ssp(path, master: str, trial: str | None = None, steps: int | None = Non
     -------
     dict
         ``"time"`` (steps,) s, the end of each step; ``"component.variable"`` (steps,) after each step,
-        for every connector of the SSD.
+        for every Real input and output of the components (FMPy: every connector of the SSD).
 
     Raises
     ------
@@ -421,8 +421,12 @@ def run_ssp(path, master: str, trial: str | None = None, steps: int | None = Non
     SimulationError
         The master failed (its one-line reason).
     """
+    import importlib.util
+
     if master not in MASTERS:
         raise ConfigError(f"--master {master!r} is not one of {', '.join(MASTERS)}")
+    if master == "libcosim" and importlib.util.find_spec("libcosimpy") is None:
+        raise ConfigError("--master libcosim needs libcosimpy (pip install libcosimpy==0.0.6, in the test extra)")
     package = read_ssp(path)
     parameters = trial_parameters(package, trial)
     if package.step_size is None:
@@ -438,8 +442,8 @@ def run_ssp(path, master: str, trial: str | None = None, steps: int | None = Non
         request.write_text(json.dumps({
             "ssp": os.path.abspath(package.path), "master": master, "steps": steps, "step_size": package.step_size,
             "parameters": {c: {k: [t, v] for k, (t, v) in values.items()} for c, values in parameters.items()},
-            "connectors": {c: [v for v, (causality, _) in package.variables[c].items() if causality in ("input", "output")]
-                           for c in package.components},
+            "connectors": {c: [v for v, (causality, kind) in package.variables[c].items()
+                               if causality in ("input", "output") and kind == "Real"] for c in package.components},
             "out": str(Path(folder) / "result.npz")}))
         env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(Path(__file__).resolve().parents[2]),
                                                                           os.environ.get("PYTHONPATH")]))}
