@@ -1,4 +1,4 @@
-"""`rhi export-agent` and `rhi export-system`: arguments in, the written file printed."""
+"""`rhi export-agent`, `rhi export-system` and `rhi run-system`: arguments in, the written file printed."""
 from __future__ import annotations
 
 import os
@@ -8,6 +8,7 @@ from master.experiment import config as configuration
 
 
 def add_common(parser) -> None:
+    """The options export-agent and export-system share: the configuration and the decoder."""
     parser.add_argument("--config", metavar="FILE", help="TOML file overriding master/defaults.toml")
     parser.add_argument("--quick", action="store_true", help="the --quick settings (a 32 px tiny decoder)")
     parser.add_argument("--decoder", metavar="KIND", help="conv or vae (default: the configuration's first)")
