@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-COMMANDS = ("train", "experiment", "export-body", "sweep", "bench")
+COMMANDS = ("train", "experiment", "export-body", "export-agent", "export-system", "run-system", "sweep", "bench")
 
 
 def rhi(*args, cwd=None, env=None):
@@ -47,6 +47,9 @@ BAD_INPUT = {
               "unknown config key brain.sigma_p"),
     "experiment": (["--quick", "--config", "{tmp}/bad.toml", "--out", "{tmp}/out"], "unknown config key brain.sigma_p"),
     "export-body": (["--variant", "springy", "--out", "{tmp}/Body.fmu"], "--variant 'springy' is not one of"),
+    "export-agent": (["--config", "{tmp}/bad.toml", "--out", "{tmp}/Agent.fmu"], "unknown config key brain.sigma_p"),
+    "export-system": (["--quick", "--trial", "left/sync", "--out", "{tmp}/RHI.ssp"], "must be CONDITION/STIMULATION/INDEX"),
+    "run-system": (["{tmp}/bad.toml", "--out", "{tmp}/out.csv"], "bad.toml is not an SSP package: it is not a zip"),
     "sweep": (["--config", "{tmp}/missing.toml", "--out", "{tmp}/out"], "missing.toml does not exist"),
     "bench": (["--threads", "-2"], "--threads -2 must be a positive number"),
 }

@@ -12,8 +12,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 # -- the rules, as data --------------------------------------------------------------------------
 # master's sub-packages by layer, top first. A sub-package may import itself and any lower layer;
-# never a higher layer, nor another member of its own layer (sweeps/bench, experiment/export).
-MASTER_LAYERS = [("commands",), ("phenomena",), ("sweeps", "bench"), ("experiment", "export"), ("outputs",),
+# never a higher layer, nor another member of its own layer (sweeps/bench). export sits on experiment: the
+# agent it exports is the experiment's system without its body (master/export/agent.py).
+MASTER_LAYERS = [("commands",), ("phenomena",), ("sweeps", "bench"), ("export",), ("experiment",), ("outputs",),
                  ("cosim",)]
 # master's own files outside the sub-packages, and the sub-packages each may import.
 MASTER_FILES = {"master/__init__.py": ("cosim",), "master/__main__.py": ("commands",)}
@@ -146,7 +147,7 @@ def test_engine_knows_no_rubber_hand_words():
     ("master/cosim/loop.py", "from components.body import plant\n", "from components only"),
     ("master/cosim/loop.py", "import components.fmu_adapter\n", "from components only"),
     ("master/outputs/files.py", "from master.experiment.measures import measures\n", "a layer above it"),
-    ("master/experiment/wiring.py", "from master.export import body\n", "a layer beside it"),
+    ("master/experiment/wiring.py", "from master.export import body\n", "a layer above it"),
     ("master/sweeps/plan.py", "import master.bench.suite\n", "a layer beside it"),
     ("master/sweeps/plan.py", "from master.phenomena import report\n", "a layer above it"),
     ("master/phenomena/report.py", "from master.commands import cli\n", "only master/__main__.py"),
@@ -171,6 +172,7 @@ def test_the_checker_catches_each_kind_of_violation(relative, source, expected):
     ("master/sweeps/runner.py", "from master.experiment import runner\nfrom master import ConfigError\n"),
     ("master/phenomena/report.py", "from master.sweeps import plan\nfrom master.outputs import figures\n"),
     ("master/export/body.py", "from master.cosim import ConfigError\nimport numpy\n"),
+    ("master/export/agent.py", "from master.experiment import wiring\n"),
     ("master/__main__.py", "from master.commands.cli import main\n"),
     ("components/body/variants.py", "from components.body.plant import ArmPlant\nfrom .kinematics import forward\n"),
     ("components/vision/component.py", "from components.model_description import to_xml\n"),

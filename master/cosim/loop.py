@@ -1,17 +1,11 @@
-"""The fixed-step master algorithm: Jacobi or Gauss-Seidel on an integer tick counter."""
+"""The fixed-step master algorithm: a :class:`~master.cosim.session.Session` stepped on an integer tick counter."""
 from __future__ import annotations
 
 import math
-import time
-from dataclasses import dataclass, field
-
 import numpy as np
 
-from components.component import Status
-from master.cosim.errors import ConfigError, SimulationError
-from master.cosim.initialization import initialize
-from master.cosim.links import Links
-from master.cosim.recorder import Recorder
+from master.cosim.errors import ConfigError
+from master.cosim.session import Result, Session, check_request  # noqa: F401 (re-exported: their old home)
 from master.cosim.system import System
 
 
@@ -58,47 +52,12 @@ def tick_times(start_time: float, stop_time: float, steps: int) -> np.ndarray:
     return start_time + (stop_time - start_time) * np.arange(steps + 1) / steps
 
 
-@dataclass
-class Result:
-    """What a run recorded.
-
-    Attributes
-    ----------
-    times : numpy.ndarray
-        (steps + 1,) seconds, the communication points.
-    values : dict
-        ``path -> array`` of shape (steps + 1, B, *shape); row 0 holds the initial values.
-    scheme, step_size, batch_size :
-        As run.
-    timings : dict
-        Seconds: ``total_s``, ``setup_s`` (instantiation to the first recorded row),
-        ``master_overhead_s`` (the stepping the components did not spend) and ``step_s.NAME`` per component.
-    """
-
-    times: np.ndarray
-    values: dict[str, np.ndarray]
-    scheme: str
-    step_size: float
-    batch_size: int
-    timings: dict[str, float] = field(default_factory=dict)
-
-
-def check_request(system: System, scheme: str, record, parameters: dict) -> None:
-    """ConfigError naming the problem if the system, a recorded path or a parameter path is unusable."""
-    system.validate(scheme)
-    for path in record:
-        variable = system.variable(path)
-        if variable.causality not in ("output", "local"):
-            raise ConfigError(f"cannot record {path}: it is an {variable.causality}, not an output")
-    for path in parameters:
-        if system.variable(path).causality != "parameter":
-            raise ConfigError(f"{path} is not a parameter")
-
-
 def simulate(system: System, stop_time: float, step_size: float = 0.02, start_time: float = 0.0,
              scheme: str = "gauss-seidel", batch_size: int = 1, parameters: dict | None = None,
              record: list[str] = (), progress=None) -> Result:
     """Run ``system`` from ``start_time`` to ``stop_time`` in fixed steps and return what was recorded.
+
+    A :class:`~master.cosim.session.Session` stepped over the integer tick grid :func:`tick_times`.
 
     Parameters
     ----------
@@ -130,39 +89,14 @@ def simulate(system: System, stop_time: float, step_size: float = 0.02, start_ti
         A component failed a step: its name, the time t of the step's start and its reason.
     """
     steps = step_count(start_time, stop_time, step_size)
-    parameters = dict(parameters or {})
-    check_request(system, scheme, record, parameters)
     times = tick_times(start_time, stop_time, steps)
     ticks = times.tolist()
-    links, recorder = Links(system), Recorder(system, record)
-    stages = links.inputs  # one per component, in step order
-    spent = [0.0] * len(stages)
-    jacobi = scheme == "jacobi"
-    started = time.perf_counter()
+    session = Session(system, start_time, stop_time, scheme, batch_size, parameters, record)
     try:
-        initialize(system, links, batch_size, start_time, stop_time, parameters)
-        recorder.record()
-        setup_seconds = time.perf_counter() - started
         for tick in range(steps):
-            t, h = ticks[tick], ticks[tick + 1] - ticks[tick]
-            snapshot = links.snapshot() if jacobi else None
-            for index, inputs in enumerate(stages):
-                inputs.set(snapshot)
-                component = inputs.component
-                began = time.perf_counter()
-                status = component.do_step(t, h)
-                spent[index] += time.perf_counter() - began
-                if status >= Status.DISCARD:
-                    raise SimulationError(component.name, t, component.last_reason or "no reason given",
-                                          status.name.lower(), component.failed_trials)
-            recorder.record()
+            session.step(ticks[tick + 1] - ticks[tick], start=ticks[tick])
             if progress is not None:
                 progress(tick + 1, steps)
     finally:
-        for component in system.components.values():
-            component.terminate()
-
-    total = time.perf_counter() - started
-    timings = {"total_s": total, "setup_s": setup_seconds, "master_overhead_s": total - setup_seconds - sum(spent),
-               **{f"step_s.{inputs.component.name}": seconds for inputs, seconds in zip(stages, spent)}}
-    return Result(times, recorder.arrays(), scheme, step_size, batch_size, timings)
+        session.close()
+    return session.result(times, step_size)

@@ -46,12 +46,31 @@ def build_fmu(out, variant: str = "native", component: str | None = None, model_
     component = component or VARIANTS[variant][1]
     if not model_name.isidentifier():
         raise ConfigError(f"model name {model_name!r} must be an identifier (it names the FMU's library)")
-    try:  # built beside the target and renamed into place: FILE.fmu is whole, the old one, or absent
+    return built_beside(out, lambda target: _build(FmuBuilder, target, model_name, component, extra_files))
+
+
+def built_beside(out: Path, build) -> Path:
+    """``build(target)`` writes a file at ``target`` (and returns its path), in a folder beside ``out``; the file
+    is then renamed into place: ``out`` is whole, the old one, or absent, whatever happens.
+
+    Parameters
+    ----------
+    out : Path
+        The file to write (checked already: :func:`check_target`).
+    build : callable
+        ``build(target) -> Path``.
+
+    Returns
+    -------
+    Path
+        ``out``.
+    """
+    try:
         beside = Path(tempfile.mkdtemp(dir=out.parent, prefix=f".{out.name}.", suffix=".partial"))
     except OSError as error:
         raise ConfigError(f"cannot write into {out.parent}: {error.strerror or error}") from None
     try:
-        built = _build(FmuBuilder, beside / out.name, model_name, component, extra_files)
+        built = Path(build(beside / out.name))
         built.chmod(0o666 & ~umask())
         os.replace(built, out)
     finally:

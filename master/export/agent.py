@@ -1,0 +1,276 @@
+"""The agent (stimulus, rubber arm, camera, decoder, brain, wired as in the experiment) as ONE component.
+
+:class:`Agent` is a component whose inside is the experiment's system without its body
+(:func:`master.experiment.wiring.build_system`, every connection that does not touch the body), run
+by a :class:`master.cosim.Session` one communication step per :meth:`Agent.step`. Its ports are
+scalars, so that it can be an FMI 2.0 FMU (``master/export/agent_fmu.py``):
+
+- inputs: what the body feeds the brain in ``wiring.CONNECTIONS`` (the sensed joint angles, and the
+  felt hand that only the spatial extension reads), named as the brain names them;
+- outputs: what the brain feeds the body (the action), then :data:`OBSERVED` (mu, gamma, the event
+  times, ...) and the perceived hand (forward kinematics of mu, the drift's first term);
+- parameters: every scalar parameter of the inner components that the experiment sets per trial or
+  from ``defaults.toml`` (:func:`parameter_paths`), named as the component names it, with the
+  configuration's value as start; the 63-bit stimulus seed is two FMI Integers (:func:`split_seed`).
+
+Units, ranges and descriptions come from the inner components' declared variables: one source of
+truth. With the body after the agent, Gauss-Seidel, ``System([agent, body])`` is the experiment's
+system, step for step (tests/test_agent.py checks it bitwise).
+
+Example::
+
+    agent = Agent("conv.pt", "conv", config.load())
+    system = System([agent, ArmPlant()], agent_connections())
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from components.body import kinematics
+from components.component import Component, ComponentError, StepFailure
+from components.variables import Variable
+from master.cosim import Connection, SimulationError, Session, System
+from master.experiment import wiring
+from master.experiment.protocol import make_trial
+
+BODY = "body"  # the experiment's name for the body component
+SEED = "stimulus.seed"
+SEED_LOW, SEED_HIGH = "seed", "seed_high"  # its two FMI Integers: the low 32 bits (signed), the high 31
+# Structural, or fixed by the decoder bundled with the agent: given when the agent is built, not ports.
+FIXED_AT_BUILD = ("camera.blur",)  # the decoder was trained on images of this blur (its checkpoint is checked)
+# FMI name, inner path, element of an Array (None: a scalar): outputs beyond the action.
+OBSERVED = (
+    ("mu_shoulder", "brain.mu", 0),
+    ("mu_elbow", "brain.mu", 1),
+    ("gamma", "brain.gamma", None),
+    ("free_energy", "brain.free_energy", None),
+    ("action_rate_shoulder", "brain.action_rate", 0),
+    ("action_rate_elbow", "brain.action_rate", 1),
+    ("visual_time", "stimulus.visual_time", None),
+    ("tactile_time", "stimulus.tactile_time", None),
+    ("visual_error", "decoder.visual_error", None),
+    ("ball_x", "stimulus.ball", 0),
+    ("ball_y", "stimulus.ball", 1),
+)
+JOINTS = ("shoulder", "elbow")
+AXES = ("x", "y")
+PERCEIVED = ("perceived_hand_x", "perceived_hand_y")
+
+
+def split_seed(seed: int) -> tuple[int, int]:
+    """A seed in [0, 2^63) as two FMI 2.0 Integers (32-bit, signed).
+
+    Parameters
+    ----------
+    seed : int
+        The stimulus's seed (the protocol's per-trial seeds use 63 bits).
+
+    Returns
+    -------
+    (low, high) : tuple of int
+        ``low``: the low 32 bits, read as a signed 32-bit integer; ``high``: the bits above, in [0, 2^31).
+    """
+    seed = int(seed)
+    if not 0 <= seed < 2 ** 63:
+        raise ComponentError(f"seed {seed} is outside [0, 2^63)")
+    low = seed & 0xFFFFFFFF
+    return (low - 2 ** 32 if low >= 2 ** 31 else low), seed >> 32
+
+
+def join_seed(low, high) -> np.ndarray:
+    """The seed of :func:`split_seed`'s two Integers: ``high * 2^32 + (low mod 2^32)``, per trial (int64)."""
+    low, high = np.asarray(low, dtype=np.int64), np.asarray(high, dtype=np.int64)
+    return (high << 32) | (low & 0xFFFFFFFF)
+
+
+def inner_system(decoder, config: dict) -> System:
+    """The experiment's system without its body: its components in order, the connections among them."""
+    whole = wiring.build_system(decoder, config)
+    return System([c for name, c in whole.components.items() if name != BODY],
+                  [c for c in whole.connections if not touches_body(c)])
+
+
+def touches_body(connection) -> bool:
+    """Whether a :class:`~master.cosim.Connection` has the body at either end."""
+    return BODY in (connection.source.partition(".")[0], connection.target.partition(".")[0])
+
+
+def body_links() -> list[tuple[str, str]]:
+    """The experiment's connections between the body and the rest: (source, target) paths, as in
+    ``wiring.CONNECTIONS``, their order kept."""
+    return [(source, target) for source, target in wiring.CONNECTIONS if touches_body(Connection(source, target))]
+
+
+def agent_connections(agent: str = "agent", body: str = BODY) -> list[tuple[str, str]]:
+    """The connections of the two-component system agent + body: each of :func:`body_links` with the
+    brain's end renamed to the agent's port of the same name."""
+    links = []
+    for source, target in body_links():
+        (source_name, source_var), (_, target_var) = source.split("."), target.split(".")
+        links.append((f"{body}.{source_var}", f"{agent}.{target_var}") if source_name == BODY
+                     else (f"{agent}.{source_var}", f"{body}.{target_var}"))
+    return links
+
+
+def parameter_paths(system: System) -> list[str]:
+    """The inner parameters that are the agent's parameters: every scalar one the experiment sets
+    (``wiring.PARAMETER_SOURCES``) but those fixed when the agent is built (constructor arguments,
+    the blur the decoder was trained on) and the derived ones (the brain's start belief, the rest pose)."""
+    return [f"{name}.{variable.name}" for name, component in system.components.items()
+            for variable in component.variables.values()
+            if variable.causality == "parameter" and variable.type != "Array" and exposed(f"{name}.{variable.name}")]
+
+
+def exposed(path: str) -> bool:
+    """Whether the experiment's parameter ``path`` (``component.variable``) is an agent parameter: set by the
+    experiment, not the body's, not fixed when the agent is built, not derived."""
+    return (path in wiring.PARAMETER_SOURCES and not path.startswith(BODY + ".") and path not in wiring.CONSTRUCTED
+            and path not in FIXED_AT_BUILD and path not in wiring.DERIVED)
+
+
+def configured(path: str, variable: Variable, config: dict):
+    """The start of an agent parameter: the configuration's value for a plain key, else the variable's own."""
+    key = wiring.config_key(wiring.PARAMETER_SOURCES[path])
+    if key is None:
+        return variable.start
+    table, name = key.split(".")
+    return config[table][name]
+
+
+class Agent(Component):
+    """The rubber-hand agent (stimulus, rubber arm, camera, decoder, brain) as one component with scalar ports.
+
+    Parameters
+    ----------
+    checkpoint : str
+        The decoder's checkpoint file.
+    kind : str
+        ``conv`` or ``vae``: the decoder's kind (checked against the checkpoint).
+    config : dict
+        A loaded configuration (``master.experiment.config.load``): the resolution, the camera's blur,
+        the decoder's mode, and the start values of the parameters.
+    name : str
+        The component's name.
+    """
+
+    def __init__(self, checkpoint: str, kind: str, config: dict, name: str = "agent"):
+        from master.experiment.decoders import decoder_component  # torch only when an agent is built
+
+        self.checkpoint, self.kind, self.config = checkpoint, kind, config
+        # A terminated component cannot start again: each inner session gets new components (the decoder's
+        # model is loaded once per process, decoders.loaded).
+        self._build = lambda: inner_system(decoder_component(kind, checkpoint, config), config)
+        self._system = self._build()
+        self.inputs = {target.split(".")[1]: target for source, target in body_links() if source.startswith(BODY + ".")}
+        self.actions = {source.split(".")[1]: source for source, target in body_links() if target.startswith(BODY + ".")}
+        self.parameters = {path.split(".")[1]: path for path in parameter_paths(self._system)}
+        super().__init__(name, self._declare())
+        self._session = None
+        self._used = None  # the parameter values the session was built with
+
+    def _inner(self, path: str) -> Variable:
+        return self._system.variable(path)
+
+    def _declare(self) -> list[Variable]:
+        variables = []
+        for name, path in self.parameters.items():
+            inner = self._inner(path)
+            if path == SEED:
+                low = Variable(SEED_LOW, "parameter", "Integer", start=0, unit=inner.unit, min=-2 ** 31, max=2 ** 31 - 1,
+                               description="stimulus seed, its low 32 bits read as a signed 32-bit integer (any value; "
+                                           "a small seed is itself)")
+                high = Variable(SEED_HIGH, "parameter", "Integer", start=0, unit=inner.unit, min=0, max=2 ** 31 - 1,
+                                description="stimulus seed, its bits above the low 32 (seed = seed_high * 2^32 + "
+                                            "(seed mod 2^32))")
+                variables += [low, high]
+                continue
+            variables.append(Variable(name, "parameter", inner.type, start=configured(path, inner, self.config),
+                                      unit=inner.unit, min=inner.min, max=inner.max, description=inner.description))
+        for name, path in self.inputs.items():
+            inner = self._inner(path)
+            variables.append(Variable(name, "input", inner.type, start=inner.start, unit=inner.unit,
+                                      description=inner.description))
+        for name, path in self.actions.items():
+            inner = self._inner(path)
+            variables.append(Variable(name, "output", inner.type, start=None, unit=inner.unit, min=inner.min,
+                                      max=inner.max, description=inner.description, depends_on=()))
+        for name, path, element in OBSERVED:
+            inner = self._inner(path)
+            label = "" if element is None else f" [{(JOINTS if inner.unit.startswith('deg') else AXES)[element]}]"
+            variables.append(Variable(name, "output", start=None, unit=inner.unit, min=inner.min, max=inner.max,
+                                      description=inner.description + label, depends_on=()))
+        for axis, name in zip(AXES, PERCEIVED):
+            variables.append(Variable(name, "output", start=None, unit="m", depends_on=(),
+                                      description=f"{axis} of the perceived hand, the forward kinematics of mu (drift = "
+                                                  f"perceived_hand_x - the real hand's x)"))
+        return variables
+
+    # -- the inner session ----------------------------------------------------------------------
+    def inner_parameters(self) -> dict:
+        """The inner system's parameters for this agent's current values: the experiment's
+        (``wiring.parameters``) for what the agent does not expose, the agent's own for the rest."""
+        trial = make_trial(self.config, self.kind, self.config["experiment"]["conditions"][0],
+                           self.config["experiment"]["stimulations"][0], 0)
+        given = {path: value for path, value in wiring.parameters([trial], self.config).items()
+                 if path.partition(".")[0] in self._system.components and path not in wiring.CONSTRUCTED}
+        for name, path in self.parameters.items():
+            given[path] = join_seed(self.values[SEED_LOW], self.values[SEED_HIGH]) if path == SEED else self.values[name]
+        return given
+
+    def _parameter_values(self) -> dict:
+        return {v.name: self.values[v.name].copy() for v in self.variables.values() if v.causality == "parameter"}
+
+    def _start(self) -> None:
+        """(Re)build the inner session from the current parameters, unless it is built from these already."""
+        used = self._parameter_values()
+        if self._session is not None:
+            if all(np.array_equal(used[k], self._used[k]) for k in used):
+                return
+            self._session.close()
+        if self._used is not None:  # its components ran (or failed to start): a terminated one cannot start again
+            self._system = self._build()
+        self._session, self._used = None, used
+        try:
+            self._session = Session(self._system, self.start_time, self.stop_time, "gauss-seidel", self.batch_size,
+                                    self.inner_parameters())
+        except SimulationError as error:
+            raise StepFailure(str(error), trials=error.trials) from None
+        self._publish()
+
+    def publish_initial(self):
+        """Build the inner session (the FMI initialization of the five components) and publish its outputs,
+        readable in initialization mode. A failure is reported when initialization ends, where masters look
+        (:meth:`initialize` starts again, and fails again)."""
+        try:
+            self._start()
+        except (StepFailure, ComponentError):
+            pass
+
+    def initialize(self):
+        """As :meth:`publish_initial`, again only if a parameter changed in initialization mode."""
+        self._start()  # again after a failed start: the parameters may have been mended since
+
+    def step(self, t, h):
+        session = self._session
+        for name, path in self.inputs.items():
+            session.set(path, self.values[name])
+        try:
+            session.step(h, start=t)
+        except SimulationError as error:
+            raise StepFailure(str(error), trials=error.trials) from None
+        self._publish()
+
+    def _publish(self) -> None:
+        get = self._session.get
+        for name, path in self.actions.items():
+            self.values[name] = np.array(get(path), copy=True)
+        for name, path, element in OBSERVED:
+            value = get(path)
+            self.values[name] = np.array(value if element is None else value[:, element], copy=True)
+        mu = get("brain.mu")
+        x, y = kinematics.forward(mu[:, 0], mu[:, 1])
+        self.values[PERCEIVED[0]], self.values[PERCEIVED[1]] = np.asarray(x, float), np.asarray(y, float)
+
+    def terminate_hook(self):
+        if self._session is not None:
+            self._session.close()

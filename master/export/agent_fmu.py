@@ -1,0 +1,153 @@
+"""``rhi export-agent``: the agent as one FMI 2.0 co-simulation FMU, built with pythonfmu.
+
+The FMU holds the slave script ``master/export/agent_slave.py``, the decoder checkpoint and
+``rhi_agent.json`` (the decoder's kind, the configuration, the ports) in its resources. It runs in a
+Python that has the rhi package installed (the slave imports it; see agent_slave.py).
+
+Example::
+
+    build_agent_fmu("Agent.fmu", "conv", config.load())   # or: rhi export-agent --out Agent.fmu
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+from master.cosim import ConfigError
+from master.export.body import built_beside, check_target
+
+MODEL_NAME = "RubberHandAgent"  # the FMI model identifier, which names the FMU's library
+MANIFEST = "rhi_agent.json"
+CHECKPOINT = "decoder.pt"
+SLAVE = Path(__file__).with_name("agent_slave.py")
+
+
+def ports(agent) -> list[list[str]]:
+    """The agent's ports as ``[name, causality, type, unit]``, in value-reference order."""
+    return [[v.name, v.causality, v.type, v.unit] for v in agent.variables.values()]
+
+
+def agent_from_resources(resources: str):
+    """The :class:`~master.export.agent.Agent` an agent FMU's resources describe, checked against them.
+
+    Parameters
+    ----------
+    resources : str
+        The FMU's resources folder (``rhi_agent.json`` and the checkpoint).
+
+    Returns
+    -------
+    (Agent, str, str)
+        The agent (named ``agent``), the model name and a one-line description.
+
+    Raises
+    ------
+    RuntimeError
+        This rhi's agent declares other ports than the FMU's (it was built by another version).
+    """
+    from master.export.agent import Agent
+
+    with open(os.path.join(resources, MANIFEST), encoding="utf-8") as file:
+        manifest = json.load(file)
+    agent = Agent(os.path.join(resources, CHECKPOINT), manifest["decoder"], manifest["config"])
+    if ports(agent) != manifest["ports"]:
+        mine = {tuple(p) for p in ports(agent)}
+        theirs = {tuple(p) for p in manifest["ports"]}
+        differ = sorted(p[0] for p in mine ^ theirs) or ["their order"]
+        raise RuntimeError(f"this agent FMU was built by another version of rhi: the installed one declares other "
+                           f"ports ({', '.join(differ)}); export the agent again with this one")
+    description = (f"the rubber-hand agent (stimulus, rubber arm, camera, {manifest['decoder']} decoder at "
+                   f"{manifest['config']['experiment']['resolution']} px, brain); rhi {manifest['rhi']}")
+    return agent, MODEL_NAME, description
+
+
+def build_agent_fmu(out, kind: str, config: dict, checkpoint: str) -> Path:
+    """Build the agent FMU at ``out`` (a path ending in .fmu), whole or not at all.
+
+    Parameters
+    ----------
+    out : path
+        The FMU to write.
+    kind : str
+        The decoder's kind, ``conv`` or ``vae``.
+    config : dict
+        A loaded configuration: the resolution, the blur and the decoder's mode it fixes; the start
+        values of the agent's parameters.
+    checkpoint : str
+        The decoder's checkpoint, copied into the FMU's resources.
+
+    Returns
+    -------
+    Path
+        ``out``.
+    """
+    from importlib import metadata
+
+    from pythonfmu.builder import FmuBuilder
+
+    from master.export.agent import Agent
+
+    out = check_target(out)
+    agent = Agent(checkpoint, kind, config)  # refuses a checkpoint of another kind or camera, before any work
+    try:
+        version = metadata.version("rhi")
+    except metadata.PackageNotFoundError:
+        version = "unknown"
+    manifest = {"decoder": kind, "config": config, "ports": ports(agent), "rhi": version}
+    with tempfile.TemporaryDirectory(prefix="rhi_agent_") as staging:
+        staging = Path(staging)
+        source = SLAVE.read_bytes()
+        # Named after its content: in one process, FMUs with different slave code never share a module.
+        script = staging / f"rhi_agent_slave_{hashlib.sha1(source).hexdigest()[:10]}.py"
+        script.write_bytes(source)
+        (staging / MANIFEST).write_text(json.dumps(manifest, indent=1), encoding="utf-8")
+        shutil.copyfile(checkpoint, staging / CHECKPOINT)
+
+        def build(target: Path) -> Path:
+            saved_path = list(sys.path)  # the builder puts the script's folder on sys.path for good
+            try:
+                return Path(FmuBuilder.build_FMU(script, dest=target,
+                                                 project_files=[staging / MANIFEST, staging / CHECKPOINT]))
+            except (ImportError, AttributeError, ValueError) as error:
+                raise ConfigError(f"cannot build the agent FMU: {error}") from None
+            finally:
+                sys.path[:] = saved_path
+
+        return built_beside(out, build)
+
+
+def export_agent(out, config: dict, kind: str | None = None) -> tuple[Path, str]:
+    """``rhi export-agent``: check everything, train the decoder if it is the default and not cached yet
+    (as ``rhi experiment`` does), and build the agent FMU at ``out``.
+
+    Parameters
+    ----------
+    out : path
+        The FMU to write (checked before any work).
+    config : dict
+        A loaded configuration; ``decoder.<kind>_checkpoint`` names a checkpoint, or the default is used.
+    kind : str, optional
+        ``conv`` or ``vae`` (default: the configuration's first decoder).
+
+    Returns
+    -------
+    (Path, str)
+        The FMU and the checkpoint it carries.
+    """
+    from master.experiment.decoders import check_decoders, ensure_checkpoints
+    from master.experiment.wiring import check_parameters
+
+    kind = kind or config["experiment"]["decoders"][0]
+    if kind not in ("conv", "vae"):
+        raise ConfigError(f"--decoder {kind!r} is not one of conv, vae")
+    out = check_target(out)
+    config = {**config, "experiment": {**config["experiment"], "decoders": [kind]}}
+    check_parameters(config)
+    check_decoders(config)
+    checkpoints, _ = ensure_checkpoints(config, progress=False)
+    return build_agent_fmu(out, kind, config, checkpoints[kind]), checkpoints[kind]

@@ -1,0 +1,95 @@
+"""``python -m master.export.ssp_runner REQUEST.json``: one SSP package run by FMPy's or libcosim's master.
+
+:func:`master.export.system.run_ssp` starts this in a child process and writes the request: the
+package, the master, the steps and step size, each component's parameters (as the package binds
+them, or the trial asked for) and the connectors to record. The result, ``time`` and
+``component.variable`` arrays of one row per step, goes to the request's ``out`` (.npz). A failure is
+one line on stderr and exit status 1. The process ends with ``os._exit``: the masters' and
+pythonfmu's libraries are left to the operating system, not to exit-time destructors (pythonfmu 0.7's
+can abort the process, see components/fmu_adapter.py).
+"""
+from __future__ import annotations
+
+import json
+import os
+import sys
+
+import numpy as np
+
+
+def fmpy_run(request: dict) -> dict:
+    """FMPy's SSP master (``fmpy.ssp.simulation.simulate_ssp``), unchanged.
+
+    FMPy applies no parameter binding of the SSD itself: it takes a parameter set whose names are
+    prefixed with the component's name, which is what it is given here, from the package's own files.
+    Its loop adds the step size to the time until it reaches the stop time; a stop time half a step
+    before the last step's end gives exactly ``steps`` steps.
+    """
+    from fmpy.ssp.simulation import simulate_ssp
+    from fmpy.ssp.ssd import Parameter, ParameterSet
+
+    parameters = ParameterSet(name="rhi")
+    for component, values in request["parameters"].items():
+        for name, (kind, value) in values.items():
+            parameter = Parameter(name=f"{component}.{name}")
+            parameter.type, parameter.value = kind, value
+            parameters.parameters.append(parameter)
+    h, steps = request["step_size"], request["steps"]
+    rows = simulate_ssp(request["ssp"], start_time=0.0, stop_time=(steps - 0.5) * h, step_size=h,
+                        parameter_set=parameters)
+    result = {"time": rows["time"] + h}
+    for name in rows.dtype.names:
+        if name != "time":
+            result[name] = np.asarray(rows[name], dtype=float)
+    return result
+
+
+def libcosim_run(request: dict) -> dict:
+    """libcosim's fixed-step master (``CosimExecution.from_ssp_file``), unchanged: it applies the parameter
+    set the SSD binds to each component; a trial asked for in its place is set as initial values."""
+    from libcosimpy.CosimExecution import CosimExecution
+    from libcosimpy.CosimObserver import CosimObserver
+
+    execution = CosimExecution.from_ssp_file(request["ssp"])
+    slaves = {info.name.decode(): info.index for info in execution.slave_infos()}
+    references = {}
+    for component, index in slaves.items():
+        variables = {v.name.decode(): v for v in execution.slave_variables(index)}
+        references[component] = {name: variables[name].reference for name in request["connectors"][component]}
+        for name, (kind, value) in request["parameters"].get(component, {}).items():
+            setter = {"Real": execution.real_initial_value, "Integer": execution.integer_initial_value,
+                      "Boolean": execution.boolean_initial_value}[kind]
+            setter(index, variables[name].reference, value)
+    observer = CosimObserver.create_last_value()
+    execution.add_observer(observer)
+    rows = {f"{c}.{n}": [] for c, names in references.items() for n in names}
+    times = []
+    for _ in range(request["steps"]):
+        if not execution.step():
+            raise RuntimeError(f"libcosim failed a step: {execution.status()}")
+        times.append(execution.status().current_time * 1e-9)
+        for component, names in references.items():
+            values = observer.last_real_values(slaves[component], list(names.values()))
+            for name, value in zip(names, values):
+                rows[f"{component}.{name}"].append(value)
+    return {"time": np.array(times), **{key: np.array(value) for key, value in rows.items()}}
+
+
+def main(path: str) -> int:
+    with open(path, encoding="utf-8") as file:
+        request = json.load(file)
+    result = (fmpy_run if request["master"] == "fmpy" else libcosim_run)(request)
+    with open(request["out"], "wb") as file:
+        np.savez(file, **result)
+    return 0
+
+
+if __name__ == "__main__":
+    try:
+        status = main(sys.argv[1])
+    except BaseException as error:  # noqa: BLE001: one line for the parent, whatever happened
+        print(f"rhi-ssp-runner: {type(error).__name__}: {' '.join(str(error).split())}", file=sys.stderr)
+        status = 1
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(status)
