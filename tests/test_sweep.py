@@ -398,6 +398,8 @@ def test_batched_sweep_is_run_batch_on_the_local_pool_and_the_cluster(dask_clust
         assert outcome == cluster[trial.id]["outcome"]  # bitwise, every key
         assert {key: outcome[key] for key in truth[trial.id]} == truth[trial.id]  # bitwise
         assert outcome["seed"] == trial.seed and local[trial.id]["batch"] == 4
+    manifest = json.loads((tmp_path / "cluster" / "sweep.json").read_text())
+    assert (manifest["trials_planned"], manifest["tasks_planned"], manifest["lockstep_batches"]) == (32, 8, True)
     gammas = [local[t.id]["outcome"]["gamma_final"] for t in sweep.trials]
     assert max(gammas) > 0.02 and min(gammas) == 0.01  # sync touches raised gamma; async left it at gamma0
 

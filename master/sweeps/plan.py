@@ -151,7 +151,7 @@ def describe(point: dict) -> str:
     return ", ".join(f"{key}={json.dumps(value)}" for key, value in point.items()) or "no parameters"
 
 
-def chunk_cells(configs: list[dict], batch: int | None) -> list[list[tuple[int, object]]]:
+def chunk_cells(configs: list[dict], batch: int | None) -> list[list[tuple[int, experiment.Trial]]]:
     """Per chunk: its (point, protocol trial) pairs. Per point and decoder, the protocol's trials in its
     order, split into the fewest near-equal consecutive chunks of at most ``batch`` (None: one chunk);
     the larger chunks first. Depends on the configurations and ``batch`` alone."""
