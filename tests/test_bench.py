@@ -26,7 +26,7 @@ MODES = ("baseline", "exact_single", "exact_batched", "exact_batched_optimised",
 # The targets of issue 8 (README, Performance), written here rather than read from master/bench/report.py.
 ISSUE_TARGETS = {"exact_batched_peak_fraction_paper": (">=", 0.5), "fast_protocol_agent_steps_per_s": (">=", 1500),
                  "fast_drift_relative_error": ("<=", 0.01), "master_step_vs_fmpy_simulate_fmu": ("<=", 1.2),
-                 "protocol_peak_rss_mb": ("<", 2048)}
+                 "protocol_peak_rss_mb": ("<", 2048), "sweep_vs_lockstep_rate": (">=", 0.8)}  # and issue 16
 
 
 @pytest.fixture(scope="module")
@@ -104,6 +104,24 @@ def test_error_overhead_memory_and_targets(report):
     assert report["targets"]["fast_drift_relative_error"]["met"] is True
     assert report["targets"]["protocol_peak_rss_mb"]["met"] is True  # a tiny protocol: far below 2 GB
     json.dumps(report)  # --json must be able to print it
+
+
+def test_sweep_rate_against_lockstep(report):
+    """The protocol (tiny: 12 trials x 10 steps) as a sweep of two tasks, one per decoder, and in lockstep here."""
+    rate = report["sweep_rate"]
+    lockstep, sweep = rate["lockstep"], rate["sweep"]
+    assert (rate["trials"], rate["steps"], rate["workers"]) == (12, 10, 1) and lockstep["trials"] == 12
+    assert set(lockstep["per_decoder_s"]) == {"conv", "vae"}
+    assert math.isclose(lockstep["seconds"], sum(lockstep["per_decoder_s"].values()))
+    assert math.isclose(lockstep["agent_steps_per_s"], 120 / lockstep["seconds"])
+    assert (sweep["tasks"], sweep["largest_task"]) == (2, 6)  # the sweep's default chunks: a point's decoder each
+    assert 0 < sweep["task_window_s"] < sweep["wall_s"]
+    assert math.isclose(sweep["agent_steps_per_s"], 120 / sweep["wall_s"])
+    assert math.isclose(sweep["window_agent_steps_per_s"], 120 / sweep["task_window_s"])
+    assert math.isclose(rate["window_vs_lockstep"], sweep["window_agent_steps_per_s"] / lockstep["agent_steps_per_s"])
+    assert math.isclose(rate["wall_vs_lockstep"], sweep["agent_steps_per_s"] / lockstep["agent_steps_per_s"])
+    assert report["targets"]["sweep_vs_lockstep_rate"]["value"] == rate["window_vs_lockstep"]
+    assert "sweep against lockstep" in table(report)
 
 
 def test_table_names_every_mode_and_target(report):
