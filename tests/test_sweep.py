@@ -488,3 +488,29 @@ def test_a_failing_trial_costs_its_chunk_only_itself(quick_decoders, monkeypatch
     assert single_core(runner.trial_outcome, far, "conv", "right", "sync", 1)["gamma_final"] == alone[trials[5]][1]
     with pytest.raises(RuntimeError, match="ComponentError: .* out of reach"):
         runner.trial_outcome(far, "conv", "left", "sync", 0)
+
+
+def test_tasks_keep_large_temporaries_on_the_heap(tmp_path):
+    """Under Dask's nanny (MALLOC_TRIM_THRESHOLD_=65536) every freed 4 MB array is unmapped and the next one
+    faults its pages in again; after steady_malloc, as every sweep task calls it, they are reused."""
+    code = """
+import resource, sys
+import numpy as np
+from master.sweeps.runner import steady_malloc
+
+def faults():
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    for _ in range(50):
+        np.ones(1 << 19)  # 4 MB, freed at once
+    return resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before
+
+unsteady = faults()
+steady_malloc()
+faults()  # the first one after it comes from the heap's new top
+print(unsteady, faults())
+"""
+    run = subprocess.run([sys.executable, "-c", code], env={**ENV, "MALLOC_TRIM_THRESHOLD_": "65536"},
+                         capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert run.returncode == 0, run.stderr
+    unsteady, steady = map(int, run.stdout.split())
+    assert unsteady >= 50 * 100 and steady < 100, (unsteady, steady)  # hundreds of pages per array, against none

@@ -7,6 +7,8 @@ workers need no shared folder. A failing trial is a record, not a crash.
 """
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import importlib
 import json
 import logging
@@ -22,6 +24,11 @@ from pathlib import Path
 from master.cosim import ConfigError
 from master.outputs.files import atomic_write
 from master.sweeps.plan import DEFAULT_TASK, Sweep, TrialSpec
+
+# glibc's mallopt parameters, and the thresholds its dynamic mode reaches at most on a 64-bit machine
+M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3
+MMAP_THRESHOLD = 32 * 1024 * 1024   # bytes: a block this large or larger is mapped for itself
+TRIM_THRESHOLD = 2 * MMAP_THRESHOLD  # bytes: free memory at the heap's top kept for reuse
 
 
 @contextmanager
@@ -83,8 +90,26 @@ def prepare_decoders(sweep: Sweep) -> None:
         ensure_checkpoints(config)
 
 
+def steady_malloc() -> None:
+    """Keep the large temporaries of a step on the heap for the next step, as glibc does after warm-up in a
+    plain process; a no-op where the C library has no ``mallopt``.
+
+    Dask's nanny starts its workers with ``MALLOC_TRIM_THRESHOLD_=65536``, which turns glibc's dynamic
+    thresholds off: every array above 128 KiB a step frees goes back to the system, and the next step
+    faults its pages in again (README, Sweeps). Idempotent; called by every task, so that a worker that
+    joins during the sweep gets it too.
+    """
+    try:
+        mallopt = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").mallopt
+    except (OSError, AttributeError):
+        return
+    mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD)
+    mallopt(M_TRIM_THRESHOLD, TRIM_THRESHOLD)
+
+
 def run_trial(task, config: dict, trial: TrialSpec) -> dict:
     """Runs on a worker. Never raises: a failure is a record with its error, so the rest continue."""
+    steady_malloc()
     started, began = time.time(), time.perf_counter()
     try:
         outcome = task(config, trial.decoder, trial.condition, trial.stimulation, trial.index)
@@ -103,6 +128,7 @@ def run_chunk(config: dict, trials: list[TrialSpec]) -> list[dict]:
     from master.experiment import make_trial
     from master.experiment.runner import batch_outcomes
 
+    steady_malloc()
     started, began = time.time(), time.perf_counter()
     try:
         protocol = [make_trial(config, t.decoder, t.condition, t.stimulation, t.index) for t in trials]
