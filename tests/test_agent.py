@@ -4,8 +4,6 @@ Truth: the experiment's own system (``wiring.run_batch``: the same trials, seeds
 the components' declared variables and ``defaults.toml`` for every port; fmpy's FMI 2.0 validation.
 """
 import json
-import os
-import shutil
 import subprocess
 import sys
 import zipfile

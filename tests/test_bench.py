@@ -28,7 +28,8 @@ ISSUE_TARGETS = {"exact_batched_peak_fraction_paper": (">=", 0.5), "fast_protoco
                  "fast_drift_relative_error": ("<=", 0.01), "master_step_vs_fmpy_simulate_fmu": ("<=", 1.2),
                  "protocol_peak_rss_mb": ("<", 2048),
                  # issue 16: the default run from an empty cache
-                 "default_run_wall_s": ("<=", 100), "default_run_cpu_utilisation": (">=", 1.7)}
+                 "default_run_wall_s": ("<=", 100), "default_run_cpu_utilisation": (">=", 1.7),
+                 "sweep_vs_lockstep_rate": (">=", 0.8)}
 
 
 @pytest.fixture(scope="module")
@@ -108,6 +109,24 @@ def test_error_overhead_memory_and_targets(report):
     assert report["default_run"] == {"skipped": "default_run = False"}  # timed in test_default_run_is_timed_whole
     assert report["targets"]["default_run_wall_s"]["met"] is None
     json.dumps(report)  # --json must be able to print it
+
+
+def test_sweep_rate_against_lockstep(report):
+    """The protocol (tiny: 12 trials x 10 steps) as a sweep of two tasks, one per decoder, and in lockstep here."""
+    rate = report["sweep_rate"]
+    lockstep, sweep = rate["lockstep"], rate["sweep"]
+    assert (rate["trials"], rate["steps"], rate["workers"]) == (12, 10, 1) and lockstep["trials"] == 12
+    assert set(lockstep["per_decoder_s"]) == {"conv", "vae"}
+    assert math.isclose(lockstep["seconds"], sum(lockstep["per_decoder_s"].values()))
+    assert math.isclose(lockstep["agent_steps_per_s"], 120 / lockstep["seconds"])
+    assert (sweep["tasks"], sweep["largest_task"]) == (2, 6)  # the sweep's default chunks: a point's decoder each
+    assert 0 < sweep["task_window_s"] < sweep["wall_s"]
+    assert math.isclose(sweep["agent_steps_per_s"], 120 / sweep["wall_s"])
+    assert math.isclose(sweep["window_agent_steps_per_s"], 120 / sweep["task_window_s"])
+    assert math.isclose(rate["window_vs_lockstep"], sweep["window_agent_steps_per_s"] / lockstep["agent_steps_per_s"])
+    assert math.isclose(rate["wall_vs_lockstep"], sweep["agent_steps_per_s"] / lockstep["agent_steps_per_s"])
+    assert report["targets"]["sweep_vs_lockstep_rate"]["value"] == rate["window_vs_lockstep"]
+    assert "sweep against lockstep" in table(report)
 
 
 def test_table_names_every_mode_and_target(report):

@@ -304,3 +304,213 @@ quick = true
     updated = p1 * 0.01 / (p1 * 0.01 + 0.5 * 0.99)
     assert synchronous["gamma_final"] == pytest.approx(updated * np.exp(-0.15 ** 2 * 0.1 / 80), rel=1e-9)
     assert asynchronous["gamma_final"] == 0.01  # p1 = N(0.9; 0, 0.2) << p2: clamped at gamma0
+
+
+# -- the experiment's own trial function: lockstep chunks ------------------------------------------
+def batched_file(path, checkpoints, grid=None, batch=None, workers=2, conditions=("left", "right"), trials=2):
+    """A sweep of the default task at quick size: 30 steps of 0.1 s (touches at 2 s), the named decoders."""
+    lines = ["[experiment]", 'decoders = ["conv", "vae"]', f"conditions = {json.dumps(list(conditions))}",
+             "steps = 30", "step_size = 0.1", "[body]", "substeps = 40", "[decoder]",
+             *(f'{kind}_checkpoint = "{checkpoint}"' for kind, checkpoint in checkpoints.items()),
+             "[sweep]", "quick = true", f"trials = {trials}", f"workers = {workers}",
+             *([f"batch = {batch}"] if batch else [])]
+    if grid:
+        lines += ["[sweep.grid]", *(f'"{key}" = {json.dumps(values)}' for key, values in grid.items())]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.fixture(scope="module")
+def quick_decoders(quick_cache):
+    """The session's --quick conv and vae checkpoints, named in the sweep files (remote workers share no cache)."""
+    return {kind: str(next(quick_cache.glob(f"{kind}-*.pt"))) for kind in ("conv", "vae")}
+
+
+def lockstep_truth(sweep) -> dict:
+    """Every ok trial's drift, force and gamma from run_batch on its chunk's trials, here, on one core."""
+    from master.experiment import make_trial, measures, run_batch
+    from master.experiment.decoders import checkpoint_path, decoder_component
+    from master.experiment.measures import end_of_trial
+
+    truth = {}
+    for chunk in sweep.chunks:
+        members = [sweep.trials[position] for position in chunk]
+        config, kind = sweep.configs[members[0].point], members[0].decoder
+        trials = [make_trial(config, t.decoder, t.condition, t.stimulation, t.index) for t in members]
+        result = single_core(run_batch, decoder_component(kind, checkpoint_path(kind, config), config), trials,
+                             config)
+        final = end_of_trial(result.times, measures(result))
+        for column, trial in enumerate(members):
+            truth[trial.id] = {"drift_cm": float(final["drift_cm"][column]),
+                               "force_n": float(final["force_x_n"][column]),
+                               "gamma_final": float(final["gamma"][column])}
+    return truth
+
+
+def test_chunks_are_fixed_by_the_file_alone(tmp_path):
+    """Per point and decoder, consecutive near-equal chunks of at most sweep.batch; ids name the chunk."""
+    checkpoints = {"conv": "unused.pt", "vae": "unused.pt"}  # loading a plan opens no checkpoint
+    path = batched_file(tmp_path / "s.toml", checkpoints, grid={"conditions.left": [-0.15, -0.3]}, batch=3,
+                        trials=2)
+    sweep = sweeps.load(path)
+    assert sweep.batched and len(sweep.trials) == 2 * 2 * 2 * 2 * 2  # points x decoders x conditions x stims x trials
+    # 8 trials per point and decoder, at most 3 a chunk: 3 chunks of 3, 3, 2, in the protocol's order
+    assert [len(chunk) for chunk in sweep.chunks] == [3, 3, 2] * 4
+    assert [position for chunk in sweep.chunks for position in chunk] == list(range(len(sweep.trials)))
+    for chunk in sweep.chunks:
+        assert len({(sweep.trials[p].point, sweep.trials[p].decoder) for p in chunk}) == 1
+    again = sweeps.load(path)
+    assert again.chunks == sweep.chunks and [t.id for t in again.trials] == [t.id for t in sweep.trials]
+    # another batch size: other chunks, so other ids (their numbers may differ) and another sweep
+    whole = sweeps.load(batched_file(tmp_path / "w.toml", checkpoints, grid={"conditions.left": [-0.15, -0.3]},
+                                     trials=2))
+    assert [len(chunk) for chunk in whole.chunks] == [8] * 4  # default: all of a point's decoder
+    assert not {t.id for t in whole.trials} & {t.id for t in sweep.trials}
+    assert whole.fingerprint != sweep.fingerprint
+    # the number of workers plans nothing
+    more = sweeps.load(batched_file(tmp_path / "m.toml", checkpoints, grid={"conditions.left": [-0.15, -0.3]},
+                                    batch=3, workers=1))
+    assert more.chunks == sweep.chunks and [t.id for t in more.trials] == [t.id for t in sweep.trials]
+    # a widened grid keeps the chunks, and so the ids, of the points it shares
+    wider = sweeps.load(batched_file(tmp_path / "g.toml", checkpoints,
+                                     grid={"conditions.left": [-0.15, -0.3, -0.45]}, batch=3))
+    assert {t.id for t in sweep.trials} < {t.id for t in wider.trials}
+    # another task runs trials one by one: chunks of one; sweep.batch is refused for it
+    single = sweeps.load(sweep_file(tmp_path / "f.toml", trials=3))
+    assert not single.batched and single.chunks == [[n] for n in range(len(single.trials))]
+    bad = sweep_file(tmp_path / "b.toml")
+    bad.write_text(bad.read_text() + "batch = 2\n")  # into its [sweep] table
+    with pytest.raises(ConfigError, match=r"sweep.batch applies to the default task .* once per trial"):
+        sweeps.load(bad)
+
+
+def test_batched_sweep_is_run_batch_on_the_local_pool_and_the_cluster(dask_cluster, quick_decoders, tmp_path):
+    path = batched_file(tmp_path / "s.toml", quick_decoders, grid={"stimulations.sync.delay_max": [0.1, 0.6]},
+                        batch=5)
+    sweep = sweeps.load(path)
+    assert [len(chunk) for chunk in sweep.chunks] == [4, 4] * 4
+    assert run_sweep(args(path, tmp_path / "local")) == 0
+    assert run_sweep(args(path, tmp_path / "cluster", scheduler=dask_cluster)) == 0
+    local, cluster, truth = records(tmp_path / "local"), records(tmp_path / "cluster"), lockstep_truth(sweep)
+    assert set(local) == set(cluster) == set(truth) and len(truth) == 32
+    for trial in sweep.trials:
+        outcome = local[trial.id]["outcome"]
+        assert outcome == cluster[trial.id]["outcome"]  # bitwise, every key
+        assert {key: outcome[key] for key in truth[trial.id]} == truth[trial.id]  # bitwise
+        assert outcome["seed"] == trial.seed and local[trial.id]["batch"] == 4
+    manifest = json.loads((tmp_path / "cluster" / "sweep.json").read_text())
+    assert (manifest["trials_planned"], manifest["tasks_planned"], manifest["lockstep_batches"]) == (32, 8, True)
+    gammas = [local[t.id]["outcome"]["gamma_final"] for t in sweep.trials]
+    assert max(gammas) > 0.02 and min(gammas) == 0.01  # sync touches raised gamma; async left it at gamma0
+
+
+def test_killed_batched_sweep_resumes_bitwise(quick_decoders, tmp_path):
+    """Killed between chunks, then a record of a finished chunk lost too: the rerun runs each unfinished
+    chunk whole and writes only the missing records, bitwise those of an uninterrupted sweep."""
+    path = batched_file(tmp_path / "s.toml", quick_decoders, batch=4, workers=1)
+    sweep, out = sweeps.load(path), tmp_path / "out"
+    assert [len(chunk) for chunk in sweep.chunks] == [4] * 4
+    assert run_sweep(args(path, tmp_path / "whole")) == 0
+    whole = records(tmp_path / "whole")
+    process = subprocess.Popen(command("--config", path, "--out", out), env=ENV, cwd=tmp_path,
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        while len(list((out / "trials").glob("*.json"))) < 4:  # the first chunk
+            assert time.monotonic() < deadline and process.poll() is None, "the sweep did not start"
+            time.sleep(0.02)
+    finally:
+        os.killpg(process.pid, signal.SIGKILL)
+        process.wait(timeout=10)
+    before = records(out)
+    assert 4 <= len(before) < 16
+    first = [sweep.trials[p].id for p in sweep.chunks[0]]
+    assert set(first) <= set(before)
+    (out / "trials" / f"{first[1]}.json").unlink()  # a finished chunk with a record lost
+    stamps = {path: path.stat().st_mtime_ns for path in (out / "trials").glob("*.json")}
+    rerun = subprocess.run(command("--config", path, "--out", out), env=ENV, cwd=tmp_path,
+                           capture_output=True, text=True, timeout=300)
+    assert rerun.returncode == 0, rerun.stderr
+    assert f"16 of 16 trials done ({16 - len(before) + 1} now)" in rerun.stdout
+    assert all(path.stat().st_mtime_ns == stamp for path, stamp in stamps.items())  # kept as they were
+    after = records(out)
+    assert set(after) == set(whole)
+    assert {key: r["outcome"] for key, r in after.items()} == {key: r["outcome"] for key, r in whole.items()}
+    index = list(csv.DictReader(open(out / "index.csv")))
+    assert sorted(row["id"] for row in index) == sorted(whole)  # each trial exactly once
+
+
+def test_a_failing_trial_costs_its_chunk_only_itself(quick_decoders, monkeypatch):
+    """batch_outcomes: a trial a component blames is recorded alone and the rest rerun without it; a
+    failure that blames no trial (a rubber hand out of reach) reruns each trial alone. Against run_batch."""
+    from master.cosim import SimulationError
+    from master.experiment import measures, plan, run_batch
+    from master.experiment import runner
+    from master.experiment.decoders import decoder_component
+    from master.experiment.measures import end_of_trial
+
+    config = configuration.load(quick=True, overrides={
+        "experiment.decoders": ["conv"], "experiment.conditions": ["left", "right"], "experiment.trials": 2,
+        "experiment.steps": 30, "experiment.step_size": 0.1, "body.substeps": 40,
+        "decoder.conv_checkpoint": quick_decoders["conv"]})
+    trials = plan(config)  # left sync 0, 1, left async 0, 1, right ...: 8
+
+    def final(batch):
+        result = run_batch(decoder_component("conv", quick_decoders["conv"], config), batch, config)
+        values = end_of_trial(result.times, measures(result))
+        return {t: (float(values["drift_cm"][c]), float(values["gamma"][c])) for c, t in enumerate(batch)}
+
+    calls, blamed = [], trials[2]
+
+    def blaming(decoder, batch, given):
+        calls.append(len(batch))
+        if blamed in batch:
+            raise SimulationError("body", 0.4, "NaN in this trial", trials=(batch.index(blamed),))
+        return run_batch(decoder, batch, given)
+
+    monkeypatch.setattr(runner, "run_batch", blaming)
+    got = single_core(runner.batch_outcomes, config, "conv", trials)
+    assert calls == [8, 7]
+    assert got[2] == {"status": "failed", "traceback": "",
+                      "error": "SimulationError: body failed the step at t = 0.4 s (error): NaN in this trial"}
+    rest = [t for t in trials if t is not blamed]
+    truth = single_core(final, rest)
+    assert {t: (r["outcome"]["drift_cm"], r["outcome"]["gamma_final"]) for t, r in zip(trials, got)
+            if t is not blamed} == truth
+    monkeypatch.undo()
+
+    far = configuration.merge(config, {"conditions": {"left": 1.0}})  # out of reach: the whole batch fails
+    trials = plan(far)
+    got = single_core(runner.batch_outcomes, far, "conv", trials)
+    assert all(r["status"] == "failed" and "out of reach" in r["error"] for r in got[:4])
+    alone = {t: single_core(final, [t])[t] for t in trials[4:]}  # the others, each a batch of one
+    assert {t: (r["outcome"]["drift_cm"], r["outcome"]["gamma_final"]) for t, r in zip(trials[4:], got[4:])} == alone
+    assert single_core(runner.trial_outcome, far, "conv", "right", "sync", 1)["gamma_final"] == alone[trials[5]][1]
+    with pytest.raises(RuntimeError, match="ComponentError: .* out of reach"):
+        runner.trial_outcome(far, "conv", "left", "sync", 0)
+
+
+def test_tasks_keep_large_temporaries_on_the_heap(tmp_path):
+    """Under Dask's nanny (MALLOC_TRIM_THRESHOLD_=65536) every freed 4 MB array is unmapped and the next one
+    faults its pages in again; after steady_malloc, as every sweep task calls it, they are reused."""
+    code = """
+import resource, sys
+import numpy as np
+from master.sweeps.runner import steady_malloc
+
+def faults():
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    for _ in range(50):
+        np.ones(1 << 19)  # 4 MB, freed at once
+    return resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before
+
+unsteady = faults()
+steady_malloc()
+faults()  # the first one after it comes from the heap's new top
+print(unsteady, faults())
+"""
+    run = subprocess.run([sys.executable, "-c", code], env={**ENV, "MALLOC_TRIM_THRESHOLD_": "65536"},
+                         capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert run.returncode == 0, run.stderr
+    unsteady, steady = map(int, run.stdout.split())
+    assert unsteady >= 50 * 100 and steady < 100, (unsteady, steady)  # hundreds of pages per array, against none

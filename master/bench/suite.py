@@ -17,8 +17,10 @@ that sizes the measured run to ``budget_s``). Also: the decoder's FLOPs per agen
 also counts the JVP step), the achieved FLOP/s against a measured fp32 matmul peak, each
 component's share of the step, the master's per-step time against fmpy.simulate_fmu on the
 same body FMU (both set the inputs and read the outputs every step), the whole paper protocol
-in fast mode (in a child process, for its peak memory), and the fast mode's drift error against
-the exact integrator with a trained default decoder when one is cached (README, Performance).
+in fast mode (in a child process, for its peak memory), the fast mode's drift error against
+the exact integrator with a trained default decoder when one is cached (README, Performance), and
+the protocol as a sweep on the local pool against the same trials in lockstep
+(:mod:`master.bench.sweep_rate`).
 """
 from __future__ import annotations
 
@@ -44,6 +46,7 @@ from master import experiment
 from master.bench.baseline import PaperStyleAgent
 from master.bench.default_run import default_run
 from master.bench.report import targets
+from master.bench.sweep_rate import sweep_rate
 from master.experiment.training_data import HALF_RANGES
 
 
@@ -67,11 +70,16 @@ class BenchSettings:
     threads: int = 0             # torch threads; 0: the cores this process may use
     seed: int = 0
     default_run: bool = True     # time `rhi experiment` from an empty decoder cache (master/bench/default_run.py)
+    sweep_preset: tuple = ("default", 64)  # the sweep against lockstep (master/bench/sweep_rate.py)
+    sweep_trials: int = 5        # per decoder x condition x stimulation: 60 trials, the whole protocol
+    sweep_steps: int = 150
+    sweep_workers: int = 0       # the sweep's local pool; 0: one per usable core
 
 
 QUICK = BenchSettings(presets=(("tiny", 32),), batch=6, max_steps=3, budget_s=0.5, protocol_steps=10,
                       protocol_preset=("tiny", 32), error_trials=1, error_steps=30, error_model="untrained",
-                      fmu_steps=20, matmul_size=256, default_run=False)
+                      fmu_steps=20, matmul_size=256, default_run=False, sweep_preset=("tiny", 32), sweep_trials=1,
+                      sweep_steps=10, sweep_workers=1)
 
 
 def untrained(preset: str, resolution: int, seed: int) -> GenerativeModel:
@@ -238,6 +246,7 @@ def run_suite(settings: BenchSettings = BenchSettings()) -> dict:
                                                                       settings)
     report["master_overhead"] = master_overhead(settings.fmu_steps)
     report["default_run"] = default_run() if settings.default_run else {"skipped": "default_run = False"}
+    report["sweep_rate"] = sweep_rate(settings)
     report["memory"] = {"bench_peak_rss_mb": peak_rss_mb(),
                         "protocol_peak_rss_mb": report["protocol_fast"]["peak_rss_mb"]}
     report["machine"]["load_average_before"], report["machine"]["load_average_after"] = load_before, os.getloadavg()

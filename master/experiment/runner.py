@@ -135,19 +135,65 @@ def body_factory(path, config: dict | None = None):
 
 def trial_outcome(config: dict, decoder: str, condition: str, stimulation: str, index: int,
                   checkpoint: str | None = None) -> dict:
-    """Run ONE trial (a sweep's task) and return its end-of-trial values.
+    """Run ONE trial and return its end-of-trial values (a batch of one, :func:`batch_outcomes`).
 
     The decoder checkpoint is ``checkpoint`` or the one the configuration names or caches; it must
-    exist already (sweeps train nothing on the workers).
+    exist already (sweeps train nothing on the workers). A failed trial raises a RuntimeError
+    carrying its record's error.
     """
+    record, = batch_outcomes(config, decoder, [make_trial(config, decoder, condition, stimulation, index)],
+                             checkpoint)
+    if record["status"] != "ok":
+        raise RuntimeError(record["error"])
+    return record["outcome"]
+
+
+def batch_outcomes(config: dict, decoder: str, trials: list[Trial], checkpoint: str | None = None) -> list[dict]:
+    """Run ``trials`` (all of ``decoder``) in ONE lockstep batch; one record per trial, in their order.
+
+    A record is ``{"status": "ok", "outcome": {...}}`` (drift_cm, force_n, gamma_final, seed and every
+    other end-of-trial value) or ``{"status": "failed", "error": "Type: message", "traceback": ...}``.
+    Failures are isolated per trial and never raised: a trial a component blames (``StepFailure``
+    naming it) is recorded alone and the rest rerun without it (:func:`without_failures`); a failure
+    that blames no trial reruns each remaining trial alone, a batch of one, so that only the trials
+    that fail by themselves are recorded as failed. The same trials in the same order always take the
+    same path, so they always get the same numbers.
+    """
+    import traceback
+
     from master.experiment.decoders import checkpoint_path, decoder_component
 
-    trial = make_trial(config, decoder, condition, stimulation, index)
-    path = checkpoint or checkpoint_path(decoder, config, must_exist=True)
-    result = run_batch(decoder_component(decoder, path, config), [trial], config)
-    final = {key: float(value[0]) for key, value in end_of_trial(result.times, measures(result)).items()}
-    return {"drift_cm": final["drift_cm"], "force_n": final["force_x_n"], "gamma_final": final["gamma"],
-            "seed": trial.seed, **{k: v for k, v in final.items() if k not in ("drift_cm", "force_x_n", "gamma")}}
+    def failed(error: BaseException, trace: str = "") -> dict:
+        message = " ".join(str(error).split()) or "(no message)"
+        return {"status": "failed", "error": f"{type(error).__name__}: {message}", "traceback": trace}
+
+    def run_trials(batch: list[Trial]) -> list[dict]:
+        path = checkpoint or checkpoint_path(decoder, config, must_exist=True)
+        result = run_batch(decoder_component(decoder, path, config), batch, config)
+        final = end_of_trial(result.times, measures(result))
+        renamed = {"drift_cm": "drift_cm", "force_x_n": "force_n", "gamma": "gamma_final"}
+        return [{"status": "ok", "outcome": {
+            **{name: float(final[key][column]) for key, name in renamed.items()}, "seed": trial.seed,
+            **{key: float(values[column]) for key, values in final.items() if key not in renamed}}}
+            for column, trial in enumerate(batch)]
+
+    records: dict[Trial, dict] = {}
+    waiting = [list(trials)]  # batches still to run: the whole, then (after a failure blaming no trial) singles
+    while waiting:
+        batch = waiting.pop(0)
+        try:
+            result, kept, blamed = without_failures(run_trials, batch)
+        except Exception as error:  # noqa: BLE001: any failure of a trial is data, not a crash
+            blamed, kept, result = dict(getattr(error, "failures", {})), [], None
+            rest = [t for t in batch if t not in blamed]
+            if len(batch) == 1:
+                records[batch[0]] = failed(error, traceback.format_exc())
+            else:
+                waiting += [[t] for t in rest]
+        records.update({t: {"status": "failed", "error": f"SimulationError: {' '.join(reason.split())}",
+                            "traceback": ""} for t, reason in blamed.items()})
+        records.update(zip(kept, result or []))
+    return [records[t] for t in trials]
 
 
 def progress_bar(description: str, total: int, position: int = 0):

@@ -83,7 +83,8 @@ def start_over(out: Path, sweep: Sweep) -> None:
     manifest = {"fingerprint": sweep.fingerprint, "task": sweep.task, "swept_keys": sweep.keys,
                 "points": [{"point": n, "parameters": p, "configuration": c}
                            for n, (p, c) in enumerate(zip(sweep.points, sweep.configs))],
-                "trials_planned": len(sweep.trials), "versions": package_versions()}
+                "trials_planned": len(sweep.trials), "tasks_planned": len(sweep.chunks),
+                "lockstep_batches": sweep.batched, "versions": package_versions()}
     atomic_write(out / "sweep.json", json.dumps(manifest, indent=1, sort_keys=True) + "\n")
 
 

@@ -1,4 +1,4 @@
-"""Parameter sweeps: points over the experiment's configuration, each trial an independent Dask task.
+"""Parameter sweeps: points over the experiment's configuration, run as Dask tasks of lockstep batches.
 
 A sweep file is an experiment configuration (any tables of defaults.toml, fixed for every point)
 plus a ``[sweep]`` table saying what varies::
@@ -7,6 +7,7 @@ plus a ``[sweep]`` table saying what varies::
     trials = 3                     # per point and decoder x condition x stimulation (= experiment.trials)
     quick = true                   # start from the [quick] defaults, like `rhi experiment --quick`
     task = "master.experiment:trial_outcome"   # the trial function (module:function), this by default
+    batch = 10                     # at most this many trials per task (default: all of a point's decoder)
     workers = 2                    # processes of the local pool (default: one per core)
     [sweep.grid]                   # every combination, in file order, the last key varying fastest
     "stimulations.sync.delay_max" = [0.1, 0.5, 1.0]
@@ -15,11 +16,19 @@ plus a ``[sweep]`` table saying what varies::
     # [[sweep.points]]
     # "conditions.left" = -0.3
 
-A trial is one call ``task(config, decoder, condition, stimulation, index)`` for every point, every
-decoder x condition x stimulation of the point's experiment table and every index below its trials.
-Its id hashes everything that decides its result: the task, the point's full configuration, the
-cell, the index and the seed. The engine runs trials on any dask.distributed Client (a local process
-pool or a remote cluster) and writes each record as soon as it arrives, on the client's machine.
+A trial is one cell of the protocol (decoder x condition x stimulation of the point's experiment
+table) and one index below its trials. With the experiment's own trial function (the default task)
+a Dask task is a *chunk*: the trials of one point and decoder, in the protocol's order, run in one
+lockstep batch as `rhi experiment` runs them, split into near-equal consecutive chunks of at most
+``batch`` trials. The chunks are fixed by the file alone, never by the workers or by what a folder
+already holds, because a trial's numbers may depend on its batch (BLAS kernels differ by batch size;
+the fast mode shares linearisation points within a batch). Any other task is called once per trial,
+``task(config, decoder, condition, stimulation, index)``: a chunk of one.
+
+A trial's id hashes everything that decides its result: the task, the point's full configuration,
+the cell, the index, the seed, and for a batched task the trials of its chunk. The engine runs the
+chunks on any dask.distributed Client (a local process pool or a remote cluster) and writes each
+trial's record as soon as its chunk arrives, on the client's machine.
 """
 from __future__ import annotations
 
@@ -35,7 +44,8 @@ from master.cosim import ConfigError
 from master import experiment
 
 DEFAULT_TASK = "master.experiment:trial_outcome"
-SWEEP_KEYS = ("trials", "quick", "task", "workers", "grid", "points")
+SWEEP_KEYS = ("trials", "quick", "task", "batch", "workers", "grid", "points")
+BATCHING = "lockstep-chunks/1"  # in the fingerprint of a batched sweep: folders of per-trial sweeps differ
 
 
 @dataclass(frozen=True)
@@ -60,6 +70,8 @@ class Sweep:
     workers: int | None         # local pool size; None = one per core
     trials: list[TrialSpec]     # the plan, in order: point, decoder, condition, stimulation, index
     fingerprint: str            # hash of the whole plan: same fingerprint, same trials
+    chunks: list[list[int]]     # one Dask task each: positions in ``trials``, a lockstep batch (or one trial)
+    batched: bool               # True: the experiment's own trial function, run a chunk at a time
 
 
 def canonical_hash(value) -> str:
@@ -111,7 +123,7 @@ def check_settings(settings: dict) -> None:
     for key in settings:
         if key not in SWEEP_KEYS:
             raise configuration.unknown_key(f"sweep.{key}", SWEEP_KEYS, "sweep")
-    for key in ("trials", "workers"):
+    for key in ("trials", "workers", "batch"):
         value = settings.get(key, 1)
         if not isinstance(value, int) or isinstance(value, bool) or value < 1:
             raise ConfigError(f"sweep.{key} must be a whole number of at least 1, got {value!r}")
@@ -121,6 +133,9 @@ def check_settings(settings: dict) -> None:
         raise ConfigError(f"sweep.task must be a string 'module:function', got {settings['task']!r}")
     if "grid" in settings and "points" in settings:
         raise ConfigError("sweep: give either sweep.grid or sweep.points, not both")
+    if "batch" in settings and settings.get("task", DEFAULT_TASK) != DEFAULT_TASK:
+        raise ConfigError(f"sweep.batch applies to the default task {DEFAULT_TASK} only; "
+                          f"sweep.task {settings['task']!r} is called once per trial")
 
 
 def point_config(base: dict, point: dict, number: int) -> dict:
@@ -136,15 +151,45 @@ def describe(point: dict) -> str:
     return ", ".join(f"{key}={json.dumps(value)}" for key, value in point.items()) or "no parameters"
 
 
-def plan(configs: list[dict], task: str) -> list[TrialSpec]:
-    trials = []
+def chunk_cells(configs: list[dict], batch: int | None) -> list[list[tuple[int, experiment.Trial]]]:
+    """Per chunk: its (point, protocol trial) pairs. Per point and decoder, the protocol's trials in its
+    order, split into the fewest near-equal consecutive chunks of at most ``batch`` (None: one chunk);
+    the larger chunks first. Depends on the configurations and ``batch`` alone."""
+    chunks = []
     for number, config in enumerate(configs):
-        for t in experiment.plan(config):
-            identity = {"task": task, "config": config, "decoder": t.decoder, "condition": t.condition,
-                        "stimulation": t.stimulation, "index": t.index, "seed": t.seed}
+        trials = experiment.plan(config)
+        for decoder in config["experiment"]["decoders"]:
+            mine = [t for t in trials if t.decoder == decoder]
+            count = -(-len(mine) // batch) if batch else 1
+            size, extra = divmod(len(mine), count)
+            start = 0
+            for part in range(count):
+                end = start + size + (part < extra)
+                chunks.append([(number, t) for t in mine[start:end]])
+                start = end
+    return chunks
+
+
+def plan(configs: list[dict], task: str, batch: int | None = None) -> tuple[list[TrialSpec], list[list[int]]]:
+    """Every trial of the sweep, in order (point, decoder, condition, stimulation, index), and its chunks.
+
+    The default task runs a chunk of trials in one lockstep batch (:func:`chunk_cells`), and a trial's
+    id names its chunk's members too; any other task runs each trial alone, a chunk of one.
+    """
+    batched = task == DEFAULT_TASK
+    chunks = chunk_cells(configs, batch) if batched else [[(n, t)] for n, c in enumerate(configs)
+                                                          for t in experiment.plan(c)]
+    trials, positions = [], []
+    for chunk in chunks:
+        members = [[t.condition, t.stimulation, t.index] for _, t in chunk]
+        positions.append(list(range(len(trials), len(trials) + len(chunk))))
+        for number, t in chunk:
+            identity = {"task": task, "config": configs[number], "decoder": t.decoder, "condition": t.condition,
+                        "stimulation": t.stimulation, "index": t.index, "seed": t.seed,
+                        **({"batch": members} if batched else {})}
             trials.append(TrialSpec(canonical_hash(identity)[:20], number, t.decoder, t.condition,
                                     t.stimulation, t.index, t.seed))
-    return trials
+    return trials, positions
 
 
 def load(path: str | Path) -> Sweep:
@@ -168,7 +213,11 @@ def load(path: str | Path) -> Sweep:
         other = seen.setdefault(canonical_hash(config), number)
         if other != number:
             raise ConfigError(f"sweep points {other} and {number} are the same configuration")
-    trials = plan(configs, task)
+    batched = task == DEFAULT_TASK
+    trials, chunks = plan(configs, task, settings.get("batch"))
     keys = list(dict.fromkeys(key for point in points for key in point))
-    fingerprint = canonical_hash({"task": task, "configs": configs, "points": points})
-    return Sweep(task, points, keys, configs, settings.get("workers"), trials, fingerprint)
+    planned = {"task": task, "configs": configs, "points": points}
+    if batched:
+        planned.update(batching=BATCHING, batch=settings.get("batch"))
+    return Sweep(task, points, keys, configs, settings.get("workers"), trials, canonical_hash(planned), chunks,
+                 batched)

@@ -1,10 +1,14 @@
-"""Running a sweep's trials on a dask.distributed Client: a local process pool or a remote cluster.
+"""Running a sweep's chunks on a dask.distributed Client: a local process pool or a remote cluster.
 
-Each trial is one task; its record is written to ``out/trials/ID.json`` the moment it arrives, on
-the client's machine, so the workers need no shared folder. A failing trial is a record, not a crash.
+Each chunk of the plan is one task: with the experiment's own trial function, its trials in one
+lockstep batch (:func:`run_chunk`); with any other, one trial (:func:`run_trial`). Each trial's record
+is written to ``out/trials/ID.json`` the moment its chunk arrives, on the client's machine, so the
+workers need no shared folder. A failing trial is a record, not a crash.
 """
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import importlib
 import json
 import logging
@@ -20,6 +24,11 @@ from pathlib import Path
 from master.cosim import ConfigError
 from master.outputs.files import atomic_write
 from master.sweeps.plan import DEFAULT_TASK, Sweep, TrialSpec
+
+# glibc's mallopt parameters, and the thresholds its dynamic mode reaches at most on a 64-bit machine
+M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3
+MMAP_THRESHOLD = 32 * 1024 * 1024   # bytes: a block this large or larger is mapped for itself
+TRIM_THRESHOLD = 2 * MMAP_THRESHOLD  # bytes: free memory at the heap's top kept for reuse
 
 
 @contextmanager
@@ -81,16 +90,54 @@ def prepare_decoders(sweep: Sweep) -> None:
         ensure_checkpoints(config)
 
 
+def steady_malloc() -> None:
+    """Keep the large temporaries of a step on the heap for the next step, as glibc does after warm-up in a
+    plain process; a no-op where the C library has no ``mallopt``.
+
+    Dask's nanny starts its workers with ``MALLOC_TRIM_THRESHOLD_=65536``, which turns glibc's dynamic
+    thresholds off: every array above 128 KiB a step frees goes back to the system, and the next step
+    faults its pages in again (README, Sweeps). Idempotent; called by every task, so that a worker that
+    joins during the sweep gets it too.
+    """
+    try:
+        mallopt = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").mallopt
+    except (OSError, AttributeError):
+        return
+    mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD)
+    mallopt(M_TRIM_THRESHOLD, TRIM_THRESHOLD)
+
+
 def run_trial(task, config: dict, trial: TrialSpec) -> dict:
     """Runs on a worker. Never raises: a failure is a record with its error, so the rest continue."""
-    began = time.perf_counter()
+    steady_malloc()
+    started, began = time.time(), time.perf_counter()
     try:
         outcome = task(config, trial.decoder, trial.condition, trial.stimulation, trial.index)
         record = {"status": "ok", "outcome": {key: plain(value) for key, value in outcome.items()}}
     except Exception as error:  # noqa: BLE001: any failure of a trial is data, not a crash
         record = failed(error, traceback.format_exc())
-    record.update(elapsed_s=round(time.perf_counter() - began, 6), host=socket.gethostname())
+    record.update(elapsed_s=round(time.perf_counter() - began, 6), host=socket.gethostname(),
+                  started_at=round(started, 3), batch=1)
     return record
+
+
+def run_chunk(config: dict, trials: list[TrialSpec]) -> list[dict]:
+    """Runs on a worker: the chunk's trials (one point, one decoder) in one lockstep batch, each failure
+    isolated to its trial (:func:`master.experiment.runner.batch_outcomes`); one result per trial, in
+    order. Never raises. ``elapsed_s`` is the whole chunk's time."""
+    from master.experiment import make_trial
+    from master.experiment.runner import batch_outcomes
+
+    steady_malloc()
+    started, began = time.time(), time.perf_counter()
+    try:
+        protocol = [make_trial(config, t.decoder, t.condition, t.stimulation, t.index) for t in trials]
+        results = batch_outcomes(config, trials[0].decoder, protocol)
+    except Exception as error:  # noqa: BLE001: batch_outcomes isolates failures; this is the last resort
+        results = [failed(error, traceback.format_exc())] * len(trials)
+    timing = {"elapsed_s": round(time.perf_counter() - began, 6), "host": socket.gethostname(),
+              "started_at": round(started, 3), "batch": len(trials)}
+    return [{**result, **timing} for result in results]
 
 
 def plain(value):
@@ -109,31 +156,43 @@ def worker_check(module: str) -> None:
 
 
 def execute(sweep: Sweep, task, client, out: Path, done: set[str], on_record=None) -> list[dict]:
-    """Submit every trial not in ``done``; write each record to ``out/trials/ID.json`` as it arrives.
+    """Submit every chunk with a trial not in ``done``; write each of its trials' records not in ``done``
+    to ``out/trials/ID.json`` as the chunk arrives.
 
-    ``on_record(record)`` is called after each write (progress, index). Returns the new records.
+    A chunk is always run whole, so its trials get the numbers an uninterrupted sweep gives them; the
+    records already done are left as they are. ``on_record(record)`` is called after each write
+    (progress, index). Returns the new records.
     """
     from dask.distributed import as_completed
 
     pending, token = {}, uuid.uuid4().hex[:8]
-    for trial in sweep.trials:
-        if trial.id not in done:
-            future = client.submit(run_trial, task, sweep.configs[trial.point], trial, pure=False,
-                                   key=f"rhi-trial-{trial.id}-{token}")
-            pending[future] = trial
+    for chunk in sweep.chunks:
+        members = [sweep.trials[position] for position in chunk]
+        if all(trial.id in done for trial in members):
+            continue
+        config = sweep.configs[members[0].point]
+        if sweep.batched:
+            future = client.submit(run_chunk, config, members, pure=False, key=f"rhi-chunk-{members[0].id}-{token}")
+        else:
+            future = client.submit(run_trial, task, config, members[0], pure=False,
+                                   key=f"rhi-trial-{members[0].id}-{token}")
+        pending[future] = members
     records = []
     for future in as_completed(list(pending)):
-        trial = pending.pop(future)
+        members = pending.pop(future)
         try:
-            result = future.result()
-        except Exception as error:  # noqa: BLE001: a lost worker or an unpicklable task fails one trial
-            result = failed(error)
-        record = {"id": trial.id, "point": trial.point, "parameters": sweep.points[trial.point],
-                  "decoder": trial.decoder, "condition": trial.condition, "stimulation": trial.stimulation,
-                  "trial": trial.index, "seed": trial.seed, **result}
-        atomic_write(out / "trials" / f"{trial.id}.json", json.dumps(record, indent=1, sort_keys=True) + "\n")
-        records.append(record)
+            results = future.result() if sweep.batched else [future.result()]
+        except Exception as error:  # noqa: BLE001: a lost worker or an unpicklable task fails its chunk's trials
+            results = [failed(error)] * len(members)
+        for trial, result in zip(members, results):
+            if trial.id in done:
+                continue
+            record = {"id": trial.id, "point": trial.point, "parameters": sweep.points[trial.point],
+                      "decoder": trial.decoder, "condition": trial.condition, "stimulation": trial.stimulation,
+                      "trial": trial.index, "seed": trial.seed, **result}
+            atomic_write(out / "trials" / f"{trial.id}.json", json.dumps(record, indent=1, sort_keys=True) + "\n")
+            records.append(record)
+            if on_record is not None:
+                on_record(record)
         future.release()
-        if on_record is not None:
-            on_record(record)
     return records

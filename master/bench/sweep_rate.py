@@ -1,0 +1,118 @@
+"""The sweep's rate against the lockstep experiment's, for ``rhi bench``.
+
+The protocol's trials (both decoders, every condition x stimulation, ``sweep_trials`` each) run twice
+on this machine, with the same untrained seeded checkpoints of the preset written to a temporary
+folder: first in lockstep here, one :func:`master.experiment.run_batch` per decoder in sequence as
+``rhi experiment`` runs them (the decoder on every usable core); then as a sweep, ``rhi sweep`` in a child
+process on its local pool (one single-threaded worker per core; one task per decoder, the sweep's
+default chunks). The sweep's rate is reported twice: over the whole command (Python start-up, the
+pool's start and the record files included) and over its task window, from the first task's start to
+the last one's end as the trial records give them (what a long sweep converges to); the target is
+judged on the task window. The bench cannot import master.sweeps (the same layer), hence the child.
+"""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import torch
+
+from components.body import kinematics
+from components.vision import checkpoint
+from components.vision.component import available_cores
+from components.vision.networks import build, preset, sizes_dict
+from master import experiment
+from master.experiment import config as configuration
+from master.experiment.decoders import decoder_component
+from master.experiment.training_data import HALF_RANGES
+from master.outputs.files import atomic_write
+
+KINDS = ("conv", "vae")
+
+
+def untrained_checkpoint(kind: str, preset_name: str, resolution: int, seed: int, folder: Path) -> str:
+    """A checkpoint file of an untrained decoder of ``kind`` (torch seed ``seed``), usable by any process."""
+    torch.manual_seed(seed)
+    model = build(kind, preset_name, resolution)
+    metadata = {"kind": kind, "preset": preset_name, "sizes": sizes_dict(preset(preset_name)),
+                "resolution": resolution, "rest_pose": [float(a) for a in kinematics.REST_POSE],
+                "half_ranges": [float(a) for a in HALF_RANGES], "data_hash": "untrained",
+                "validation_mse": float("nan"), "seconds": 0.0}
+    path = folder / f"{kind}-untrained-{preset_name}-r{resolution}.pt"
+    atomic_write(path, lambda file: checkpoint.write(file, model, metadata))
+    return str(path)
+
+
+def sweep_overrides(settings, checkpoints: dict[str, str]) -> dict:
+    """The configuration both runs use: the defaults at the sweep preset's resolution and size."""
+    return {"experiment.resolution": settings.sweep_preset[1], "experiment.steps": settings.sweep_steps,
+            "experiment.trials": settings.sweep_trials, "experiment.decoders": list(KINDS),
+            **{f"decoder.{kind}_checkpoint": path for kind, path in checkpoints.items()}}
+
+
+def lockstep_run(config: dict, checkpoints: dict[str, str]) -> dict:
+    """Every trial of ``config``'s protocol, one lockstep batch per decoder in sequence, as ``rhi experiment``
+    runs them (the decoder on torch threads for every usable core); the wall time of each."""
+    trials, seconds = experiment.plan(config), {}
+    for kind in config["experiment"]["decoders"]:
+        began = time.perf_counter()
+        experiment.run_batch(decoder_component(kind, checkpoints[kind], config),
+                             [t for t in trials if t.decoder == kind], config)
+        seconds[kind] = time.perf_counter() - began
+    total = sum(seconds.values())
+    return {"trials": len(trials), "threads": available_cores(), "seconds": total, "per_decoder_s": seconds,
+            "agent_steps_per_s": len(trials) * config["experiment"]["steps"] / total}
+
+
+def sweep_file_text(overrides: dict, workers: int) -> str:
+    """A sweep file of one point: ``overrides`` (dotted keys) as its tables, then ``[sweep]``."""
+    tables: dict[str, list[str]] = {}
+    for key, value in overrides.items():
+        table, _, name = key.partition(".")
+        tables.setdefault(table, []).append(f"{name} = {json.dumps(value)}")
+    lines = [line for table, entries in tables.items() for line in (f"[{table}]", *entries)]
+    return "\n".join([*lines, "[sweep]", f"workers = {workers}"]) + "\n"
+
+
+def sweep_run(text: str, folder: Path, trials: int, steps: int) -> dict:
+    """``rhi sweep`` of the file ``text`` in a child process; its wall time and its task window."""
+    (folder / "sweep.toml").write_text(text)
+    root = str(Path(__file__).resolve().parents[2])
+    env = {**os.environ, "PYTHONPATH": root + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    began = time.perf_counter()
+    child = subprocess.run([sys.executable, "-m", "master", "sweep", "--config", str(folder / "sweep.toml"),
+                            "--out", str(folder / "out")], capture_output=True, text=True, env=env, cwd=folder)
+    wall = time.perf_counter() - began
+    if child.returncode:
+        raise RuntimeError(f"the bench's sweep failed: {child.stderr.strip().splitlines()[-1:]}")
+    records = [json.loads(path.read_text()) for path in (folder / "out" / "trials").glob("*.json")]
+    if len(records) != trials or any(record["status"] != "ok" for record in records):
+        raise RuntimeError(f"the bench's sweep wrote {len(records)} records for {trials} trials, or a failure")
+    window = max(r["started_at"] + r["elapsed_s"] for r in records) - min(r["started_at"] for r in records)
+    return {"wall_s": wall, "agent_steps_per_s": trials * steps / wall, "task_window_s": window,
+            "window_agent_steps_per_s": trials * steps / window,
+            "tasks": len({(r["started_at"], r["host"], r["decoder"]) for r in records}),
+            "largest_task": max(r["batch"] for r in records)}
+
+
+def sweep_rate(settings) -> dict:
+    """The protocol as a sweep on the local pool against the same trials in lockstep in this process."""
+    preset_name, resolution = settings.sweep_preset
+    workers = settings.sweep_workers or available_cores()
+    with tempfile.TemporaryDirectory(prefix="rhi_bench_sweep_") as name:
+        folder = Path(name)
+        checkpoints = {kind: untrained_checkpoint(kind, preset_name, resolution, settings.seed, folder)
+                       for kind in KINDS}
+        overrides = sweep_overrides(settings, checkpoints)
+        lockstep = lockstep_run(configuration.load(overrides=overrides), checkpoints)
+        sweep = sweep_run(sweep_file_text(overrides, workers), folder, lockstep["trials"], settings.sweep_steps)
+    return {"preset": preset_name, "resolution": resolution, "weights": f"untrained, torch seed {settings.seed}",
+            "trials": lockstep["trials"], "steps": settings.sweep_steps, "workers": workers,
+            "lockstep": lockstep, "sweep": sweep,
+            "window_vs_lockstep": sweep["window_agent_steps_per_s"] / lockstep["agent_steps_per_s"],
+            "wall_vs_lockstep": sweep["agent_steps_per_s"] / lockstep["agent_steps_per_s"]}
