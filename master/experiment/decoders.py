@@ -30,8 +30,9 @@ def cache_folder() -> Path:
     return Path(os.environ.get("RHI_CACHE") or Path.home() / ".cache" / "rhi")
 
 
-def checkpoint_path(kind: str, config: dict, must_exist: bool = False) -> str:
-    """The checkpoint of decoder ``kind``: the configured one, or the cached default."""
+def checkpoint_path(kind: str, config: dict, must_exist: bool = False, device: str = "cpu") -> str:
+    """The checkpoint of decoder ``kind``: the configured one, or the cached default (trained on ``device``,
+    resolved: a decoder trained on a GPU has a name of its own)."""
     given = config["decoder"].get(f"{kind}_checkpoint") or ""
     if given:
         if Path(given).is_dir():
@@ -39,12 +40,13 @@ def checkpoint_path(kind: str, config: dict, must_exist: bool = False) -> str:
         if not Path(given).is_file():
             raise ConfigError(f"decoder.{kind}_checkpoint: {given} does not exist")
         return given
-    settings = train_settings(config).as_dict()
+    settings = train_settings(config).identity()
     blur = config["camera"]["blur"]
     # What changes the trained decoder: the [train] settings, and the camera's blur (the training images
-    # have no ball, so ball_radius does not count). The default blur adds nothing, so the key of every
-    # decoder cached before the blur was a parameter is unchanged.
-    identity = [kind, settings] + ([{"camera_blur": blur}] if blur != camera.BLUR_SIGMA else [])
+    # have no ball, so ball_radius does not count), and a device other than the CPU (its rounding). The
+    # default blur and the CPU add nothing, so the key of every decoder cached before they counted is unchanged.
+    identity = [kind, settings] + ([{"camera_blur": blur}] if blur != camera.BLUR_SIGMA else []) + \
+        ([{"device": device}] if device != "cpu" else [])
     key = hashlib.sha256(json.dumps(identity, sort_keys=True).encode()).hexdigest()[:16]
     path = cache_folder() / f"{kind}-r{settings['resolution']}-{settings['preset']}-{key}.pt"
     if must_exist and not path.is_file():
@@ -53,13 +55,13 @@ def checkpoint_path(kind: str, config: dict, must_exist: bool = False) -> str:
     return str(path)
 
 
-def check_decoders(config: dict) -> None:
+def check_decoders(config: dict, device: str = "cpu") -> None:
     """Before any work: every checkpoint named in ``[decoder]`` loads, is of its slot's kind and fits the
     camera (resolution, blur, ranges); every decoder still to be trained has valid ``[train]`` settings at
     this resolution and a usable cache folder. A ConfigError or CheckpointError (one line) otherwise."""
     needs_training = []
     for kind in config["experiment"]["decoders"]:
-        path = checkpoint_path(kind, config)
+        path = checkpoint_path(kind, config, device=device)
         if config["decoder"].get(f"{kind}_checkpoint"):
             check_kind(kind, path, loaded(path, config["experiment"]["resolution"], config["camera"]["blur"]))
         elif not Path(path).is_file():
@@ -93,16 +95,17 @@ def check_cache_folder() -> Path:
     return folder
 
 
-def ensure_checkpoints(config: dict, progress: bool = True) -> tuple[dict[str, str], dict[str, float]]:
-    """Every decoder the experiment needs, training (and caching) the missing defaults."""
+def ensure_checkpoints(config: dict, progress: bool = True, device: str = "cpu") -> tuple[dict[str, str],
+                                                                                         dict[str, float]]:
+    """Every decoder the experiment needs, training (and caching) the missing defaults on ``device``."""
     paths, seconds = {}, {}
     for kind in config["experiment"]["decoders"]:
-        paths[kind] = checkpoint_path(kind, config)
+        paths[kind] = checkpoint_path(kind, config, device=device)
         if not Path(paths[kind]).is_file():
             Path(paths[kind]).parent.mkdir(parents=True, exist_ok=True)
             began = time.perf_counter()
             train_decoder(kind, paths[kind], train_settings(config), progress=progress,
-                          blur=config["camera"]["blur"])
+                          blur=config["camera"]["blur"], device=device)
             seconds[kind] = time.perf_counter() - began
     return paths, seconds
 
@@ -118,14 +121,15 @@ def _loaded(path: str, version: int, resolution: int, blur: float) -> Generative
     return load_decoder(path, resolution, blur)
 
 
-def decoder_component(kind: str, path: str, config: dict) -> Decoder:
-    """The exact decoder, or the linearised one of the fast mode when ``decoder.fast`` is true."""
+def decoder_component(kind: str, path: str, config: dict, device: str = "cpu") -> Decoder:
+    """The exact decoder, or the linearised one of the fast mode when ``decoder.fast`` is true, on ``device``."""
     model = loaded(path, config["experiment"]["resolution"], config["camera"]["blur"])
     check_kind(kind, path, model)
     if config["decoder"]["fast"]:
         from components.vision.fast import LinearisedDecoder
-        return LinearisedDecoder(model, name="decoder", relinearise_tolerance=config["decoder"]["relinearise_tolerance"])
-    return Decoder(model, name="decoder")
+        return LinearisedDecoder(model, name="decoder", relinearise_tolerance=config["decoder"]["relinearise_tolerance"],
+                                 device=device)
+    return Decoder(model, name="decoder", device=device)
 
 
 def jacobian_pair(kind: str, path: str, config: dict) -> np.ndarray:

@@ -38,8 +38,8 @@ def without_failures(run_trials, trials: list[Trial]):
     return None, trials, failures
 
 
-def run(config: dict, checkpoints: dict[str, str], body_factory=None, progress: bool = False):
-    """Every trial of the protocol, one lockstep batch per decoder.
+def run(config: dict, checkpoints: dict[str, str], body_factory=None, progress: bool = False, device: str = "cpu"):
+    """Every trial of the protocol, one lockstep batch per decoder (the decoders on ``device``).
 
     Returns (trials, times, per_step, seconds, failures): ``per_step[key]`` has shape
     (steps + 1, n_trials) in the order of ``trials`` (the protocol's order, less any failed trial);
@@ -54,7 +54,7 @@ def run(config: dict, checkpoints: dict[str, str], body_factory=None, progress: 
             bar = progress_bar(f"{kind} trials x{len(batch)}", config["experiment"]["steps"]) if progress else None
             body = body_factory() if body_factory else None
             try:
-                return run_batch(decoder_component(kind, checkpoints[kind], config), batch, config, body,
+                return run_batch(decoder_component(kind, checkpoints[kind], config, device), batch, config, body,
                                  bar.update_to if bar else None)
             finally:
                 if bar:
