@@ -313,3 +313,20 @@ def test_the_training_bench_times_both_paths_of_both_decoders():
     assert report["decoders"]["conv"]["before"]["phase_s"]["encoder"] == 0
     assert report["decoders"]["vae"]["after"]["phase_s"]["encoder"] > 0
     assert "conv" in training_bench.table(report)
+
+
+# -- the visual variance at the paper's scale ------------------------------------------------------------
+def test_the_shipped_paper_calibration_sweep_runs_the_paper_preset(tmp_path):
+    from master.sweeps import plan
+    sweep = plan.load(ROOT / "docs" / "sweeps" / "paper_visual_variance.toml")
+    paper = configuration.load(preset_name="paper")
+    assert [point["decoder.visual_variance"] for point in sweep.points] == [1.0, 10.0, 20.0, 30.0, 60.0]
+    for config in sweep.configs:  # the paper preset's configuration, but for the swept key and one trial
+        assert config["decoder"]["visual_variance"] in (1.0, 10.0, 20.0, 30.0, 60.0)
+        assert {**config, "decoder": {**config["decoder"], "visual_variance": 20.0},
+                "experiment": {**config["experiment"], "trials": 5}} == paper
+    assert len(sweep.trials) == 5 * 2 * 3 * 2
+    for text, message in (("quick = true\npreset = 'paper'", "either sweep.quick or sweep.preset"),
+                          ("preset = 'huge'", "sweep.preset = 'huge' is not one of paper")):
+        with pytest.raises(ConfigError, match=message):
+            plan.load(write(tmp_path / "s.toml", f"[sweep]\n{text}\n"))
