@@ -330,3 +330,13 @@ def test_the_shipped_paper_calibration_sweep_runs_the_paper_preset(tmp_path):
                           ("preset = 'huge'", "sweep.preset = 'huge' is not one of paper")):
         with pytest.raises(ConfigError, match=message):
             plan.load(write(tmp_path / "s.toml", f"[sweep]\n{text}\n"))
+
+
+def test_the_trial_gif_is_enlarged_only_up_to_64_px():
+    from master.outputs.animation import frames
+    from master.experiment.protocol import rubber_pose
+    mu = np.tile(kinematics.REST_POSE, (21, 1))
+    balls = np.tile([-0.45, 0.6], (21, 1))
+    assert [frames(mu, rubber_pose(-0.15), balls, side)[0].size for side in (32, 64, 128)] == [(96, 96), (192, 192),
+                                                                                               (128, 128)]
+    assert len(frames(mu, rubber_pose(-0.15), balls, 32)) == 3  # every 10th step of 21
