@@ -340,3 +340,19 @@ def test_the_trial_gif_is_enlarged_only_up_to_64_px():
     assert [frames(mu, rubber_pose(-0.15), balls, side)[0].size for side in (32, 64, 128)] == [(96, 96), (192, 192),
                                                                                                (128, 128)]
     assert len(frames(mu, rubber_pose(-0.15), balls, 32)) == 3  # every 10th step of 21
+
+
+def test_the_readme_s_table_of_the_preset_is_the_shipped_file_and_the_defaults():
+    """The README's table (key | paper | default | why) is a second mention of master/paper.toml: tied here."""
+    from master.experiment.training import STOP_POSES
+    text = (ROOT / "README.md").read_text()
+    section = text[text.index("## The paper's scale"):text.index("### Training at 256")]
+    rows = {line.split("|")[1].strip().strip("`"): [cell.strip() for cell in line.split("|")[2:4]]
+            for line in section.splitlines() if line.startswith("| `")}
+    with open(ROOT / "master" / "paper.toml", "rb") as file:
+        shipped = dict(flatten(tomllib.load(file)))
+    default = dict(flatten(configuration.load()))
+    assert set(rows) == set(shipped)
+    for key, (paper, was) in rows.items():
+        assert tomllib.loads(f"a = {paper}\nb = {was}") == {"a": shipped[key], "b": default[key]}, key
+    assert f"read off {STOP_POSES} held-out poses" in section

@@ -62,7 +62,7 @@ class Preset:
 
 
 PRESETS = {
-    # The paper's ConvDecoder at 256x256 (DESIGN.md); for a GPU.
+    # The paper's ConvDecoder at 256x256 (DESIGN.md); trains on a 2-core CPU with channels-last layout.
     "paper": Preset(hidden=1024, channels=(128, 64, 32, 16), resolution=256),
     # Sized to train in a few minutes on a 2-core CPU at 64x64: 4x4 -> 64x64.
     "default": Preset(hidden=256, channels=(32, 16, 8), resolution=64),
