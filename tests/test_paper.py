@@ -356,3 +356,17 @@ def test_the_readme_s_table_of_the_preset_is_the_shipped_file_and_the_defaults()
     for key, (paper, was) in rows.items():
         assert tomllib.loads(f"a = {paper}\nb = {was}") == {"a": shipped[key], "b": default[key]}, key
     assert f"read off {STOP_POSES} held-out poses" in section
+
+
+def test_rhi_train_with_the_paper_preset_at_32_px_prints_the_checks(tmp_path, capsys):
+    config = write(tmp_path / "t.toml", "[experiment]\nresolution = 32\n[train]\nsamples = 64\nepochs = 2\npatience = 2\n"
+                                        "quality_poses = 0\nthreads = 1\nstop_hand_error_cm = 50.0\n")
+    out = tmp_path / "conv.pt"
+    assert main(["train", "--preset", "paper", "--decoder", "conv", "--config", config, "--device", "auto",
+                 "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    metadata = checkpoint.load(out)[1]
+    assert metadata["preset"] == "paper" and metadata["resolution"] == 32 and "device" not in metadata
+    # a check of at most 50 cm is met after the first epoch: training stopped there
+    assert metadata["epochs_run"] == 1 and len(metadata["hand_error_checks_cm"]) == 1
+    assert "(stopped: at most 50.0 cm)" in printed and "conv decoder (paper, 32 px)" in printed

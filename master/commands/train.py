@@ -22,6 +22,12 @@ def run_train(args) -> int:
           f"validation MSE {metadata['validation_mse']:.3g} after {metadata['epochs_run']} epochs "
           f"(best {metadata['best_epoch']}), {metadata['seconds']:.0f} s training + "
           f"{metadata['data_seconds']:.0f} s data")
+    checks = metadata.get("hand_error_checks_cm")
+    if checks:
+        print(f"hand error read off the check's held-out poses after each epoch: "
+              f"{', '.join(f'{value:.3f}' for value in checks)} cm"
+              + (f" (stopped: at most {settings.stop_hand_error_cm} cm)" if checks[-1] <= settings.stop_hand_error_cm
+                 else ""))
     if errors:
         print(f"hand error on {errors['poses']} held-out poses: read off the prediction "
               f"{errors['read_off']['mean_cm']:.2f} cm mean ({errors['read_off']['max_cm']:.2f} max), "
