@@ -205,7 +205,10 @@ def test_the_cached_decoder_s_name_changes_with_the_camera_blur_only(tmp_path, m
     from master.experiment.decoders import checkpoint_path
     monkeypatch.setenv("RHI_CACHE", str(tmp_path))
     config = configuration.load(quick=True)
-    settings = train_settings(config).as_dict()
+    # The settings the name was a hash of before channels_last, fused_adam and stop_hand_error_cm existed:
+    # at their defaults those three leave the name as it was (tests/test_paper.py).
+    settings = {key: value for key, value in train_settings(config).as_dict().items()
+                if key not in ("channels_last", "fused_adam", "stop_hand_error_cm")}
     before = hashlib.sha256(json.dumps(["conv", settings], sort_keys=True).encode()).hexdigest()[:16]
     assert checkpoint_path("conv", config).endswith(f"conv-r32-tiny-{before}.pt")
     blurred = checkpoint_path("conv", configuration.load(overrides={"camera.blur": 0.02}, quick=True))

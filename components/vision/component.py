@@ -19,13 +19,14 @@ Example::
 """
 from __future__ import annotations
 
+import copy
 import os
 
 import numpy as np
 import torch
 from torch.autograd import forward_ad
 
-from components.component import Component, StepFailure
+from components.component import Component, ComponentError, StepFailure
 from components.variables import Variable
 from components.vision.checkpoint import check_matches, load
 from components.vision.networks import normalise
@@ -47,6 +48,27 @@ def available_cores() -> int:
         return os.cpu_count() or 1
 
 
+DEVICES = ("auto", "cpu", "cuda")
+
+
+def resolve_device(name: str) -> str:
+    """``auto`` -> ``cuda`` when torch sees a CUDA GPU, else ``cpu``; ``cpu`` as is; ``cuda`` (or ``cuda:N``) only
+    when torch sees that GPU, else one ComponentError saying why and what to use instead."""
+    if name == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    if name == "cpu":
+        return "cpu"
+    if name == "cuda" or (name.startswith("cuda:") and name[5:].isdigit()):
+        if not torch.cuda.is_available():
+            build = "a CPU-only build" if torch.version.cuda is None else f"built for CUDA {torch.version.cuda}"
+            raise ComponentError(f"device {name}: torch {torch.__version__} ({build}) sees no CUDA GPU here; "
+                                 "use --device cpu or auto (README: installing a CUDA build of torch)")
+        if name != "cuda" and int(name[5:]) >= torch.cuda.device_count():
+            raise ComponentError(f"device {name}: torch sees {torch.cuda.device_count()} CUDA GPU(s) (cuda:0 ...)")
+        return name
+    raise ComponentError(f"device {name!r} is unknown; choose one of {', '.join(DEVICES)}")
+
+
 class GenerativeModel:
     """g(mu): the trained decoder behind the training normalisation; degrees in, image out.
 
@@ -58,7 +80,9 @@ class GenerativeModel:
         self.decoder = decoder.float().eval().requires_grad_(False)
         self.rest_pose = np.array(rest_pose, dtype=np.float64)      # deg, as trained
         self.half_ranges = np.array(half_ranges, dtype=np.float64)  # deg
-        self._rest, self._half = torch.from_numpy(self.rest_pose).float(), torch.from_numpy(self.half_ranges).float()
+        self.device = next(self.decoder.parameters(), torch.empty(0)).device
+        self._rest = torch.from_numpy(self.rest_pose).float().to(self.device)
+        self._half = torch.from_numpy(self.half_ranges).float().to(self.device)
         self.metadata = dict(metadata or {})
         with torch.no_grad():
             self.resolution = int(self(self._rest[None]).shape[-1])
@@ -69,9 +93,17 @@ class GenerativeModel:
         model, metadata = load(path, resolution, rest_pose, half_ranges)
         return cls(model.decoder, metadata["rest_pose"], metadata["half_ranges"], metadata)
 
+    def on(self, device: str) -> "GenerativeModel":
+        """This model with its decoder on ``device`` ("cpu", "cuda"): itself if it is there, else a copy."""
+        target = torch.device(device)
+        if target.type == self.device.type and target.index in (None, self.device.index):
+            return self
+        return GenerativeModel(copy.deepcopy(self.decoder).to(device), self.rest_pose, self.half_ranges,
+                               self.metadata)
+
     def __call__(self, mu_deg: torch.Tensor) -> torch.Tensor:
-        """g(mu) for mu (B, 2) float32 degrees: images (B, R, R) in [0, 1]."""
-        return self.decoder(normalise(mu_deg, self._rest, self._half))
+        """g(mu) for mu (B, 2) float32 degrees: images (B, R, R) in [0, 1], on the decoder's device."""
+        return self.decoder(normalise(mu_deg.to(self.device), self._rest, self._half))
 
     def predict_with_jacobian(self, mu_deg: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """g(mu) (B, R, R) and J = dg/dmu (B, 2, R, R) in 1/deg, by forward-mode AD.
@@ -82,7 +114,7 @@ class GenerativeModel:
         (torch.autograd.forward_ad) give torch.func.jvp's results bitwise and skip its transform
         machinery, which costs time at small images (at large ones the convolutions dominate).
         """
-        columns = []
+        columns, mu_deg = [], mu_deg.to(self.device)
         with forward_ad.dual_level():
             for joint in range(2):
                 tangent = torch.zeros_like(mu_deg)
@@ -146,10 +178,12 @@ class Decoder(Component):
     resolution, rest_pose, half_ranges: what the camera renders and the body rests at;
         when given, a checkpoint trained for anything else is rejected (CheckpointError).
     threads: torch threads for the step (default: the cores this process may use).
+    device: where the decoder runs ("cpu", "cuda"; :func:`resolve_device` resolves "auto"); the inputs and
+        outputs stay NumPy arrays on the CPU.
     """
 
     def __init__(self, checkpoint, name: str = "decoder", resolution: int | None = None, rest_pose=None,
-                 half_ranges=None, threads: int | None = None):
+                 half_ranges=None, threads: int | None = None, device: str = "cpu"):
         if isinstance(checkpoint, GenerativeModel):
             self.model = checkpoint
             trained = {"resolution": checkpoint.resolution, "rest_pose": checkpoint.rest_pose.tolist(),
@@ -157,6 +191,7 @@ class Decoder(Component):
             check_matches(f"{name} (an in-memory decoder)", trained, resolution, rest_pose, half_ranges)
         else:
             self.model = GenerativeModel.from_checkpoint(checkpoint, resolution, rest_pose, half_ranges)
+        self.model = self.model.on(device)
         self.threads = threads or available_cores()
         image = (self.model.resolution, self.model.resolution)
         super().__init__(name, [
@@ -201,11 +236,14 @@ class Decoder(Component):
 
     def _update(self):
         mu, image, precision = self._checked_inputs()
-        sensed = torch.from_numpy(image)  # shares memory: no copy of the images
+        device = self.model.device
+        sensed = torch.from_numpy(image).to(device)  # on the CPU: shares memory, no copy of the images
+        precision = precision.to(device)
         with torch.no_grad():
             prediction, jacobian = self.model.predict_with_jacobian(torch.from_numpy(mu.astype(np.float32)))
             error = sensed - prediction
-            self.values["visual_drive"] = visual_drive(jacobian, error, precision).double().numpy()
-            self.values["visual_error"] = visual_error(error.square().sum(dim=(1, 2)), precision).double().numpy()
-            self.values["visual_stiffness"] = visual_stiffness(jacobian, precision).double().numpy()
-        self.values["prediction"] = prediction.numpy()  # a new tensor each step, shared with numpy
+            self.values["visual_drive"] = visual_drive(jacobian, error, precision).double().cpu().numpy()
+            self.values["visual_error"] = visual_error(error.square().sum(dim=(1, 2)),
+                                                       precision).double().cpu().numpy()
+            self.values["visual_stiffness"] = visual_stiffness(jacobian, precision).double().cpu().numpy()
+        self.values["prediction"] = prediction.cpu().numpy()  # a new tensor each step, shared with numpy

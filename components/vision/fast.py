@@ -56,8 +56,9 @@ class LinearisedDecoder(Decoder):
 
     checkpoint, name, resolution, rest_pose, half_ranges, threads: as for Decoder.
     relinearise_tolerance: start value of the parameter (deg, >= 0).
-    fast_layout: run the decoder through :func:`optimised` (written-out JVPs, channels-last).
+    fast_layout: run the decoder through :func:`optimised` (written-out JVPs, channels-last), on a CPU.
     memory_mb: room for stored linearisations (12 bytes a pixel each); at least 2 per trial.
+    device: where the decoder runs (as for Decoder); the stored linearisations stay on the CPU.
 
     After a run: ``relinearisations`` (B,) counts how often each trial's linearisation point
     changed (the first included); ``call_sizes`` lists the points of each batched decoder call.
@@ -65,9 +66,9 @@ class LinearisedDecoder(Decoder):
 
     def __init__(self, checkpoint, name: str = "decoder", relinearise_tolerance: float = DEFAULT_TOLERANCE,
                  resolution: int | None = None, rest_pose=None, half_ranges=None, threads: int | None = None,
-                 fast_layout: bool = True, memory_mb: float = 256.0):
-        super().__init__(checkpoint, name, resolution, rest_pose, half_ranges, threads)
-        if fast_layout:
+                 fast_layout: bool = True, memory_mb: float = 256.0, device: str = "cpu"):
+        super().__init__(checkpoint, name, resolution, rest_pose, half_ranges, threads, device)
+        if fast_layout and self.model.device.type == "cpu":  # the optimised copy is for CPUs
             self.model = optimised(self.model)
         tolerance = Variable("relinearise_tolerance", "parameter", start=relinearise_tolerance, unit="deg", min=0.0,
                              description="take a new linearisation point when a joint of mu moves more than this from mu0")
@@ -140,6 +141,7 @@ class LinearisedDecoder(Decoder):
         slots = free[:len(points)]
         with torch.no_grad():
             prediction, jacobian = self.model.predict_with_jacobian(torch.from_numpy(points.astype(np.float32)))
+            prediction, jacobian = prediction.cpu(), jacobian.cpu()  # the store is on the CPU (no copy there)
         index = torch.from_numpy(slots)
         self._store[index, 0] = prediction.reshape(len(points), -1)
         self._store[index, 1:] = jacobian.reshape(len(points), 2, -1)

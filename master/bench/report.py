@@ -12,7 +12,8 @@ def targets(report: dict) -> dict:
         # Against the higher of the two peaks measured (before and after the modes): the stricter reading.
         "exact_batched_peak_fraction_paper": (
             paper["modes"]["exact_batched_optimised"]["decoder_flop_per_s"] / peak if paper else None, ">=", 0.5),
-        # With the trained decoder's calls replayed when there is one (the untrained decoder barely moves mu).
+        # Measured with the trained decoders when they are cached; else the untrained decoder's rate with a trained
+        # decoder's calls replayed when there is one (the untrained decoder barely moves mu).
         "fast_protocol_agent_steps_per_s": (protocol.get("projected_agent_steps_per_s") or
                                             protocol["agent_steps_per_s"], ">=", 1500.0),
         "fast_drift_relative_error": (error.get("relative_error"), "<=", 0.01),
@@ -22,6 +23,9 @@ def targets(report: dict) -> dict:
         "default_run_cpu_utilisation": (report["default_run"].get("cpu_utilisation"), ">=", 1.7),
         # Over the sweep's task window (master/bench/sweep_rate.py): its start-up is a constant, not a rate.
         "sweep_vs_lockstep_rate": (report["sweep_rate"]["window_vs_lockstep"], ">=", 0.8),
+        # Issue 17: the whole protocol at 256 x 256 with the trained paper decoders (measured only when cached).
+        "paper_protocol_seconds": (protocol["seconds"] if protocol.get("trained") and protocol["preset"] == "paper"
+                                   else None, "<=", 180.0),
     }
     met = {">=": lambda v, t: v >= t, "<=": lambda v, t: v <= t, "<": lambda v, t: v < t}
     return {name: {"value": value, "target": f"{op} {target:g}",
@@ -55,10 +59,12 @@ def table(report: dict) -> str:
         lines.append("")
     p = report["protocol_fast"]
     guess = "" if p.get("projected_agent_steps_per_s") is None else \
-        f" (with the drift-error run's decoder calls replayed: {p['projected_agent_steps_per_s']:.0f})"
-    lines += [f"fast mode, whole protocol at {p['preset']}-{p['resolution']} "
-              f"({p['trials']} trials x {p['steps']} steps, "
-              f"{p['weights']}): {p['agent_steps_per_s']:.0f} agent-steps/s{guess} ({p['seconds']:.1f} s), "
+        (f" (FALLBACK, no trained decoders cached: a projection with the drift-error run's decoder calls "
+         f"replayed: {p['projected_agent_steps_per_s']:.0f})")
+    measured = "measured with the trained decoders, " if p.get("trained") else ""
+    lines += [f"{'fast mode, ' if p.get('fast_mode', True) else 'exact, '}whole protocol at "
+              f"{p['preset']}-{p['resolution']} ({p['trials']} trials x {p['steps']} steps, "
+              f"{p['weights']}): {measured}{p['agent_steps_per_s']:.0f} agent-steps/s{guess} ({p['seconds']:.1f} s), "
               f"{p['decoder_points_per_trial'] * p['trials']:.0f} decoder points, peak RSS {p['peak_rss_mb']:.0f} MB; "
               f"shares: " + ", ".join(f"{k} {100 * v:.0f}%" for k, v in p["share"].items() if v >= 0.005)]
     e = report["fast_error"]

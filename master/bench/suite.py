@@ -59,6 +59,8 @@ class BenchSettings:
     budget_s: float = 8.0        # aimed-at measuring time per mode
     protocol_steps: int = 1500   # the fast-mode run of the whole paper protocol
     protocol_preset: tuple = ("paper", 256)
+    protocol_trained: str = "paper"  # whose cached trained decoders run the protocol when both are cached:
+                                     # "paper" (--preset paper), "quick" (--quick); "": always the untrained one
     tolerance: float = DEFAULT_TOLERANCE
     error_trials: int = 5        # per condition x stimulation, for the fast mode's drift error (as in one
                                  # decoder's half of the protocol)
@@ -77,9 +79,9 @@ class BenchSettings:
 
 
 QUICK = BenchSettings(presets=(("tiny", 32),), batch=6, max_steps=3, budget_s=0.5, protocol_steps=10,
-                      protocol_preset=("tiny", 32), error_trials=1, error_steps=30, error_model="untrained",
-                      fmu_steps=20, matmul_size=256, default_run=False, sweep_preset=("tiny", 32), sweep_trials=1,
-                      sweep_steps=10, sweep_workers=1)
+                      protocol_preset=("tiny", 32), protocol_trained="", error_trials=1, error_steps=30,
+                      error_model="untrained", fmu_steps=20, matmul_size=256, default_run=False,
+                      sweep_preset=("tiny", 32), sweep_trials=1, sweep_steps=10, sweep_workers=1)
 
 
 def untrained(preset: str, resolution: int, seed: int) -> GenerativeModel:
@@ -242,8 +244,9 @@ def run_suite(settings: BenchSettings = BenchSettings()) -> dict:
                          for preset, res in settings.presets}
     report["protocol_fast"] = protocol_in_child(settings)
     report["fast_error"] = fast_error(settings)
-    report["protocol_fast"]["projected_agent_steps_per_s"] = projected(report["protocol_fast"], report["fast_error"],
-                                                                      settings)
+    report["protocol_fast"]["projected_agent_steps_per_s"] = (
+        None if report["protocol_fast"]["trained"] else projected(report["protocol_fast"], report["fast_error"],
+                                                                  settings))
     report["master_overhead"] = master_overhead(settings.fmu_steps)
     report["default_run"] = default_run() if settings.default_run else {"skipped": "default_run = False"}
     report["sweep_rate"] = sweep_rate(settings)
@@ -275,9 +278,58 @@ def machine(threads: int) -> dict:
             "scipy": scipy.__version__, "pymunk": pymunk.version, "fmpy": fmpy.__version__}
 
 
+def trained_protocol(settings: BenchSettings) -> tuple[dict, dict] | None:
+    """The configuration of ``protocol_trained`` (its protocol, ``protocol_steps`` steps) and the cached trained
+    decoders it names, if every one of them is in the cache; else None."""
+    if not settings.protocol_trained:
+        return None
+    from master.experiment.decoders import checkpoint_path
+    quick = settings.protocol_trained == "quick"
+    config = configuration.load(quick=quick, preset_name=None if quick else settings.protocol_trained,
+                                overrides={"experiment.steps": settings.protocol_steps})
+    paths = {kind: checkpoint_path(kind, config) for kind in config["experiment"]["decoders"]}
+    return (config, paths) if all(os.path.isfile(path) for path in paths.values()) else None
+
+
+def _trained_protocol(config: dict, paths: dict, threads: int) -> dict:
+    """The protocol as `rhi experiment` runs it once its decoders are cached: each decoder's trials in one lockstep
+    batch through the decoder component the configuration makes (the paper preset: the fast mode); the time
+    includes loading each decoder."""
+    from master.experiment.decoders import decoder_component
+    torch.set_num_threads(threads)
+    began, stepping, trials, parts = time.perf_counter(), 0.0, 0, {}
+    relinearisations, points, calls = [], 0, 0
+    for kind, path in paths.items():
+        batch = [t for t in experiment.plan(config) if t.decoder == kind]
+        decoder = decoder_component(kind, path, config)
+        result = experiment.run_batch(decoder, batch, config)
+        stepping += result.timings["total_s"] - result.timings["setup_s"]
+        for key, value in result.timings.items():
+            if key.startswith("step_s."):
+                parts[key[7:]] = parts.get(key[7:], 0.0) + value
+        trials += len(batch)
+        relinearisations += list(getattr(decoder, "relinearisations", []))
+        points += getattr(decoder, "decoder_points", 0)
+        calls += getattr(decoder, "decoder_calls", 0)
+    seconds, steps = time.perf_counter() - began, config["experiment"]["steps"]
+    return {"preset": config["train"]["preset"], "resolution": config["experiment"]["resolution"],
+            "weights": "trained: " + ", ".join(f"{kind} {os.path.basename(path)}" for kind, path in paths.items()),
+            "trained": True, "checkpoints": paths, "fast_mode": config["decoder"]["fast"], "trials": trials,
+            "steps": steps, "seconds": seconds, "agent_steps_per_s": trials * steps / seconds,
+            "stepping_agent_steps_per_s": trials * steps / stepping,
+            "share": {key: value / stepping for key, value in parts.items()},
+            "relinearisations_per_trial": float(np.mean(relinearisations)) if relinearisations else 0.0,
+            "decoder_points_per_trial": points / trials, "decoder_calls": calls, "peak_rss_mb": peak_rss_mb()}
+
+
 def _protocol(settings: BenchSettings) -> dict:
-    """The whole protocol in fast mode at ``protocol_preset`` (run in a child: its peak RSS is the run's)."""
+    """The whole protocol in fast mode (run in a child: its peak RSS is the run's): with the trained decoders of
+    ``protocol_trained`` when they are cached, else with an untrained one at ``protocol_preset`` (whose rate
+    :func:`projected` corrects with the decoder calls of a trained decoder, replayed)."""
     threads = settings.threads or available_cores()
+    trained = trained_protocol(settings)
+    if trained is not None:
+        return _trained_protocol(*trained, threads)
     torch.set_num_threads(threads)
     preset, resolution = settings.protocol_preset
     model = optimised(untrained(preset, resolution, settings.seed))
@@ -290,7 +342,7 @@ def _protocol(settings: BenchSettings) -> dict:
     stepping = result.timings["total_s"] - result.timings["setup_s"]
     rss = peak_rss_mb()
     return {"preset": preset, "resolution": resolution, "weights": f"untrained, torch seed {settings.seed}",
-            "trials": len(trials), "steps": settings.protocol_steps, "seconds": seconds,
+            "trained": False, "trials": len(trials), "steps": settings.protocol_steps, "seconds": seconds,
             "agent_steps_per_s": len(trials) * settings.protocol_steps / seconds,
             "stepping_agent_steps_per_s": len(trials) * settings.protocol_steps / stepping,
             "share": {k[7:]: v / stepping for k, v in result.timings.items() if k.startswith("step_s.")},

@@ -1,4 +1,4 @@
-"""`rhi bench [--json] [--quick] [--threads N] [--checkpoint CKPT]`: arguments in, the report printed."""
+"""`rhi bench [--json] [--quick] [--threads N] [--checkpoint CKPT] [--training]`: arguments in, the report printed."""
 from __future__ import annotations
 
 import json
@@ -22,6 +22,18 @@ def run_bench(args) -> int:
         raise ConfigError(f"--checkpoint {checkpoint} is a folder, not a checkpoint file")
     if checkpoint and not os.path.isfile(checkpoint):
         raise ConfigError(f"--checkpoint {checkpoint} does not exist")
+    if getattr(args, "training", False):
+        from master.bench import training
+        from master.experiment import config as configuration
+        quick = getattr(args, "quick", False)
+        report = training.training_rates(configuration.load(quick=quick, preset_name=None if quick else "paper"),
+                                         steps=2 if quick else 3, threads=threads)
+        if getattr(args, "json", False):
+            json.dump(report, sys.stdout, indent=1, default=float)
+            print()
+        else:
+            print(training.table(report))
+        return 0
     settings = replace(settings, threads=threads, error_checkpoint=checkpoint)
     report = run_suite(settings)
     if getattr(args, "json", False):

@@ -49,6 +49,8 @@ def build_parser() -> argparse.ArgumentParser:
     train = commands.add_parser("train", help="train a visual decoder")
     train.add_argument("--decoder", choices=("conv", "vae"), required=True)
     train.add_argument("--config", metavar="FILE")
+    experiment_command.add_preset(train)
+    experiment_command.add_device(train)
     train.add_argument("--out", metavar="CKPT", required=True)
     train.set_defaults(run=lambda args: __import__("master.commands.train", fromlist=["_"]).run_train(args))
 
@@ -110,6 +112,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help="torch threads (default: all cores; 1 on a machine busy with other work)")
     bench.add_argument("--checkpoint", metavar="CKPT", default="",
                        help="trained conv decoder for the fast mode's drift error (default: the cached default)")
+    bench.add_argument("--training", action="store_true",
+                       help="instead: samples/s of the paper decoders' training step at 256x256, before and after "
+                            "the paper preset's settings, phase by phase (--quick: tiny, 32x32)")
     bench.set_defaults(run=lambda args: __import__("master.commands.bench", fromlist=["_"]).run_bench(args))
     return parser
 

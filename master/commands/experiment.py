@@ -12,7 +12,9 @@ from master.outputs.files import check_output
 def add_arguments(parser) -> None:
     parser.add_argument("--config", metavar="FILE", help="TOML file overriding master/defaults.toml")
     parser.add_argument("--body", metavar="FMU", help="an FMI 2.0 co-simulation FMU to use as the body")
-    parser.add_argument("--quick", action="store_true", help="a small version, for smoke tests")
+    scale = parser.add_mutually_exclusive_group()
+    scale.add_argument("--quick", action="store_true", help="a small version, for smoke tests")
+    add_preset(scale)
     parser.add_argument("--out", metavar="DIR", required=True)
     parser.add_argument("--force", action="store_true", help="replace DIR if it holds other content")
     parser.add_argument("--trials", type=int, help="trials per decoder x condition x stimulation")
@@ -21,6 +23,19 @@ def add_arguments(parser) -> None:
     parser.add_argument("--resolution", type=int, help="camera and decoder resolution (pixels)")
     parser.add_argument("--conv-checkpoint", metavar="CKPT", help="a trained conv decoder")
     parser.add_argument("--vae-checkpoint", metavar="CKPT", help="a trained VAE decoder")
+    add_device(parser)
+
+
+def add_preset(parser) -> None:
+    parser.add_argument("--preset", choices=configuration.PRESETS,
+                        help="a shipped configuration merged over the defaults, under --config: paper = 256x256 "
+                             "and the paper's decoders (master/paper.toml)")
+
+
+def add_device(parser) -> None:
+    parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto",
+                        help="where decoders train and run: auto = cuda when torch sees a GPU, else cpu "
+                             "(default: auto)")
 
 
 def overrides(args) -> dict:
@@ -32,11 +47,14 @@ def overrides(args) -> dict:
 
 def run_experiment(args) -> int:
     started = time.perf_counter()
-    config = configuration.load(args.config, overrides(args), quick=args.quick)  # before torch loads: fast refusals
+    config = configuration.load(args.config, overrides(args), quick=args.quick,  # before torch loads: fast refusals
+                                preset_name=args.preset)
     check_output(args.out, args.force)
+    from components.vision.component import resolve_device
     from master.experiment.publish import run_into
 
-    failures = run_into(args.out, config, body=args.body, force=args.force, progress=True)
+    failures = run_into(args.out, config, body=args.body, force=args.force, progress=True,
+                        device=resolve_device(args.device))
     for trial, error in failures.items():
         print(f"rhi experiment: trial failed and left out: {trial.decoder}/{trial.condition}/{trial.stimulation} "
               f"trial {trial.index}: {error}", file=sys.stderr)

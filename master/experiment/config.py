@@ -1,4 +1,7 @@
-"""Configuration: shipped TOML defaults, a user's TOML file over them, command-line overrides last.
+"""Configuration: shipped TOML defaults, a preset over them, a user's TOML file, command-line overrides last.
+
+A preset (``--preset paper``) is a shipped TOML file beside ``defaults.toml`` (``master/paper.toml``)
+holding only the keys it changes; it is merged like the ``[quick]`` table, with the same checks.
 
 Every key a user may set exists in ``defaults.toml``; a key that does not is an
 error naming it and suggesting the closest one. Values are type-checked against
@@ -20,10 +23,19 @@ OPEN_TABLES = ("conditions", "stimulations")  # users may add entries here (a ne
 LISTS = ("decoders", "conditions", "stimulations")  # experiment.* lists: non-empty, no entry twice
 SCHEMES = ("gauss-seidel", "jacobi")
 MAX_RESOLUTION = 1024  # px; the paper's decoders work at 256
+PRESETS = ("paper",)  # --preset NAME merges master/NAME.toml over the defaults
 
 
 def defaults() -> dict:
     with resources.files("master").joinpath("defaults.toml").open("rb") as file:
+        return tomllib.load(file)
+
+
+def preset(name: str) -> dict:
+    """The shipped preset ``name`` (``master/NAME.toml``): the keys it changes; ConfigError if unknown."""
+    if name not in PRESETS:
+        raise ConfigError(f"preset {name!r} is unknown; choose one of {', '.join(PRESETS)}")
+    with resources.files("master").joinpath(f"{name}.toml").open("rb") as file:
         return tomllib.load(file)
 
 
@@ -101,15 +113,20 @@ def check_type(path: str, value, default):
     return value
 
 
-def load(path: str | Path | None = None, overrides: dict | None = None, quick: bool = False) -> dict:
-    """The effective configuration: defaults, then ``[quick]`` if asked, then the file, then overrides.
+def load(path: str | Path | None = None, overrides: dict | None = None, quick: bool = False,
+         preset_name: str | None = None) -> dict:
+    """The effective configuration: defaults, then ``[quick]`` if asked, then the preset named, then the
+    file, then overrides.
 
     overrides: ``{"experiment.trials": 3, ...}`` from the command line.
+    preset_name: a shipped preset (:data:`PRESETS`), e.g. ``"paper"``; None: none.
     """
     config = defaults()
     quick_values = config.pop("quick")
     if quick:
         config = merge(config, quick_values)
+    if preset_name is not None:
+        config = merge(config, preset(preset_name))
     if path is not None:
         config = merge(config, read_toml(path))
     config = merge(config, nest(overrides or {}))

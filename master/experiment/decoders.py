@@ -36,8 +36,9 @@ def cache_folder() -> Path:
     return Path(os.environ.get("RHI_CACHE") or Path.home() / ".cache" / "rhi")
 
 
-def checkpoint_path(kind: str, config: dict, must_exist: bool = False) -> str:
-    """The checkpoint of decoder ``kind``: the configured one, or the cached default."""
+def checkpoint_path(kind: str, config: dict, must_exist: bool = False, device: str = "cpu") -> str:
+    """The checkpoint of decoder ``kind``: the configured one, or the cached default (trained on ``device``,
+    resolved: a decoder trained on a GPU has a name of its own)."""
     given = config["decoder"].get(f"{kind}_checkpoint") or ""
     if given:
         if Path(given).is_dir():
@@ -45,12 +46,13 @@ def checkpoint_path(kind: str, config: dict, must_exist: bool = False) -> str:
         if not Path(given).is_file():
             raise ConfigError(f"decoder.{kind}_checkpoint: {given} does not exist")
         return given
-    settings = train_settings(config).as_dict()
+    settings = train_settings(config).identity()
     blur = config["camera"]["blur"]
     # What changes the trained decoder: the [train] settings, and the camera's blur (the training images
-    # have no ball, so ball_radius does not count). The default blur adds nothing, so the key of every
-    # decoder cached before the blur was a parameter is unchanged.
-    identity = [kind, settings] + ([{"camera_blur": blur}] if blur != camera.BLUR_SIGMA else [])
+    # have no ball, so ball_radius does not count), and a device other than the CPU (its rounding). The
+    # default blur and the CPU add nothing, so the key of every decoder cached before they counted is unchanged.
+    identity = [kind, settings] + ([{"camera_blur": blur}] if blur != camera.BLUR_SIGMA else []) + \
+        ([{"device": device}] if device != "cpu" else [])
     key = hashlib.sha256(json.dumps(identity, sort_keys=True).encode()).hexdigest()[:16]
     name = f"{kind}-r{settings['resolution']}-{settings['preset']}-{key}.pt"
     path = cache_folder() / name
@@ -62,13 +64,13 @@ def checkpoint_path(kind: str, config: dict, must_exist: bool = False) -> str:
     return str(path)
 
 
-def check_decoders(config: dict) -> None:
+def check_decoders(config: dict, device: str = "cpu") -> None:
     """Before any work: every checkpoint named in ``[decoder]`` loads, is of its slot's kind and fits the
     camera (resolution, blur, ranges); every decoder still to be trained has valid ``[train]`` settings at
     this resolution and a usable cache folder. A ConfigError or CheckpointError (one line) otherwise."""
     needs_training = []
     for kind in config["experiment"]["decoders"]:
-        path = checkpoint_path(kind, config)
+        path = checkpoint_path(kind, config, device=device)
         if config["decoder"].get(f"{kind}_checkpoint"):
             check_kind(kind, path, loaded(path, config["experiment"]["resolution"], config["camera"]["blur"]))
         elif not Path(path).is_file():
@@ -102,14 +104,15 @@ def check_cache_folder() -> Path:
     return folder
 
 
-def ensure_checkpoints(config: dict, progress: bool = True) -> tuple[dict[str, str], dict[str, float]]:
-    """Every decoder the experiment needs, training (and caching) the missing defaults side by side.
+def ensure_checkpoints(config: dict, progress: bool = True, device: str = "cpu") -> tuple[dict[str, str],
+                                                                                         dict[str, float]]:
+    """Every decoder the experiment needs, training (and caching) the missing defaults side by side on ``device``.
 
     The training set is rendered (or read from the cache) once, here; then each missing decoder trains
     in its own process. Returns the checkpoint of each decoder and the seconds spent: on the training
     set ("data") and training each decoder (its process's wall time, hand-error measure included).
     """
-    paths = {kind: checkpoint_path(kind, config) for kind in config["experiment"]["decoders"]}
+    paths = {kind: checkpoint_path(kind, config, device=device) for kind in config["experiment"]["decoders"]}
     missing = [kind for kind, path in paths.items() if not Path(path).is_file()]
     if not missing:
         return paths, {}
@@ -120,7 +123,8 @@ def ensure_checkpoints(config: dict, progress: bool = True) -> tuple[dict[str, s
     if progress:
         print(f"training the {' and '.join(missing)} decoder{'s' * (len(missing) > 1)} side by side "
               f"({settings.preset}, {settings.resolution} px) into {cache_folder()}", file=sys.stderr)
-    trained = run_jobs(train_decoder, [(kind, paths[kind], settings, False, blur) for kind in missing])
+    trained = run_jobs(train_decoder, [(kind, paths[kind], settings, False, blur, device) for kind in missing],
+                       processes=1 if device != "cpu" else None)  # one GPU: the decoders one after the other
     seconds.update({kind: sum(spent.values()) for kind, (_, spent) in zip(missing, trained)})
     return paths, seconds
 
@@ -137,16 +141,16 @@ def _loaded(path: str, version: int, resolution: int, blur: float) -> Generative
 
 
 def decoder_component(kind: str, path: str, config: dict, fast: bool | None = None,
-                      threads: int | None = None) -> Decoder:
+                      threads: int | None = None, device: str = "cpu") -> Decoder:
     """The exact decoder, or the linearised one of the fast mode when ``fast`` (default: ``decoder.fast``)
-    is true; on ``threads`` torch threads (default: the usable cores)."""
+    is true; on ``threads`` torch threads (default: the usable cores) and on ``device``."""
     model = loaded(path, config["experiment"]["resolution"], config["camera"]["blur"])
     check_kind(kind, path, model)
     if config["decoder"]["fast"] if fast is None else fast:
         from components.vision.fast import LinearisedDecoder
         return LinearisedDecoder(model, name="decoder", relinearise_tolerance=config["decoder"]["relinearise_tolerance"],
-                                 threads=threads)
-    return Decoder(model, name="decoder", threads=threads)
+                                 threads=threads, device=device)
+    return Decoder(model, name="decoder", threads=threads, device=device)
 
 
 def jacobian_pair(kind: str, path: str, config: dict) -> np.ndarray:

@@ -21,24 +21,27 @@ from master.outputs.files import atomic_write, check_output, output_folder, pack
 from master.outputs.animation import frames, gif_bytes
 
 
-def run_into(out, config: dict, body: str | None = None, force: bool = False, progress: bool = False) -> dict:
+def run_into(out, config: dict, body: str | None = None, force: bool = False, progress: bool = False,
+             device: str = "cpu") -> dict:
     """Run the protocol of ``config`` and write DIR = ``out``; returns {failed trial: error}.
 
-    body: an FMU to use as the body (None: the native pymunk plant). Everything that can be checked is
+    body: an FMU to use as the body (None: the native pymunk plant). device: where the decoders train and run
+    (cpu, cuda; resolved). Everything that can be checked is
     checked before the staging folder exists and before any training: the output folder, the decoders'
     checkpoints (kind, resolution, camera) or training settings, the body FMU.
     """
     started = time.perf_counter()
     check_output(out, force)
-    check_decoders(config)
+    check_decoders(config, device)
     declared = body_factory(body, config)[1]
     with output_folder(out, force) as staging:
-        checkpoints, training_seconds = ensure_checkpoints(config, progress=progress)
+        checkpoints, training_seconds = ensure_checkpoints(config, progress=progress, device=device)
         began = time.perf_counter()
         modes = verdicts(config, checkpoints)
         check_seconds = time.perf_counter() - began
         trials, times, per_step, run_seconds, failures = experiment.run(
-            config, checkpoints, body, progress=progress, fast={kind: mode["fast"] for kind, mode in modes.items()})
+            config, checkpoints, body, progress=progress, fast={kind: mode["fast"] for kind, mode in modes.items()},
+            device=device)
         final = end_of_trial(times, per_step)
         summary = tables.summary(trials, final, planned=tables.cells(plan(config)))
         atomic_write(staging / "summary.csv", tables.csv_text(tables.SUMMARY_COLUMNS, summary))
@@ -55,7 +58,8 @@ def run_into(out, config: dict, body: str | None = None, force: bool = False, pr
             "command": "rhi experiment", "configuration": config, "body": body or "native pymunk plant",
             "body_keys_not_declared": sorted(f"body.{key}" for key in config["body"]
                                              if declared is not None and key not in declared),
-            "checkpoints": checkpoints, "fast_mode": modes, "seeds": {"master": config["experiment"]["seed"],
+            "checkpoints": checkpoints, "fast_mode": modes, "device": device,
+            "seeds": {"master": config["experiment"]["seed"],
                                                   "trials": [t.__dict__ for t in trials]},
             "versions": package_versions(),
             "timings_s": {"training": training_seconds, "fast_check": check_seconds, "trials": run_seconds,

@@ -15,6 +15,7 @@ from components.body import camera, kinematics
 from components.vision.component import GenerativeModel
 
 QUALITY_SEED = 12345        # held-out poses for the hand error, distinct from any training seed
+STOP_SEED = 54321           # held-out poses of the hand-error check that may stop training, distinct from both
 
 
 def fit_camera(images: np.ndarray, start_deg: np.ndarray, iterations: int = 6, delta: float = 0.5,
@@ -43,6 +44,7 @@ def fit_decoder(model: GenerativeModel, images: np.ndarray, start_deg: np.ndarra
     for _ in range(iterations):
         with torch.no_grad():
             prediction, jacobian = model.predict_with_jacobian(torch.from_numpy(angles.astype(np.float32)))
+            prediction, jacobian = prediction.cpu(), jacobian.cpu()  # no copy on the CPU
         residual = (prediction - target).reshape(len(angles), -1).double().numpy()
         angles = angles + _gauss_newton_step(jacobian.reshape(len(angles), 2, -1).transpose(1, 2).double().numpy(),
                                              residual)
@@ -66,10 +68,10 @@ def hand_error(model: GenerativeModel, samples: int = 100, seed: int = QUALITY_S
     inference: hand of the decoder pose fitted to the true image. Each: mean, 95th percentile, max.
     The image MSE of the predictions on these poses is included.
     """
-    poses = model.rest_pose + fraction * np.random.default_rng(seed).uniform(-1.0, 1.0, (samples, 2)) * model.half_ranges
+    poses = held_out_poses(model, samples, seed, fraction)
     truth = camera.render(poses, model.resolution, blur=blur)
     with torch.no_grad():
-        predicted = model(torch.from_numpy(poses.astype(np.float32))).numpy()
+        predicted = model(torch.from_numpy(poses.astype(np.float32))).cpu().numpy()
     true_hand = np.stack(kinematics.forward(poses[:, 0], poses[:, 1]), axis=1)
     result = {"poses": samples, "image_mse": float(np.mean((predicted - truth) ** 2))}
     for name, fitted in (("read_off", fit_camera(predicted, poses, blur=blur)),
@@ -79,3 +81,21 @@ def hand_error(model: GenerativeModel, samples: int = 100, seed: int = QUALITY_S
         result[name] = {"mean_cm": float(error.mean()), "p95_cm": float(np.percentile(error, 95)),
                         "max_cm": float(error.max())}
     return result
+
+
+def held_out_poses(model: GenerativeModel, samples: int, seed: int, fraction: float = 0.9) -> np.ndarray:
+    """Poses (samples, 2) deg uniform over ``fraction`` of the model's training ranges, from ``seed``."""
+    return model.rest_pose + fraction * np.random.default_rng(seed).uniform(-1.0, 1.0, (samples, 2)) * model.half_ranges
+
+
+def read_off_error(model: GenerativeModel, samples: int, seed: int = STOP_SEED, fraction: float = 0.9,
+                   blur: float = camera.BLUR_SIGMA) -> float:
+    """Mean hand error (cm) read off the predictions at ``samples`` held-out poses (as :func:`hand_error`'s
+    read_off, without the inference fit): the cheap check that may stop training."""
+    poses = held_out_poses(model, samples, seed, fraction)
+    with torch.no_grad():
+        predicted = model(torch.from_numpy(poses.astype(np.float32))).cpu().numpy()
+    fitted = fit_camera(predicted, poses, blur=blur)
+    true_hand = np.stack(kinematics.forward(poses[:, 0], poses[:, 1]), axis=1)
+    hand = np.stack(kinematics.forward(fitted[:, 0], fitted[:, 1]), axis=1)
+    return float(100 * np.linalg.norm(hand - true_hand, axis=1).mean())

@@ -41,8 +41,9 @@ def without_failures(run_trials, trials: list[Trial]):
 
 
 def run(config: dict, checkpoints: dict[str, str], body: str | None = None, progress: bool = False,
-        processes: int | None = None, fast: dict[str, bool] | None = None):
-    """Every trial of the protocol, one lockstep batch per decoder, the batches side by side.
+        processes: int | None = None, fast: dict[str, bool] | None = None, device: str = "cpu"):
+    """Every trial of the protocol, one lockstep batch per decoder, the batches side by side (the decoders on
+    ``device``; on a GPU the batches run one after the other).
 
     body: an FMU to use as the body (None: the native plant). processes: most batches at once (default:
     the usable cores; 1: one after the other, here); the numbers do not depend on it. fast: per decoder,
@@ -55,9 +56,10 @@ def run(config: dict, checkpoints: dict[str, str], body: str | None = None, prog
     kinds = config["experiment"]["decoders"]
     fast = fast or {kind: config["decoder"]["fast"] for kind in kinds}
     batches = lockstep_batches(config)
+    processes = 1 if device != "cpu" else processes
     side_by_side = process_count(len(batches), processes) > 1  # each bar its own line, else all on one
     jobs = [(config, batch[0].decoder, checkpoints[batch[0].decoder], batch, body,
-             (position if side_by_side else 0) if progress else None, fast[batch[0].decoder])
+             (position if side_by_side else 0) if progress else None, fast[batch[0].decoder], device)
             for position, batch in enumerate(batches)]
     kept, blocks, seconds, failures, times = [], [], {}, {}, None
     for trials, (batch, result, spent, failed) in zip(batches, run_jobs(decoder_batch, jobs, processes)):
@@ -86,10 +88,10 @@ def lockstep_batches(config: dict) -> list[list[Trial]]:
 
 
 def decoder_batch(config: dict, kind: str, checkpoint: str, trials: list[Trial], body: str | None,
-                  progress: int | None = None, fast: bool | None = None):
+                  progress: int | None = None, fast: bool | None = None, device: str = "cpu"):
     """One lockstep batch of one decoder's trials, a failing trial dropped and recorded (a job of :func:`run`).
 
-    progress: the line of this batch's progress bar (None: no bar). fast: as for ``decoder_component``.
+    progress: the line of this batch's progress bar (None: no bar). fast, device: as for ``decoder_component``.
 
     Returns (kept trials, {"times", "measures"} or None, seconds, {failed trial: error}).
     """
@@ -101,7 +103,7 @@ def decoder_batch(config: dict, kind: str, checkpoint: str, trials: list[Trial],
         bar = None if progress is None else progress_bar(f"{kind} trials x{len(batch)}",
                                                          config["experiment"]["steps"], progress)
         try:
-            return run_batch(decoder_component(kind, checkpoint, config, fast, JOB_THREADS), batch, config,
+            return run_batch(decoder_component(kind, checkpoint, config, fast, JOB_THREADS, device), batch, config,
                              make_body() if make_body else None, bar.update_to if bar else None)
         finally:
             if bar:

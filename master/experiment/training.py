@@ -3,7 +3,9 @@
 Settings are ``[train]`` of the configuration (:func:`train_settings`), and the images are the
 camera's at ``[camera] blur``, so `rhi train` and `rhi experiment` start from the same defaults.
 The training data are rendered once per (samples, resolution, seed, blur) and cached beside the
-checkpoint, so conv and vae trained into the same folder share them.
+checkpoint, so conv and vae trained into the same folder share them. With ``[train]
+stop_hand_error_cm`` > 0 training stops once the hand error read off STOP_POSES held-out poses
+(their own seed, quality.STOP_SEED) is at most that after an epoch.
 
 Example::
 
@@ -12,21 +14,25 @@ Example::
 """
 from __future__ import annotations
 
+import copy
 import time
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from components.body import camera, kinematics
 from components.component import ComponentError
 from components.vision import checkpoint, training
-from components.vision.component import GenerativeModel
+from components.vision.component import GenerativeModel, resolve_device
+from components.vision.optimised import optimised
 from master.cosim import ConfigError
 from master.experiment import training_data
-from master.experiment.quality import hand_error
+from master.experiment.quality import hand_error, read_off_error
 from master.outputs.files import atomic_write, check_output_file
 
 SIGNATURE_TOLERANCE = 1e-3  # relative; the signature moves by far more when the camera changes
+STOP_POSES = 30             # held-out poses of the hand-error check that may stop training (a few s at 256 x 256)
 
 
 def train_settings(config: dict) -> training.TrainSettings:
@@ -57,29 +63,47 @@ def prepare_data(folder: Path, settings: training.TrainSettings, blur: float = c
                                 settings.seed, progress, blur)
 
 
+def hand_error_check(rest_pose, half_ranges, blur: float = camera.BLUR_SIGMA):
+    """The check :func:`training.train` calls after each epoch: the mean hand error (cm) read off the
+    decoder's predictions at STOP_POSES held-out poses, on a CPU copy of it (the training's is left as it is)."""
+    def check(decoder) -> float:
+        copied = copy.deepcopy(decoder).to("cpu", memory_format=torch.contiguous_format)
+        return read_off_error(GenerativeModel(copied, rest_pose, half_ranges), STOP_POSES, blur=blur)
+    return check
+
+
 def train_decoder(kind: str, out: str | Path, settings: training.TrainSettings | None = None,
-                  progress: bool = True, blur: float = camera.BLUR_SIGMA) -> tuple[dict, dict]:
+                  progress: bool = True, blur: float = camera.BLUR_SIGMA, device: str = "cpu") -> tuple[dict, dict]:
     """Train a decoder of ``kind`` on camera images blurred by ``blur`` m and save it to ``out``.
 
+    device: cpu, cuda or auto (:func:`resolve_device`); the metadata names it when it is not the CPU.
     Returns the checkpoint metadata (with the camera's blur and signature) and the wall time of each
     part, s (data, training, quality), which the checkpoint does not store.
     """
     settings = settings or training.TrainSettings()
+    device = resolve_device(device)
     out = check_target(out)
     started = time.perf_counter()
     data = prepare_data(out.parent, settings, blur, progress)
     seconds = {"data": time.perf_counter() - started}
+    check = hand_error_check(data.rest_pose, data.half_ranges, blur) if settings.stop_hand_error_cm else None
     model, report = training.train(kind, data.poses, data.images, data.rest_pose, data.half_ranges, settings,
-                                   progress)
+                                   progress, device=device, check=check)
     seconds["training"] = report["seconds"]
     metadata = training.checkpoint_metadata(kind, settings, data.rest_pose, data.half_ranges,
                                             data.content_hash, report)
+    if device != "cpu":  # a CPU-trained checkpoint's metadata is as before devices existed
+        metadata["device"] = device
     metadata["camera_blur"] = float(blur)
     metadata["camera_signature"] = training_data.camera_signature(settings.resolution, blur)
     if settings.quality_poses:
         began = time.perf_counter()
-        metadata["hand_error"] = hand_error(GenerativeModel(model.decoder, data.rest_pose, data.half_ranges),
-                                            settings.quality_poses, blur=blur)
+        measured = GenerativeModel(model.decoder, data.rest_pose, data.half_ranges)
+        if device != "cpu":
+            measured = measured.on(device)
+        elif settings.channels_last:  # the fit's Jacobians through the CPU-optimised copy (channels-last too)
+            measured = optimised(measured)
+        metadata["hand_error"] = hand_error(measured, settings.quality_poses, blur=blur)
         seconds["quality"] = time.perf_counter() - began
     atomic_write(out, lambda file: checkpoint.write(file, model, metadata))
     return metadata, seconds

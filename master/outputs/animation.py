@@ -11,8 +11,11 @@ from components.body import kinematics
 from components.body.camera import render
 
 
-def frames(mu: np.ndarray, rubber_pose, balls: np.ndarray, resolution: int, every: int = 10, scale: int = 3):
-    """RGB frames: gray = what the camera shows (rubber arm, ball); red = the perceived arm; every nth step."""
+def frames(mu: np.ndarray, rubber_pose, balls: np.ndarray, resolution: int, every: int = 10,
+           scale: int | None = None):
+    """RGB frames: gray = what the camera shows (rubber arm, ball); red = the perceived arm; every nth step,
+    enlarged ``scale`` times (default: 3 up to 64 px, else 1; large frames make a big GIF, slow to write)."""
+    scale = scale or (3 if resolution <= 64 else 1)
     chosen = np.arange(0, len(mu), every)
     seen = render(np.repeat(np.asarray(rubber_pose, float)[None], len(chosen), 0), resolution, balls[chosen])
     perceived = render(mu[chosen], resolution, None)

@@ -6,6 +6,7 @@ plus a ``[sweep]`` table saying what varies::
     [sweep]
     trials = 3                     # per point and decoder x condition x stimulation (= experiment.trials)
     quick = true                   # start from the [quick] defaults, like `rhi experiment --quick`
+    # preset = "paper"             # or from a shipped preset, like `rhi experiment --preset paper`
     task = "master.experiment:trial_outcome"   # the trial function (module:function), this by default
     batch = 10                     # at most this many trials per task (default: all of a point's decoder)
     workers = 2                    # processes of the local pool (default: one per core)
@@ -44,7 +45,7 @@ from master.cosim import ConfigError
 from master import experiment
 
 DEFAULT_TASK = "master.experiment:trial_outcome"
-SWEEP_KEYS = ("trials", "quick", "task", "batch", "workers", "grid", "points")
+SWEEP_KEYS = ("trials", "quick", "preset", "task", "batch", "workers", "grid", "points")
 BATCHING = "lockstep-chunks/1"  # in the fingerprint of a batched sweep: folders of per-trial sweeps differ
 
 
@@ -129,6 +130,10 @@ def check_settings(settings: dict) -> None:
             raise ConfigError(f"sweep.{key} must be a whole number of at least 1, got {value!r}")
     if not isinstance(settings.get("quick", False), bool):
         raise ConfigError(f"sweep.quick must be true or false, got {settings['quick']!r}")
+    if "preset" in settings and settings["preset"] not in configuration.PRESETS:
+        raise ConfigError(f"sweep.preset = {settings['preset']!r} is not one of {', '.join(configuration.PRESETS)}")
+    if settings.get("quick") and "preset" in settings:
+        raise ConfigError("sweep: give either sweep.quick or sweep.preset, not both")
     if not isinstance(settings.get("task", DEFAULT_TASK), str):
         raise ConfigError(f"sweep.task must be a string 'module:function', got {settings['task']!r}")
     if "grid" in settings and "points" in settings:
@@ -201,7 +206,8 @@ def load(path: str | Path) -> Sweep:
     check_settings(settings)
     task = settings.get("task", DEFAULT_TASK)
     resolve_task(task)
-    base = configuration.merge(configuration.load(quick=settings.get("quick", False)), fixed)
+    base = configuration.merge(configuration.load(quick=settings.get("quick", False),
+                                                  preset_name=settings.get("preset")), fixed)
     configuration.validate(base)
     if "trials" in settings:
         base["experiment"]["trials"] = settings["trials"]
