@@ -242,7 +242,7 @@ def test_5_a_decoder_whose_whole_batch_failed_costs_only_its_trials(monkeypatch)
         return SimpleNamespace(times=np.arange(3.0))
 
     monkeypatch.setattr(runner, "run_batch", fake_run_batch)
-    monkeypatch.setattr("master.experiment.decoders.decoder_component", lambda kind, path, config, device="cpu": None)
+    monkeypatch.setattr("master.experiment.decoders.decoder_component", lambda kind, path, config, *how, **where: None)
     monkeypatch.setattr(runner, "measures", lambda result: {"drift_cm": np.zeros((3, 6))})
     kept, _, per_step, _, failures = runner.run(config, {"conv": "c.pt", "vae": "v.pt"}, processes=1)
     assert {t.decoder for t in kept} == {"vae"} and len(failures) == 6

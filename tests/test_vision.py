@@ -256,7 +256,8 @@ def test_experiment_config_chooses_the_exact_or_the_fast_decoder(tmp_path):
     from master.experiment.training_data import HALF_RANGES
     path = tmp_path / "conv.pt"
     save(path, random_model(), {**METADATA, "rest_pose": list(REST_POSE), "half_ranges": list(HALF_RANGES)})
-    exact = decoder_component("conv", str(path), configuration.load(overrides={"experiment.resolution": RES}))
+    exact = decoder_component("conv", str(path), configuration.load(overrides={"experiment.resolution": RES,
+                                                                                "decoder.fast": False}))
     assert type(exact) is Decoder
     config = configuration.load(overrides={"experiment.resolution": RES, "decoder.fast": True,
                                            "decoder.relinearise_tolerance": 0.05})
