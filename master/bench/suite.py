@@ -74,7 +74,7 @@ class BenchSettings:
     default_run: bool = True     # time `rhi experiment` from an empty decoder cache (master/bench/default_run.py)
     sweep_preset: tuple = ("default", 64)  # the sweep against lockstep (master/bench/sweep_rate.py)
     sweep_trials: int = 5        # per decoder x condition x stimulation: 60 trials, the whole protocol
-    sweep_steps: int = 150
+    sweep_steps: int = 300
     sweep_workers: int = 0       # the sweep's local pool; 0: one per usable core
 
 
