@@ -68,6 +68,10 @@ def test_same_seed_same_bytes(quick_run, cache, tmp_path):
     assert again.returncode == 0, again.stderr[-3000:]
     assert (tmp_path / "again" / "summary.csv").read_bytes() == (quick_run / "summary.csv").read_bytes()
     assert (tmp_path / "again" / "trials.csv").read_bytes() == (quick_run / "trials.csv").read_bytes()
+    figures = sorted(path.name for path in (quick_run / "figures").iterdir())  # written side by side, then in turn
+    assert figures == sorted(path.name for path in (tmp_path / "again" / "figures").iterdir())
+    for name in figures:
+        assert (tmp_path / "again" / "figures" / name).read_bytes() == (quick_run / "figures" / name).read_bytes()
 
 
 def one_line_error(result, *fragments):

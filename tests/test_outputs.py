@@ -61,6 +61,29 @@ def test_trials_csv_is_tidy():
                                  "vae,center,async,1,6,0,0,0", "vae,center,async,1,6,1,0.02,-0.1"]
 
 
+def test_trials_csv_formats_every_number_as_csv_writer_and_format_would():
+    """The row-at-a-time formatting against the csv module and f"{x:.6g}", value by value."""
+    import csv
+    import io
+
+    rng = np.random.default_rng(3)
+    values = rng.standard_normal((4, 3, 2)) * 10.0 ** rng.integers(-320, 300, (4, 3, 2))
+    values[0, 0] = [np.nan, np.inf]
+    values[1, 1] = [-np.inf, -0.0]
+    values[2, 2] = [1e-7, 123456789.0]
+    per_step = {"a": values[..., 0], "b": values[..., 1]}
+    times = np.array([0.0, 0.02, 1 / 3, 30.0])
+    trials = [Trial("conv", "left", "sync", i, 2**62 + i, -0.1, 0.0, 1.0) for i in range(3)]
+    expected = io.StringIO()
+    writer = csv.writer(expected, lineterminator="\n")
+    writer.writerow(outputs.TRIAL_KEYS + ["step", "time_s", "a", "b"])
+    for b, trial in enumerate(trials):
+        for step, time in enumerate(times):
+            writer.writerow([trial.decoder, trial.condition, trial.stimulation, trial.index, trial.seed, step,
+                             f"{time:.6g}", f"{per_step['a'][step, b]:.6g}", f"{per_step['b'][step, b]:.6g}"])
+    assert outputs.trials_csv(trials, times, per_step) == expected.getvalue()
+
+
 def test_staging_refuses_foreign_content_and_publishes_whole(tmp_path):
     """--force replaces an earlier output of rhi experiment, never a folder holding anything else."""
     out = tmp_path / "run"

@@ -30,3 +30,32 @@ def test_a_job_s_error_reaches_the_caller_whole():
         parallel.run_jobs(job, [(1,), (2, True)], processes=2)
     assert raised.value.trials == (1,) and raised.value.component == "body" and raised.value.time == 0.5
     assert str(raised.value) == str(SimulationError("body", 0.5, "NaN in q", trials=(1,)))
+
+
+def pid(offset: int = 0) -> int:
+    import os
+
+    return os.getpid() + offset
+
+
+def test_workers_keep_their_processes_across_rounds_and_call_runs_mixed_jobs():
+    import os
+
+    with parallel.Workers(2) as workers:
+        first = workers.map(pid, [(), ()])
+        mixed = workers.map(parallel.call, [(pid, 0), (job, 5), (pid, 0)])
+        assert os.getpid() not in first
+        assert set(first) | {mixed[0], mixed[2]} <= set(workers._pool._pool[i].pid for i in range(2))
+        assert mixed[1] == parallel.run_jobs(job, [(5,)], processes=1)[0]
+        with pytest.raises(SimulationError):
+            workers.map(job, [(1,), (2, True)])
+        assert workers._pool is None                # terminated on the error
+        assert workers.map(job, [(4,), (6,)]) == parallel.run_jobs(job, [(4,), (6,)], processes=1)  # new workers
+    assert workers._pool is None
+
+
+def test_one_process_runs_the_jobs_here():
+    import os
+
+    with parallel.Workers(1) as workers:
+        assert workers.map(pid, [(), ()]) == [os.getpid()] * 2 and workers._pool is None

@@ -26,7 +26,7 @@ from components.body import camera, kinematics
 from components.vision.checkpoint import CheckpointError
 from components.vision.component import Decoder, GenerativeModel, jacobian_images
 from master.cosim import ConfigError
-from master.experiment.parallel import run_jobs
+from master.experiment.parallel import Workers, run_jobs
 from master.experiment.training import load_decoder, prepare_data, train_decoder, train_settings
 
 SHIPPED = Path(__file__).parent / "checkpoints"  # the default decoders, named as the cache names them
@@ -104,13 +104,14 @@ def check_cache_folder() -> Path:
     return folder
 
 
-def ensure_checkpoints(config: dict, progress: bool = True, device: str = "cpu") -> tuple[dict[str, str],
-                                                                                         dict[str, float]]:
+def ensure_checkpoints(config: dict, progress: bool = True, device: str = "cpu",
+                       workers: Workers | None = None) -> tuple[dict[str, str], dict[str, float]]:
     """Every decoder the experiment needs, training (and caching) the missing defaults side by side on ``device``.
 
     The training set is rendered (or read from the cache) once, here; then each missing decoder trains
     in its own process. Returns the checkpoint of each decoder and the seconds spent: on the training
     set ("data") and training each decoder (its process's wall time, hand-error measure included).
+    workers: train on these (left open) instead of workers of their own.
     """
     paths = {kind: checkpoint_path(kind, config, device=device) for kind in config["experiment"]["decoders"]}
     missing = [kind for kind, path in paths.items() if not Path(path).is_file()]
@@ -123,8 +124,10 @@ def ensure_checkpoints(config: dict, progress: bool = True, device: str = "cpu")
     if progress:
         print(f"training the {' and '.join(missing)} decoder{'s' * (len(missing) > 1)} side by side "
               f"({settings.preset}, {settings.resolution} px) into {cache_folder()}", file=sys.stderr)
+    if device != "cpu":  # one GPU: the decoders one after the other
+        workers = Workers(1)
     trained = run_jobs(train_decoder, [(kind, paths[kind], settings, False, blur, device) for kind in missing],
-                       processes=1 if device != "cpu" else None)  # one GPU: the decoders one after the other
+                       workers=workers)
     seconds.update({kind: sum(spent.values()) for kind, (_, spent) in zip(missing, trained)})
     return paths, seconds
 

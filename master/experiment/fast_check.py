@@ -20,7 +20,7 @@ import numpy as np
 
 from master.experiment.decoders import SHIPPED, cache_folder, check_cache_folder, decoder_component
 from master.experiment.measures import end_of_trial, measures
-from master.experiment.parallel import JOB_THREADS, run_jobs
+from master.experiment.parallel import JOB_THREADS, Workers, run_jobs
 from master.experiment.protocol import make_trial
 from master.experiment.wiring import run_batch
 from master.outputs.files import atomic_write
@@ -68,9 +68,10 @@ def check(config: dict, kind: str, checkpoint: str) -> dict:
             "drift_exact_cm": drifts[False].tolist(), "drift_fast_cm": drifts[True].tolist()}
 
 
-def verdicts(config: dict, checkpoints: dict[str, str]) -> dict[str, dict]:
+def verdicts(config: dict, checkpoints: dict[str, str], workers: Workers | None = None) -> dict[str, dict]:
     """Per decoder: whether it runs fast, and why. ``[decoder] fast = false`` runs every decoder exact;
-    ``true`` runs each decoder fast if its check passes (stored, or run now, the decoders side by side)."""
+    ``true`` runs each decoder fast if its check passes (stored, or run now, the decoders side by side, on
+    ``workers`` when given)."""
     if not config["decoder"]["fast"]:
         return {kind: {"fast": False, "reason": "decoder.fast = false"} for kind in checkpoints}
     found, missing = {}, []
@@ -84,7 +85,7 @@ def verdicts(config: dict, checkpoints: dict[str, str]) -> dict[str, dict]:
     if missing:
         check_cache_folder()
         for (kind, path), verdict in zip(missing, run_jobs(check, [(config, kind, checkpoints[kind])
-                                                                  for kind, _ in missing])):
+                                                                  for kind, _ in missing], workers=workers)):
             atomic_write(path, json.dumps(verdict, indent=2) + "\n")
             found[kind] = verdict
     return {kind: found[kind] for kind in checkpoints}

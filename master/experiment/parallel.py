@@ -1,14 +1,20 @@
-"""Independent jobs on this machine's cores: one fresh process per job at a time, results in order.
+"""Independent jobs on this machine's cores: worker processes, results in order.
 
-A job's numbers must not depend on the schedule. So each job runs in a spawned process (nothing
+A job's numbers must not depend on the schedule. So each job runs in a spawned worker (nothing
 inherited from the parent's torch or OpenMP state) with one torch thread, whichever job runs beside
 it; with a single job, or a single usable core, the jobs run here in turn with one torch thread too,
 and give the same bytes. A job that builds a component which sets torch's threads itself (a
 decoder) gives it ``JOB_THREADS``. An interruption (Ctrl-C, SIGTERM) terminates the workers at once.
 
+:class:`Workers` keeps its processes for several rounds of jobs (a run's trials, then its files), so
+that each worker imports torch once; :func:`run_jobs` is one round on workers of its own.
+
 Example::
 
     results = run_jobs(train_one, [("conv",), ("vae",)])   # [train_one("conv"), train_one("vae")]
+    with Workers() as workers:
+        trained = workers.map(train_one, [("conv",), ("vae",)])
+        written = workers.map(call, [(write_table, rows), (write_figure, data)])
 """
 from __future__ import annotations
 
@@ -28,8 +34,14 @@ def usable_cores() -> int:
 
 
 def process_count(jobs: int, processes: int | None = None) -> int:
-    """How many processes :func:`run_jobs` uses for ``jobs`` jobs (1: none, the jobs run here)."""
+    """How many processes run ``jobs`` jobs at once, at most ``processes`` (default: the usable cores);
+    1: none, the jobs run here."""
     return max(1, min(processes or usable_cores(), jobs))
+
+
+def call(function, *arguments):
+    """``function(*arguments)``: a job for rounds whose jobs call different functions."""
+    return function(*arguments)
 
 
 def _start_worker() -> None:
@@ -42,41 +54,76 @@ def _start_worker() -> None:
     torch.set_num_threads(JOB_THREADS)
 
 
-def run_jobs(function, jobs: list[tuple], processes: int | None = None) -> list:
-    """``[function(*job) for job in jobs]``, up to ``processes`` at a time (default: the usable cores).
+class Workers:
+    """Up to ``processes`` spawned worker processes (default: the usable cores), kept across rounds of jobs.
 
-    Parameters
-    ----------
-    function : callable
-        A module-level function (workers import it by name); its arguments, result and exceptions
-        must pickle (an exception that does not unpickle would leave the pool waiting).
-    jobs : list of tuple
-        The arguments of each call.
-    processes : int, optional
-        Most worker processes at once; 1 runs the jobs here, in this process.
-
-    Returns
-    -------
-    list
-        Each job's result, in the order of ``jobs``. A job's exception is raised here.
+    Verbs: :meth:`start` (spawn the workers now, so that they import while the caller works; else at the
+    first round that needs them), :meth:`map` (one round), :meth:`close`. As a context manager it closes
+    on leaving, and terminates the workers at once on an error, Ctrl-C or SIGTERM.
     """
-    if process_count(len(jobs), processes) <= 1:
-        import torch
 
-        threads = torch.get_num_threads()
-        torch.set_num_threads(JOB_THREADS)
+    def __init__(self, processes: int | None = None):
+        self.processes = max(1, processes or usable_cores())
+        self._pool = None
+
+    def start(self) -> "Workers":
+        if self._pool is None and self.processes > 1:
+            self._pool = multiprocessing.get_context("spawn").Pool(self.processes, initializer=_start_worker)
+        return self
+
+    def map(self, function, jobs: list[tuple]) -> list:
+        """``[function(*job) for job in jobs]``, up to ``processes`` at a time; here, in turn, when only one
+        would run at a time.
+
+        Parameters
+        ----------
+        function : callable
+            A module-level function (workers import it by name); its arguments, result and exceptions
+            must pickle (an exception that does not unpickle would leave the pool waiting).
+        jobs : list of tuple
+            The arguments of each call.
+
+        Returns
+        -------
+        list
+            Each job's result, in the order of ``jobs``. A job's exception is raised here (and the
+            workers are terminated).
+        """
+        if process_count(len(jobs), self.processes) <= 1:
+            import torch
+
+            threads = torch.get_num_threads()
+            torch.set_num_threads(JOB_THREADS)
+            try:
+                return [function(*job) for job in jobs]
+            finally:
+                torch.set_num_threads(threads)
+        pool = self.start()._pool
         try:
-            return [function(*job) for job in jobs]
-        finally:
-            torch.set_num_threads(threads)
-    pool = multiprocessing.get_context("spawn").Pool(process_count(len(jobs), processes), initializer=_start_worker)
-    try:
-        pending = [pool.apply_async(function, job) for job in jobs]
-        results = [result.get() for result in pending]
-        pool.close()
-        return results
-    except BaseException:  # a job's error, Ctrl-C or SIGTERM: stop the other jobs now
-        pool.terminate()
-        raise
-    finally:
-        pool.join()
+            pending = [pool.apply_async(function, job) for job in jobs]
+            return [result.get() for result in pending]
+        except BaseException:  # a job's error, Ctrl-C or SIGTERM: stop the other jobs now
+            self.close(terminate=True)
+            raise
+
+    def close(self, terminate: bool = False) -> None:
+        """Let the workers finish (or ``terminate`` them) and wait for them; a later round starts new ones."""
+        if self._pool is not None:
+            pool, self._pool = self._pool, None
+            pool.terminate() if terminate else pool.close()
+            pool.join()
+
+    def __enter__(self) -> "Workers":
+        return self
+
+    def __exit__(self, kind, error, traceback) -> None:
+        self.close(terminate=kind is not None)
+
+
+def run_jobs(function, jobs: list[tuple], processes: int | None = None, workers: Workers | None = None) -> list:
+    """:meth:`Workers.map` on ``workers`` (left open) when given, else on up to ``processes`` workers of its
+    own, closed when the jobs are done."""
+    if workers is not None:
+        return workers.map(function, jobs)
+    with Workers(process_count(len(jobs), processes)) as own:
+        return own.map(function, jobs)

@@ -12,7 +12,7 @@ import numpy as np
 
 from master.cosim import SimulationError
 from master.experiment.measures import end_of_trial, measures
-from master.experiment.parallel import JOB_THREADS, process_count, run_jobs
+from master.experiment.parallel import JOB_THREADS, Workers, process_count, run_jobs
 from master.experiment.protocol import Trial, make_trial, plan
 from master.experiment.wiring import run_batch
 
@@ -41,13 +41,15 @@ def without_failures(run_trials, trials: list[Trial]):
 
 
 def run(config: dict, checkpoints: dict[str, str], body: str | None = None, progress: bool = False,
-        processes: int | None = None, fast: dict[str, bool] | None = None, device: str = "cpu"):
+        processes: int | None = None, fast: dict[str, bool] | None = None, device: str = "cpu",
+        workers: Workers | None = None):
     """Every trial of the protocol, one lockstep batch per decoder, the batches side by side (the decoders on
     ``device``; on a GPU the batches run one after the other).
 
     body: an FMU to use as the body (None: the native plant). processes: most batches at once (default:
-    the usable cores; 1: one after the other, here); the numbers do not depend on it. fast: per decoder,
-    whether it runs in the fast mode (default: ``decoder.fast`` for all).
+    the usable cores; 1: one after the other, here); the numbers do not depend on it. workers: run the
+    batches on these (left open) instead of workers of their own. fast: per decoder, whether it runs in the
+    fast mode (default: ``decoder.fast`` for all).
     Returns (trials, times, per_step, seconds, failures): ``per_step[key]`` has shape
     (steps + 1, n_trials) in the order of ``trials`` (the protocol's order, less any failed trial);
     ``seconds`` maps each decoder to its batches' wall time (summed); ``failures`` maps each failed trial to
@@ -56,13 +58,14 @@ def run(config: dict, checkpoints: dict[str, str], body: str | None = None, prog
     kinds = config["experiment"]["decoders"]
     fast = fast or {kind: config["decoder"]["fast"] for kind in kinds}
     batches = lockstep_batches(config)
-    processes = 1 if device != "cpu" else processes
-    side_by_side = process_count(len(batches), processes) > 1  # each bar its own line, else all on one
+    if device != "cpu":  # one GPU: the batches one after the other
+        processes, workers = 1, None
+    side_by_side = process_count(len(batches), workers.processes if workers else processes) > 1  # bars: a line each
     jobs = [(config, batch[0].decoder, checkpoints[batch[0].decoder], batch, body,
              (position if side_by_side else 0) if progress else None, fast[batch[0].decoder], device)
             for position, batch in enumerate(batches)]
     kept, blocks, seconds, failures, times = [], [], {}, {}, None
-    for trials, (batch, result, spent, failed) in zip(batches, run_jobs(decoder_batch, jobs, processes)):
+    for trials, (batch, result, spent, failed) in zip(batches, run_jobs(decoder_batch, jobs, processes, workers)):
         seconds[trials[0].decoder] = seconds.get(trials[0].decoder, 0.0) + spent
         failures.update(failed)
         if result is not None:

@@ -120,35 +120,50 @@ def save(figure, path):
         plt.close(figure)
 
 
-def write_all(folder: Path, trials, times, per_step: dict[str, np.ndarray], final: dict[str, np.ndarray],
-              jacobians: dict | None) -> list[str]:
-    """Write every panel into ``folder``; returns the file names.
-
-    per_step: the measures per step, (steps + 1, B); final: the per-trial values behind summary.csv
-    (master.experiment.measures.end_of_trial), so the bars show exactly what the table reports.
-    """
-    folder.mkdir(parents=True, exist_ok=True)
+def gamma_over_time(trials, times, gamma, path):
+    """Panel g: gamma over time, the mean over each cell's trials, one axis per stimulation."""
     stimulations = list(dict.fromkeys(t.stimulation for t in trials))
-    final_bars(trials, per_step["drift_cm"], "final drift (cm)", folder / "a_drift_final.png")
-    accel = per_step["action_accel_x_m_s2"]
-    action_bars(trials, final["force_x_n"], final["action_accel_mean_x_m_s2"], folder / "d_force_final.png")
-    for letter_drift, letter_force, stimulation in zip("bc", "ef", stimulations):
-        over_time(trials, times, per_step["drift_cm"], stimulation, "drift (cm)",
-                  folder / f"{letter_drift}_drift_{stimulation}.png")
-        action_over_time(trials, times, per_step["force_x_n"], accel, stimulation,
-                         folder / f"{letter_force}_force_{stimulation}.png")
     figure, axes = plt.subplots(1, len(stimulations), figsize=(5 * len(stimulations), 3.4), squeeze=False)
     for axis, stimulation in zip(axes[0], stimulations):
         for (decoder, condition, stim), members in cells(trials).items():
             if stim == stimulation:
-                axis.plot(times, per_step["gamma"][:, members].mean(axis=1), STYLES.get(decoder, ":"),
+                axis.plot(times, gamma[:, members].mean(axis=1), STYLES.get(decoder, ":"),
                           color=COLOURS.get(condition, "k"), label=f"{decoder} {condition}")
         axis.set_ylim(0, 1.05)
         axis.set_xlabel("time (s)")
         axis.set_title(f"gamma, {stimulation}")
     axes[0, 0].set_ylabel("gamma")
     axes[0, -1].legend(fontsize=7, ncol=2)
-    save(figure, folder / "g_gamma.png")
+    save(figure, path)
+
+
+def panel_jobs(folder: Path, trials, times, per_step: dict[str, np.ndarray], final: dict[str, np.ndarray],
+               jacobians: dict | None) -> list[tuple]:
+    """Every panel as a job ``(function, *arguments)`` that writes one file of ``folder``: :func:`write_all`
+    runs them in turn, the experiment on its workers (``master.experiment.parallel.call``).
+
+    per_step: the measures per step, (steps + 1, B); final: the per-trial values behind summary.csv
+    (master.experiment.measures.end_of_trial), so the bars show exactly what the table reports.
+    jacobians: the images of panel h (None: no panel h).
+    """
+    accel = per_step["action_accel_x_m_s2"]
+    jobs = [(final_bars, trials, per_step["drift_cm"], "final drift (cm)", folder / "a_drift_final.png"),
+            (action_bars, trials, final["force_x_n"], final["action_accel_mean_x_m_s2"], folder / "d_force_final.png")]
+    for letter_drift, letter_force, stimulation in zip("bc", "ef", dict.fromkeys(t.stimulation for t in trials)):
+        jobs += [(over_time, trials, times, per_step["drift_cm"], stimulation, "drift (cm)",
+                  folder / f"{letter_drift}_drift_{stimulation}.png"),
+                 (action_over_time, trials, times, per_step["force_x_n"], accel, stimulation,
+                  folder / f"{letter_force}_force_{stimulation}.png")]
+    jobs.append((gamma_over_time, trials, times, per_step["gamma"], folder / "g_gamma.png"))
     if jacobians:
-        jacobian_images(jacobians, folder / "h_jacobians.png")
+        jobs.append((jacobian_images, jacobians, folder / "h_jacobians.png"))
+    return jobs
+
+
+def write_all(folder: Path, trials, times, per_step: dict[str, np.ndarray], final: dict[str, np.ndarray],
+              jacobians: dict | None) -> list[str]:
+    """Write every panel of :func:`panel_jobs` into ``folder``; returns the file names."""
+    folder.mkdir(parents=True, exist_ok=True)
+    for function, *arguments in panel_jobs(folder, trials, times, per_step, final, jacobians):
+        function(*arguments)
     return sorted(p.name for p in folder.iterdir())

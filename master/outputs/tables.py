@@ -24,9 +24,11 @@ def csv_text(header: list[str], rows) -> str:
     return buffer.getvalue()
 
 
+NUMBER = "%.6g"  # every number in a table: fixed formatting, so that the same numbers always give the same bytes
+
+
 def number(value: float) -> str:
-    """Fixed formatting, so that the same numbers always give the same bytes."""
-    return f"{value:.6g}"
+    return NUMBER % value
 
 
 def cells(items, key=lambda item: (item.decoder, item.condition, item.stimulation)) -> dict[tuple, list[int]]:
@@ -76,9 +78,10 @@ def trials_csv(trials, times: np.ndarray, per_step: dict[str, np.ndarray]) -> st
     """Tidy: one row per trial x step; ``per_step[key]`` has shape (steps + 1, B)."""
     keys = list(per_step)
     table = np.stack([per_step[key] for key in keys], axis=-1)  # steps+1, B, K
-    rows = []
+    numbers = ",".join([NUMBER] * (len(keys) + 1))  # a row's time and measures, formatted in one go
+    lines = [csv_text(TRIAL_KEYS + ["step", "time_s"] + keys, [])]
     for position, trial in enumerate(trials):
-        identity = [trial.decoder, trial.condition, trial.stimulation, trial.index, trial.seed]
-        for step, time in enumerate(times):
-            rows.append(identity + [step, number(time)] + [number(x) for x in table[step, position]])
-    return csv_text(TRIAL_KEYS + ["step", "time_s"] + keys, rows)
+        identity = f"{trial.decoder},{trial.condition},{trial.stimulation},{trial.index},{trial.seed},"
+        values = np.column_stack([times, table[:, position]]).tolist()
+        lines += [f"{identity}{step}," + numbers % tuple(row) + "\n" for step, row in enumerate(values)]
+    return "".join(lines)
