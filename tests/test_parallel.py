@@ -1,14 +1,20 @@
 """master.experiment.parallel: jobs side by side in spawned processes give what they give one after the other."""
+import errno
+
 import pytest
 
 from master.cosim import SimulationError
 from master.experiment import parallel
 
 
-def job(seed: int, fail: bool = False):
+def job(seed: int, fail: bool | str = False):
     """A job whose numbers use torch (threads, BLAS): a matrix product seeded per job."""
+    import errno
+
     import torch
 
+    if fail == "disk":
+        raise OSError(errno.ENOSPC, "No space left on device", "out/trials.csv")
     if fail:
         raise SimulationError("body", 0.5, "NaN in q", trials=(1,))
     generator = torch.Generator().manual_seed(seed)
@@ -30,6 +36,9 @@ def test_a_job_s_error_reaches_the_caller_whole():
         parallel.run_jobs(job, [(1,), (2, True)], processes=2)
     assert raised.value.trials == (1,) and raised.value.component == "body" and raised.value.time == 0.5
     assert str(raised.value) == str(SimulationError("body", 0.5, "NaN in q", trials=(1,)))
+    with pytest.raises(OSError) as raised:  # a file a worker could not write
+        parallel.run_jobs(job, [(1,), (2, "disk")], processes=2)
+    assert (raised.value.errno, raised.value.filename) == (errno.ENOSPC, "out/trials.csv")
 
 
 def pid(offset: int = 0) -> int:

@@ -497,7 +497,8 @@ TIMEOUT_1S = CONV_ONLY + "[fmu]\nstep_timeout_s = 1.0\n"
 SWEEP_HEAD = ('[experiment]\ndecoders = ["conv"]\nconditions = ["left"]\nstimulations = ["sync"]\n'
               '[sweep]\ntrials = 1\nworkers = 1\ntask = "tests.sweep_tasks:fake_outcome"\n')
 FULL_DISK_RUN = """
-import errno, sys
+import errno, os, sys
+os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})  # one core: the files are written here, where the patch is
 import master.experiment.publish as publish
 written = publish.atomic_write
 def atomic_write(path, data):  # the disk fills up while the results are written

@@ -57,19 +57,14 @@ def _start_worker() -> None:
 class Workers:
     """Up to ``processes`` spawned worker processes (default: the usable cores), kept across rounds of jobs.
 
-    Verbs: :meth:`start` (spawn the workers now, so that they import while the caller works; else at the
-    first round that needs them), :meth:`map` (one round), :meth:`close`. As a context manager it closes
-    on leaving, and terminates the workers at once on an error, Ctrl-C or SIGTERM.
+    Verbs: :meth:`map` (one round; the workers start at the first round that needs more than one process),
+    :meth:`close`. As a context manager it closes on leaving, and terminates the workers at once on an
+    error, Ctrl-C or SIGTERM.
     """
 
     def __init__(self, processes: int | None = None):
         self.processes = max(1, processes or usable_cores())
         self._pool = None
-
-    def start(self) -> "Workers":
-        if self._pool is None and self.processes > 1:
-            self._pool = multiprocessing.get_context("spawn").Pool(self.processes, initializer=_start_worker)
-        return self
 
     def map(self, function, jobs: list[tuple]) -> list:
         """``[function(*job) for job in jobs]``, up to ``processes`` at a time; here, in turn, when only one
@@ -98,9 +93,10 @@ class Workers:
                 return [function(*job) for job in jobs]
             finally:
                 torch.set_num_threads(threads)
-        pool = self.start()._pool
+        if self._pool is None:
+            self._pool = multiprocessing.get_context("spawn").Pool(self.processes, initializer=_start_worker)
         try:
-            pending = [pool.apply_async(function, job) for job in jobs]
+            pending = [self._pool.apply_async(function, job) for job in jobs]
             return [result.get() for result in pending]
         except BaseException:  # a job's error, Ctrl-C or SIGTERM: stop the other jobs now
             self.close(terminate=True)

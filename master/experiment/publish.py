@@ -36,7 +36,6 @@ def run_into(out, config: dict, body: str | None = None, force: bool = False, pr
     check_decoders(config, device)
     declared = body_factory(body, config)[1]
     with output_folder(out, force) as staging, Workers(1 if device != "cpu" else None) as workers:
-        workers.start()  # they import while this process checks the decoders
         checkpoints, training_seconds = ensure_checkpoints(config, progress=progress, device=device, workers=workers)
         began = time.perf_counter()
         modes = verdicts(config, checkpoints, workers)
