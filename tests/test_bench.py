@@ -118,6 +118,7 @@ def test_sweep_rate_against_lockstep(report):
     lockstep, sweep = rate["lockstep"], rate["sweep"]
     assert (rate["trials"], rate["steps"], rate["workers"]) == (12, 10, 1) and lockstep["trials"] == 12
     assert set(lockstep["per_decoder_s"]) == {"conv", "vae"}
+    assert lockstep["processes"] == 1  # one worker: the batches one after the other, the time their sum
     assert math.isclose(lockstep["seconds"], sum(lockstep["per_decoder_s"].values()))
     assert math.isclose(lockstep["agent_steps_per_s"], 120 / lockstep["seconds"])
     assert (sweep["tasks"], sweep["largest_task"]) == (2, 6)  # the sweep's default chunks: a point's decoder each

@@ -81,7 +81,7 @@ def table(report: dict) -> str:
     s = report["sweep_rate"]
     lines.append(f"sweep against lockstep, {s['preset']}-{s['resolution']} ({s['trials']} trials x {s['steps']} steps, "
                  f"{s['weights']}): lockstep {s['lockstep']['agent_steps_per_s']:.0f} agent-steps/s "
-                 f"({s['lockstep']['threads']} threads), sweep on {s['workers']} workers "
+                 f"({s['lockstep']['processes']} processes), sweep on {s['workers']} workers "
                  f"{s['sweep']['window_agent_steps_per_s']:.0f} over its tasks "
                  f"({100 * s['window_vs_lockstep']:.0f} %), {s['sweep']['agent_steps_per_s']:.0f} over the whole "
                  f"command ({100 * s['wall_vs_lockstep']:.0f} %, {s['sweep']['wall_s']:.1f} s)")

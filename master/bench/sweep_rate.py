@@ -2,10 +2,9 @@
 
 The protocol's trials (both decoders, every condition x stimulation, ``sweep_trials`` each) run twice
 on this machine, with the same untrained seeded checkpoints of the preset written to a temporary
-folder: first in lockstep here, one :func:`master.experiment.run_batch` per decoder in sequence as
-``rhi experiment`` runs them (the decoder on every usable core); then as a sweep, ``rhi sweep`` in a child
-process on its local pool (one single-threaded worker per core; one task per decoder, the sweep's
-default chunks). The sweep's rate is reported twice: over the whole command (Python start-up, the
+folder: first in lockstep, one batch per decoder side by side as ``rhi experiment`` runs them; then as a
+sweep, ``rhi sweep`` in a child process on its local pool (one single-threaded worker per core; one task per
+decoder, the sweep's default chunks). Both use the same number of processes. The sweep's rate is reported twice: over the whole command (Python start-up, the
 pool's start and the record files included) and over its task window, from the first task's start to
 the last one's end as the trial records give them (what a long sweep converges to); the target is
 judged on the task window. The bench cannot import master.sweeps (the same layer), hence the child.
@@ -28,7 +27,8 @@ from components.vision.component import available_cores
 from components.vision.networks import build, preset, sizes_dict
 from master import experiment
 from master.experiment import config as configuration
-from master.experiment.decoders import decoder_component
+from master.experiment import runner
+from master.experiment.parallel import process_count
 from master.experiment.training_data import HALF_RANGES
 from master.outputs.files import atomic_write
 
@@ -55,18 +55,17 @@ def sweep_overrides(settings, checkpoints: dict[str, str]) -> dict:
             **{f"decoder.{kind}_checkpoint": path for kind, path in checkpoints.items()}}
 
 
-def lockstep_run(config: dict, checkpoints: dict[str, str]) -> dict:
-    """Every trial of ``config``'s protocol, one lockstep batch per decoder in sequence, as ``rhi experiment``
-    runs them (the decoder on torch threads for every usable core); the wall time of each."""
-    trials, seconds = experiment.plan(config), {}
-    for kind in config["experiment"]["decoders"]:
-        began = time.perf_counter()
-        experiment.run_batch(decoder_component(kind, checkpoints[kind], config),
-                             [t for t in trials if t.decoder == kind], config)
-        seconds[kind] = time.perf_counter() - began
-    total = sum(seconds.values())
-    return {"trials": len(trials), "threads": available_cores(), "seconds": total, "per_decoder_s": seconds,
-            "agent_steps_per_s": len(trials) * config["experiment"]["steps"] / total}
+def lockstep_run(config: dict, checkpoints: dict[str, str], processes: int) -> dict:
+    """Every trial of ``config``'s protocol as ``rhi experiment`` runs them: one lockstep batch per decoder,
+    side by side on ``processes`` single-threaded workers (one after the other here when 1). The time is the
+    batches' own, from the first one's start to the last one's end (the workers' start excluded, as the
+    sweep's task window excludes its pool's)."""
+    seconds = runner.run(config, checkpoints, processes=processes)[3]
+    side_by_side = process_count(len(seconds), processes) > 1
+    total = max(seconds.values()) if side_by_side else sum(seconds.values())
+    trials = len(experiment.plan(config))
+    return {"trials": trials, "processes": process_count(len(seconds), processes), "seconds": total,
+            "per_decoder_s": seconds, "agent_steps_per_s": trials * config["experiment"]["steps"] / total}
 
 
 def sweep_file_text(overrides: dict, workers: int) -> str:
@@ -109,7 +108,7 @@ def sweep_rate(settings) -> dict:
         checkpoints = {kind: untrained_checkpoint(kind, preset_name, resolution, settings.seed, folder)
                        for kind in KINDS}
         overrides = sweep_overrides(settings, checkpoints)
-        lockstep = lockstep_run(configuration.load(overrides=overrides), checkpoints)
+        lockstep = lockstep_run(configuration.load(overrides=overrides), checkpoints, workers)
         sweep = sweep_run(sweep_file_text(overrides, workers), folder, lockstep["trials"], settings.sweep_steps)
     return {"preset": preset_name, "resolution": resolution, "weights": f"untrained, torch seed {settings.seed}",
             "trials": lockstep["trials"], "steps": settings.sweep_steps, "workers": workers,
