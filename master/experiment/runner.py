@@ -174,7 +174,8 @@ def batch_outcomes(config: dict, decoder: str, trials: list[Trial], checkpoint: 
 
     def run_trials(batch: list[Trial]) -> list[dict]:
         path = checkpoint or checkpoint_path(decoder, config, must_exist=True)
-        result = run_batch(decoder_component(decoder, path, config), batch, config)
+        # one torch thread, as in the experiment's batches: the same numbers, and sweep workers are one core each
+        result = run_batch(decoder_component(decoder, path, config, threads=JOB_THREADS), batch, config)
         final = end_of_trial(result.times, measures(result))
         renamed = {"drift_cm": "drift_cm", "force_x_n": "force_n", "gamma": "gamma_final"}
         return [{"status": "ok", "outcome": {
