@@ -21,9 +21,11 @@ def quick(quick_cache, monkeypatch, tmp_path):
     return config, {"conv": checkpoint_path("conv", config, must_exist=True)}
 
 
-def test_the_verdict_compares_the_fast_and_exact_drifts_of_the_protocol_s_own_trials(quick, tmp_path):
+def test_the_verdict_compares_the_fast_and_exact_drifts_of_the_protocol_s_own_trials(quick, tmp_path, capsys):
     config, checkpoints = quick
-    verdict = fast_check.verdicts(config, checkpoints)["conv"]
+    verdict = fast_check.verdicts(config, checkpoints, progress=True)["conv"]
+    assert capsys.readouterr().err == (f"checking the fast mode of the conv decoder: {len(verdict['trials'])} trials "
+                                       "each, exact and fast (once per decoder and settings)\n")
     exact = np.array(verdict["drift_exact_cm"])
     fast = np.array(verdict["drift_fast_cm"])
     assert verdict["relative_error"] == pytest.approx(np.abs(fast - exact).max() / np.abs(exact).max(), rel=1e-12)

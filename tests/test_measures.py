@@ -14,6 +14,7 @@ from components.body.kinematics import REST_HAND, REST_POSE, SHOULDER, forward, 
 from components.vision.component import Decoder
 from master.experiment import config as configuration
 from master.experiment import measures, run_batch, runner, trial_seed
+from master.experiment.parallel import JOB_THREADS
 from tests.test_batching import three_trials, tiny_config, tiny_model
 
 STEPS = 3  # rows per constructed recording: steps + 1 = 4
@@ -118,10 +119,12 @@ def test_trial_outcome_is_the_last_row_of_the_trials_measures(monkeypatch):
         return made
 
     monkeypatch.setattr(runner, "run_batch", run_batch)
-    monkeypatch.setattr("master.experiment.decoders.decoder_component", lambda kind, path, given: ("decoder", path))
+    monkeypatch.setattr("master.experiment.decoders.decoder_component",
+                        lambda kind, path, given, threads=None: ("decoder", path, threads))
     outcome = runner.trial_outcome(config, "vae", "left", "async", 3, checkpoint="model.pt")
     (decoder, trials, given), = calls
-    assert decoder == ("decoder", "model.pt") and given is config and len(trials) == 1
+    # on one torch thread, as the experiment's batches
+    assert decoder == ("decoder", "model.pt", JOB_THREADS) and given is config and len(trials) == 1
     trial = trials[0]
     assert (trial.decoder, trial.condition, trial.stimulation, trial.index) == ("vae", "left", "async", 3)
     assert (trial.offset_x, trial.delay_min, trial.delay_max) == (-0.15, 0.0, 1.0)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -68,10 +69,11 @@ def check(config: dict, kind: str, checkpoint: str) -> dict:
             "drift_exact_cm": drifts[False].tolist(), "drift_fast_cm": drifts[True].tolist()}
 
 
-def verdicts(config: dict, checkpoints: dict[str, str], workers: Workers | None = None) -> dict[str, dict]:
+def verdicts(config: dict, checkpoints: dict[str, str], workers: Workers | None = None,
+             progress: bool = False) -> dict[str, dict]:
     """Per decoder: whether it runs fast, and why. ``[decoder] fast = false`` runs every decoder exact;
     ``true`` runs each decoder fast if its check passes (stored, or run now, the decoders side by side, on
-    ``workers`` when given)."""
+    ``workers`` when given; with ``progress``, a line on stderr says so first)."""
     if not config["decoder"]["fast"]:
         return {kind: {"fast": False, "reason": "decoder.fast = false"} for kind in checkpoints}
     found, missing = {}, []
@@ -84,6 +86,11 @@ def verdicts(config: dict, checkpoints: dict[str, str], workers: Workers | None 
             missing.append((kind, cache_folder() / name))
     if missing:
         check_cache_folder()
+        if progress:
+            kinds = " and ".join(kind for kind, _ in missing)
+            print(f"checking the fast mode of the {kinds} decoder{'s' * (len(missing) > 1)}: "
+                  f"{len(checked_trials(config, missing[0][0]))} trials each, exact and fast "
+                  "(once per decoder and settings)", file=sys.stderr)
         for (kind, path), verdict in zip(missing, run_jobs(check, [(config, kind, checkpoints[kind])
                                                                   for kind, _ in missing], workers=workers)):
             atomic_write(path, json.dumps(verdict, indent=2) + "\n")

@@ -38,7 +38,7 @@ def run_into(out, config: dict, body: str | None = None, force: bool = False, pr
     with output_folder(out, force) as staging, Workers(1 if device != "cpu" else None) as workers:
         checkpoints, training_seconds = ensure_checkpoints(config, progress=progress, device=device, workers=workers)
         began = time.perf_counter()
-        modes = verdicts(config, checkpoints, workers)
+        modes = verdicts(config, checkpoints, workers, progress)
         check_seconds = time.perf_counter() - began
         trials, times, per_step, run_seconds, failures = experiment.run(
             config, checkpoints, body, progress=progress, fast={kind: mode["fast"] for kind, mode in modes.items()},
