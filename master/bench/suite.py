@@ -74,14 +74,15 @@ class BenchSettings:
     default_run: bool = True     # time `rhi experiment` from an empty decoder cache (master/bench/default_run.py)
     sweep_preset: tuple = ("default", 64)  # the sweep against lockstep (master/bench/sweep_rate.py)
     sweep_trials: int = 5        # per decoder x condition x stimulation: 60 trials, the whole protocol
-    sweep_steps: int = 300
+    sweep_steps: int = 1500
+    sweep_trained: bool = True   # the trained default decoders (shipped) rather than untrained ones
     sweep_workers: int = 0       # the sweep's local pool; 0: one per usable core
 
 
 QUICK = BenchSettings(presets=(("tiny", 32),), batch=6, max_steps=3, budget_s=0.5, protocol_steps=10,
                       protocol_preset=("tiny", 32), protocol_trained="", error_trials=1, error_steps=30,
                       error_model="untrained", fmu_steps=20, matmul_size=256, default_run=False,
-                      sweep_preset=("tiny", 32), sweep_trials=1, sweep_steps=10, sweep_workers=1)
+                      sweep_preset=("tiny", 32), sweep_trials=1, sweep_steps=10, sweep_workers=1, sweep_trained=False)
 
 
 def untrained(preset: str, resolution: int, seed: int) -> GenerativeModel:

@@ -1,13 +1,14 @@
 """The sweep's rate against the lockstep experiment's, for ``rhi bench``.
 
 The protocol's trials (both decoders, every condition x stimulation, ``sweep_trials`` each) run twice
-on this machine, with the same untrained seeded checkpoints of the preset written to a temporary
-folder: first in lockstep, one batch per decoder side by side as ``rhi experiment`` runs them; then as a
-sweep, ``rhi sweep`` in a child process on its local pool (one single-threaded worker per core; one task per
-decoder, the sweep's default chunks). Both use the same number of processes. The sweep's rate is reported twice: over the whole command (Python start-up, the
-pool's start and the record files included) and over its task window, from the first task's start to
-the last one's end as the trial records give them (what a long sweep converges to); the target is
-judged on the task window. The bench cannot import master.sweeps (the same layer), hence the child.
+on this machine with the same decoders (the trained defaults when at hand, else untrained seeded ones):
+first in lockstep, one batch per decoder side by side as ``rhi experiment`` runs them; then as a sweep,
+``rhi sweep`` in a child process on its local pool (one single-threaded worker per core; one task per
+decoder, the sweep's default chunks). Both use the same number of processes. The sweep's rate is
+reported twice: over the whole command (Python start-up, the pool's start and the record files
+included) and over its task window, from the first task's start to the last one's end as the trial
+records give them (what a long sweep converges to); the target is judged on the task window. The
+bench cannot import master.sweeps (the same layer), hence the child.
 """
 from __future__ import annotations
 
@@ -99,18 +100,31 @@ def sweep_run(text: str, folder: Path, trials: int, steps: int) -> dict:
             "largest_task": max(r["batch"] for r in records)}
 
 
+def trained_checkpoints(preset_name: str, resolution: int) -> dict[str, str] | None:
+    """The trained decoders of the defaults at this network preset and resolution, cached or shipped; else None."""
+    from master.experiment.decoders import checkpoint_path
+    config = configuration.load(overrides={"experiment.resolution": resolution, "train.preset": preset_name})
+    paths = {kind: checkpoint_path(kind, config) for kind in KINDS}
+    return paths if all(os.path.isfile(path) for path in paths.values()) else None
+
+
 def sweep_rate(settings) -> dict:
-    """The protocol as a sweep on the local pool against the same trials in lockstep in this process."""
+    """The protocol as a sweep on the local pool against the same trials in lockstep, with the trained decoders
+    when ``sweep_trained`` and they are at hand (an untrained decoder barely moves mu, so the fast mode's batches
+    are short and the fixed costs weigh more), else untrained ones."""
     preset_name, resolution = settings.sweep_preset
     workers = settings.sweep_workers or available_cores()
     with tempfile.TemporaryDirectory(prefix="rhi_bench_sweep_") as name:
         folder = Path(name)
-        checkpoints = {kind: untrained_checkpoint(kind, preset_name, resolution, settings.seed, folder)
-                       for kind in KINDS}
+        checkpoints = settings.sweep_trained and trained_checkpoints(preset_name, resolution)
+        weights = "trained: " + ", ".join(map(os.path.basename, checkpoints.values())) if checkpoints else \
+            f"untrained, torch seed {settings.seed}"
+        checkpoints = checkpoints or {kind: untrained_checkpoint(kind, preset_name, resolution, settings.seed, folder)
+                                      for kind in KINDS}
         overrides = sweep_overrides(settings, checkpoints)
         lockstep = lockstep_run(configuration.load(overrides=overrides), checkpoints, workers)
         sweep = sweep_run(sweep_file_text(overrides, workers), folder, lockstep["trials"], settings.sweep_steps)
-    return {"preset": preset_name, "resolution": resolution, "weights": f"untrained, torch seed {settings.seed}",
+    return {"preset": preset_name, "resolution": resolution, "weights": weights,
             "trials": lockstep["trials"], "steps": settings.sweep_steps, "workers": workers,
             "lockstep": lockstep, "sweep": sweep,
             "window_vs_lockstep": sweep["window_agent_steps_per_s"] / lockstep["agent_steps_per_s"],
