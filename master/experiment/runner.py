@@ -168,10 +168,6 @@ def batch_outcomes(config: dict, decoder: str, trials: list[Trial], checkpoint: 
 
     from master.experiment.decoders import checkpoint_path, decoder_component
 
-    def failed(error: BaseException, trace: str = "") -> dict:
-        message = " ".join(str(error).split()) or "(no message)"
-        return {"status": "failed", "error": f"{type(error).__name__}: {message}", "traceback": trace}
-
     def run_trials(batch: list[Trial]) -> list[dict]:
         path = checkpoint or checkpoint_path(decoder, config, must_exist=True)
         # one torch thread, as in the experiment's batches: the same numbers, and sweep workers are one core each
@@ -193,13 +189,19 @@ def batch_outcomes(config: dict, decoder: str, trials: list[Trial], checkpoint: 
             blamed, kept, result = dict(getattr(error, "failures", {})), [], None
             rest = [t for t in batch if t not in blamed]
             if len(batch) == 1:
-                records[batch[0]] = failed(error, traceback.format_exc())
+                records[batch[0]] = failed_record(type(error).__name__, str(error), traceback.format_exc())
             else:
                 waiting += [[t] for t in rest]
-        records.update({t: {"status": "failed", "error": f"SimulationError: {' '.join(reason.split())}",
-                            "traceback": ""} for t, reason in blamed.items()})
+        records.update({t: failed_record("SimulationError", reason) for t, reason in blamed.items()})
         records.update(zip(kept, result or []))
     return [records[t] for t in trials]
+
+
+def failed_record(kind: str, message: str, trace: str = "") -> dict:
+    """The record of a failed trial: ``{"status": "failed", "error": "Kind: message" (on one line),
+    "traceback": trace}``."""
+    message = " ".join(message.split()) or "(no message)"
+    return {"status": "failed", "error": f"{kind}: {message}", "traceback": trace}
 
 
 def progress_bar(description: str, total: int, position: int = 0):

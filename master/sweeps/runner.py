@@ -22,6 +22,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from master.cosim import ConfigError
+from master.experiment.runner import failed_record
 from master.outputs.files import atomic_write
 from master.sweeps.plan import DEFAULT_TASK, Sweep, TrialSpec
 
@@ -115,7 +116,7 @@ def run_trial(task, config: dict, trial: TrialSpec) -> dict:
         outcome = task(config, trial.decoder, trial.condition, trial.stimulation, trial.index)
         record = {"status": "ok", "outcome": {key: plain(value) for key, value in outcome.items()}}
     except Exception as error:  # noqa: BLE001: any failure of a trial is data, not a crash
-        record = failed(error, traceback.format_exc())
+        record = failed_record(type(error).__name__, str(error), traceback.format_exc())
     record.update(elapsed_s=round(time.perf_counter() - began, 6), host=socket.gethostname(),
                   started_at=round(started, 3), batch=1)
     return record
@@ -134,7 +135,7 @@ def run_chunk(config: dict, trials: list[TrialSpec]) -> list[dict]:
         protocol = [make_trial(config, t.decoder, t.condition, t.stimulation, t.index) for t in trials]
         results = batch_outcomes(config, trials[0].decoder, protocol)
     except Exception as error:  # noqa: BLE001: batch_outcomes isolates failures; this is the last resort
-        results = [failed(error, traceback.format_exc())] * len(trials)
+        results = [failed_record(type(error).__name__, str(error), traceback.format_exc())] * len(trials)
     timing = {"elapsed_s": round(time.perf_counter() - began, 6), "host": socket.gethostname(),
               "started_at": round(started, 3), "batch": len(trials)}
     return [{**result, **timing} for result in results]
@@ -143,11 +144,6 @@ def run_chunk(config: dict, trials: list[TrialSpec]) -> list[dict]:
 def plain(value):
     """numpy scalars and arrays -> Python numbers and lists, so the record is plain JSON."""
     return value.tolist() if hasattr(value, "tolist") else value
-
-
-def failed(error: BaseException, trace: str = "") -> dict:
-    message = " ".join(str(error).split()) or "(no message)"
-    return {"status": "failed", "error": f"{type(error).__name__}: {message}", "traceback": trace}
 
 
 def worker_check(module: str) -> None:
@@ -183,7 +179,7 @@ def execute(sweep: Sweep, task, client, out: Path, done: set[str], on_record=Non
         try:
             results = future.result() if sweep.batched else [future.result()]
         except Exception as error:  # noqa: BLE001: a lost worker or an unpicklable task fails its chunk's trials
-            results = [failed(error)] * len(members)
+            results = [failed_record(type(error).__name__, str(error))] * len(members)
         for trial, result in zip(members, results):
             if trial.id in done:
                 continue
