@@ -145,12 +145,23 @@ def test_grid_points_ids_and_validation(tmp_path):
         sweeps.load(tmp_path / "typo.toml")
 
 
-def test_local_pool_and_dask_cluster_give_the_same_trials(dask_cluster, tmp_path):
+def test_local_pool_and_dask_cluster_give_the_same_trials(dask_cluster, tmp_path, capsys):
+    from master.sweeps.runner import WORKER_SETTINGS
+
     path = sweep_file(tmp_path / "s.toml", grid={"stimulations.sync.delay_max": [0.1, 0.6],
                                                  "conditions.left": [-0.15, -0.3]})
     sweep = sweeps.load(path)
+
+    def notes():
+        return [line for line in capsys.readouterr().err.splitlines() if "note:" in line]
+
     assert run_sweep(args(path, tmp_path / "local")) == 0
+    assert notes() == []  # the local pool's workers have WORKER_SETTINGS
     assert run_sweep(args(path, tmp_path / "cluster", scheduler=dask_cluster)) == 0
+    # the fixture's workers run with Dask's defaults: one note names every setting they lack
+    assert notes() == ["rhi sweep: note: 2 of 2 Dask workers lack the settings for long CPU-bound tasks "
+                       f"({', '.join(sorted(WORKER_SETTINGS))}), which slows the trials; README, Sweeps, "
+                       "shows how to start them"]
     local, cluster, truth = records(tmp_path / "local"), records(tmp_path / "cluster"), expected(sweep)
     assert set(local) == set(cluster) == set(truth) and len(truth) == 16
     for trial in sweep.trials:
@@ -514,3 +525,20 @@ print(unsteady, faults())
     assert run.returncode == 0, run.stderr
     unsteady, steady = map(int, run.stdout.split())
     assert unsteady >= 50 * 100 and steady < 100, (unsteady, steady)  # hundreds of pages per array, against none
+
+
+def test_readme_starts_cluster_workers_with_the_worker_settings():
+    """The README's `dask worker` line sets, by Dask's own reading of environment variables, exactly
+    WORKER_SETTINGS (the local pool's settings)."""
+    import re
+
+    import dask
+
+    from master.sweeps.runner import WORKER_SETTINGS
+
+    text = (REPO / "README.md").read_text()
+    block = text[text.index("4. Start workers on each machine"):text.index("5. Run the sweep against it")]
+    variables = dict(re.findall(r"\b(DASK_[A-Z_]+)=(\S+)", block))
+    assert len(variables) == len(WORKER_SETTINGS)
+    collected = dask.config.collect_env(variables)
+    assert {key: dask.config.get(key, config=collected) for key in WORKER_SETTINGS} == WORKER_SETTINGS

@@ -26,6 +26,17 @@ from master.experiment.runner import failed_record
 from master.outputs.files import atomic_write
 from master.sweeps.plan import DEFAULT_TASK, Sweep, TrialSpec
 
+# Dask's settings for workers whose tasks are long, single-threaded and CPU-bound (README, Sweeps): no
+# statistical profiler (by default it takes the GIL every 10 ms to walk the running task's stack), and
+# the event loop's health check and the monitors at a pace that such tasks do not notice. The local
+# pool's workers get them; a cluster's workers take them as environment variables (README).
+WORKER_SETTINGS = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.admin.tick.interval": "1s",
+    "distributed.admin.system-monitor.interval": "2s",
+    "distributed.worker.memory.monitor-interval": "1s",
+}
+
 # glibc's mallopt parameters, and the thresholds its dynamic mode reaches at most on a 64-bit machine
 M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3
 MMAP_THRESHOLD = 32 * 1024 * 1024   # bytes: a block this large or larger is mapped for itself
@@ -34,7 +45,9 @@ TRIM_THRESHOLD = 2 * MMAP_THRESHOLD  # bytes: free memory at the heap's top kept
 
 @contextmanager
 def dask_client(scheduler: str | None, workers: int | None, debug: bool):
-    """A Client on the given scheduler, or on a local pool of single-threaded worker processes."""
+    """A Client on the given scheduler, or on a local pool of single-threaded worker processes with
+    :data:`WORKER_SETTINGS`."""
+    import dask
     from dask.distributed import Client, LocalCluster
 
     if scheduler:
@@ -46,23 +59,32 @@ def dask_client(scheduler: str | None, workers: int | None, debug: bool):
             yield client
         return
     quiet = False if debug else logging.ERROR
-    # Only this machine: listen on loopback; the scheduler's small HTTP server on any free port.
-    with LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
-                      host="127.0.0.1", dashboard_address=None, silence_logs=quiet,
-                      scheduler_kwargs={"dashboard_address": "127.0.0.1:0"}) as cluster, Client(cluster) as client:
+    # Only this machine: listen on loopback; the scheduler's small HTTP server on any free port. The
+    # nannies hand the settings in force when they start to their workers.
+    with dask.config.set(WORKER_SETTINGS), \
+            LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
+                         host="127.0.0.1", dashboard_address=None, silence_logs=quiet,
+                         scheduler_kwargs={"dashboard_address": "127.0.0.1:0"}) as cluster, Client(cluster) as client:
         yield client
 
 
 def check_workers(client, task: str) -> None:
-    """Every connected worker must import the task's module (this package, installed there)."""
+    """Every connected worker must import the task's module (this package, installed there); one note on
+    stderr names the :data:`WORKER_SETTINGS` that some workers lack."""
     if not client.scheduler_info().get("workers"):
         print(f"rhi sweep: waiting for a Dask worker to connect to {client.scheduler.address}", file=sys.stderr)
         client.wait_for_workers(1)
     module = task.partition(":")[0]
-    for worker, answer in client.run(worker_check, module, on_error="return").items():
+    answers = client.run(worker_check, module, on_error="return")
+    for worker, answer in answers.items():
         if isinstance(answer, BaseException):
             raise ConfigError(f"Dask worker {worker} cannot import {module} ({answer}); "
                               "install this package on every worker (see README, Sweeps)")
+    unset = sorted({key for answer in answers.values() for key in answer})
+    if unset:
+        print(f"rhi sweep: note: {sum(map(bool, answers.values()))} of {len(answers)} Dask workers lack the settings "
+              f"for long CPU-bound tasks ({', '.join(unset)}), which slows the trials; README, Sweeps, "
+              "shows how to start them", file=sys.stderr)
 
 
 def check_decoders(sweep: Sweep) -> None:
@@ -125,9 +147,12 @@ def run_trial(task, config: dict, trial: TrialSpec) -> dict:
 def run_chunk(config: dict, trials: list[TrialSpec]) -> list[dict]:
     """Runs on a worker: the chunk's trials (one point, one decoder) in one lockstep batch, each failure
     isolated to its trial (:func:`master.experiment.runner.batch_outcomes`); one result per trial, in
-    order. Never raises. ``elapsed_s`` is the whole chunk's time."""
+    order. Never raises. ``elapsed_s`` is the whole chunk's time, the worker's one-time imports excluded (as
+    the experiment's batches count theirs)."""
     from master.experiment import make_trial
     from master.experiment.runner import batch_outcomes
+
+    importlib.import_module("master.experiment.decoders")  # torch: once per worker, before the clock starts
 
     steady_malloc()
     started, began = time.time(), time.perf_counter()
@@ -146,9 +171,20 @@ def plain(value):
     return value.tolist() if hasattr(value, "tolist") else value
 
 
-def worker_check(module: str) -> None:
-    """Runs on each worker before the sweep: can it import the task's module? (ImportError if not)"""
+def worker_check(module: str) -> list[str]:
+    """Runs on each worker before the sweep: imports the task's module (ImportError if it cannot), and
+    returns the keys of :data:`WORKER_SETTINGS` whose value this worker's Dask configuration does not have."""
+    import dask
+    from dask.utils import parse_timedelta
+
     importlib.import_module(module)
+
+    def same(value, wanted):
+        if isinstance(wanted, str) and isinstance(value, str):  # durations: "1s" is "1000ms"
+            return parse_timedelta(value) == parse_timedelta(wanted)
+        return value == wanted
+
+    return [key for key, wanted in WORKER_SETTINGS.items() if not same(dask.config.get(key, None), wanted)]
 
 
 def execute(sweep: Sweep, task, client, out: Path, done: set[str], on_record=None) -> list[dict]:
