@@ -24,8 +24,13 @@ def quick(quick_cache, monkeypatch, tmp_path):
 def test_the_verdict_compares_the_fast_and_exact_drifts_of_the_protocol_s_own_trials(quick, tmp_path, capsys):
     config, checkpoints = quick
     verdict = fast_check.verdicts(config, checkpoints, progress=True)["conv"]
-    assert capsys.readouterr().err == (f"checking the fast mode of the conv decoder: {len(verdict['trials'])} trials "
-                                       "each, exact and fast (once per decoder and settings)\n")
+    said = capsys.readouterr().err
+    checked = len(verdict["trials"])
+    assert said.startswith(f"checking the fast mode of the conv decoder: {checked} trials each, exact and fast "
+                           "(once per decoder and settings)\n")
+    steps = config["experiment"]["steps"]  # then a bar of the steps of each run, exact first
+    assert f"conv fast check: exact x{checked}:   0%|          | 0/{steps}" in said
+    assert said.index("fast check: exact") < said.index(f"conv fast check: fast x{checked}:   0%|          | 0/{steps}")
     exact = np.array(verdict["drift_exact_cm"])
     fast = np.array(verdict["drift_fast_cm"])
     assert verdict["relative_error"] == pytest.approx(np.abs(fast - exact).max() / np.abs(exact).max(), rel=1e-12)

@@ -21,8 +21,9 @@ import numpy as np
 
 from master.experiment.decoders import SHIPPED, cache_folder, check_cache_folder, decoder_component
 from master.experiment.measures import end_of_trial, measures
-from master.experiment.parallel import JOB_THREADS, Workers, run_jobs
+from master.experiment.parallel import JOB_THREADS, Workers, process_count, run_jobs
 from master.experiment.protocol import make_trial
+from master.experiment.runner import step_bar
 from master.experiment.wiring import run_batch
 from master.outputs.files import atomic_write
 
@@ -46,8 +47,9 @@ def checked_trials(config: dict, kind: str) -> list:
     return [make_trial(config, kind, condition, stimulation, 0) for condition in config["experiment"]["conditions"]]
 
 
-def check(config: dict, kind: str, checkpoint: str) -> dict:
+def check(config: dict, kind: str, checkpoint: str, progress: int | None = None) -> dict:
     """Run the checked trials with the exact and the fast decoder; the verdict (a job of :func:`verdicts`).
+    progress: the terminal line of its progress bars (None: no bars).
 
     Returns
     -------
@@ -58,7 +60,10 @@ def check(config: dict, kind: str, checkpoint: str) -> dict:
     trials = checked_trials(config, kind)
     drifts = {}
     for mode in (False, True):
-        result = run_batch(decoder_component(kind, checkpoint, config, mode, JOB_THREADS), trials, config)
+        with step_bar(f"{kind} fast check: {'fast' if mode else 'exact'} x{len(trials)}",
+                      config["experiment"]["steps"], progress) as update:
+            result = run_batch(decoder_component(kind, checkpoint, config, mode, JOB_THREADS), trials, config,
+                               progress=update)
         drifts[mode] = end_of_trial(result.times, measures(result))["drift_cm"]
     scale = float(np.abs(drifts[False]).max())
     error = float(np.abs(drifts[True] - drifts[False]).max() / scale) if scale > 0 else float("inf")
@@ -91,8 +96,10 @@ def verdicts(config: dict, checkpoints: dict[str, str], workers: Workers | None 
             print(f"checking the fast mode of the {kinds} decoder{'s' * (len(missing) > 1)}: "
                   f"{len(checked_trials(config, missing[0][0]))} trials each, exact and fast "
                   "(once per decoder and settings)", file=sys.stderr)
-        for (kind, path), verdict in zip(missing, run_jobs(check, [(config, kind, checkpoints[kind])
-                                                                  for kind, _ in missing], workers=workers)):
+        side_by_side = process_count(len(missing), workers.processes if workers else None) > 1  # bars: a line each
+        jobs = [(config, kind, checkpoints[kind], (number if side_by_side else 0) if progress else None)
+                for number, (kind, _) in enumerate(missing)]
+        for (kind, path), verdict in zip(missing, run_jobs(check, jobs, workers=workers)):
             atomic_write(path, json.dumps(verdict, indent=2) + "\n")
             found[kind] = verdict
     return {kind: found[kind] for kind in checkpoints}

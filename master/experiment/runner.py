@@ -7,6 +7,7 @@ each in its own process (:mod:`master.experiment.parallel`).
 from __future__ import annotations
 
 import time
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -103,14 +104,9 @@ def decoder_batch(config: dict, kind: str, checkpoint: str, trials: list[Trial],
     make_body = body_factory(body, config)[0]
 
     def run_trials(batch):
-        bar = None if progress is None else progress_bar(f"{kind} trials x{len(batch)}",
-                                                         config["experiment"]["steps"], progress)
-        try:
+        with step_bar(f"{kind} trials x{len(batch)}", config["experiment"]["steps"], progress) as update:
             return run_batch(decoder_component(kind, checkpoint, config, fast, JOB_THREADS, device), batch, config,
-                             make_body() if make_body else None, bar.update_to if bar else None)
-        finally:
-            if bar:
-                bar.close()
+                             make_body() if make_body else None, update)
 
     began = time.perf_counter()
     try:
@@ -204,9 +200,15 @@ def failed_record(kind: str, message: str, trace: str = "") -> dict:
     return {"status": "failed", "error": f"{kind}: {message}", "traceback": trace}
 
 
-def progress_bar(description: str, total: int, position: int = 0):
+@contextmanager
+def step_bar(description: str, total: int, position: int | None):
+    """A progress bar of ``total`` steps on line ``position`` of the terminal, removed when done; yields its
+    ``update(done, total)`` callback for :func:`master.experiment.wiring.run_batch` (None, and no bar,
+    when ``position`` is None)."""
+    if position is None:
+        yield None
+        return
     from tqdm import tqdm
 
-    bar = tqdm(total=total, desc=description, unit="step", leave=False, position=position)
-    bar.update_to = lambda done, _total: bar.update(done - bar.n)
-    return bar
+    with tqdm(total=total, desc=description, unit="step", leave=False, position=position) as bar:
+        yield lambda done, _total: bar.update(done - bar.n)
