@@ -124,10 +124,11 @@ def ensure_checkpoints(config: dict, progress: bool = True, device: str = "cpu",
     if progress:
         print(f"training the {' and '.join(missing)} decoder{'s' * (len(missing) > 1)} side by side "
               f"({settings.preset}, {settings.resolution} px) into {cache_folder()}", file=sys.stderr)
+    processes = None
     if device != "cpu":  # one GPU: the decoders one after the other
-        workers = Workers(1)
+        processes, workers = 1, None
     trained = run_jobs(train_decoder, [(kind, paths[kind], settings, False, blur, device) for kind in missing],
-                       workers=workers)
+                       processes, workers)
     seconds.update({kind: sum(spent.values()) for kind, (_, spent) in zip(missing, trained)})
     return paths, seconds
 

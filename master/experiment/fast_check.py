@@ -21,9 +21,9 @@ import numpy as np
 
 from master.experiment.decoders import SHIPPED, cache_folder, check_cache_folder, decoder_component
 from master.experiment.measures import end_of_trial, measures
-from master.experiment.parallel import JOB_THREADS, Workers, process_count, run_jobs
+from master.experiment.parallel import JOB_THREADS, Workers, run_jobs
 from master.experiment.protocol import make_trial
-from master.experiment.runner import step_bar
+from master.experiment.runner import bar_positions, step_bar
 from master.experiment.wiring import run_batch
 from master.outputs.files import atomic_write
 
@@ -96,9 +96,8 @@ def verdicts(config: dict, checkpoints: dict[str, str], workers: Workers | None 
             print(f"checking the fast mode of the {kinds} decoder{'s' * (len(missing) > 1)}: "
                   f"{len(checked_trials(config, missing[0][0]))} trials each, exact and fast "
                   "(once per decoder and settings)", file=sys.stderr)
-        side_by_side = process_count(len(missing), workers.processes if workers else None) > 1  # bars: a line each
-        jobs = [(config, kind, checkpoints[kind], (number if side_by_side else 0) if progress else None)
-                for number, (kind, _) in enumerate(missing)]
+        jobs = [(config, kind, checkpoints[kind], position)
+                for position, (kind, _) in zip(bar_positions(len(missing), progress, workers=workers), missing)]
         for (kind, path), verdict in zip(missing, run_jobs(check, jobs, workers=workers)):
             atomic_write(path, json.dumps(verdict, indent=2) + "\n")
             found[kind] = verdict

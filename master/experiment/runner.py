@@ -61,10 +61,8 @@ def run(config: dict, checkpoints: dict[str, str], body: str | None = None, prog
     batches = lockstep_batches(config)
     if device != "cpu":  # one GPU: the batches one after the other
         processes, workers = 1, None
-    side_by_side = process_count(len(batches), workers.processes if workers else processes) > 1  # bars: a line each
-    jobs = [(config, batch[0].decoder, checkpoints[batch[0].decoder], batch, body,
-             (position if side_by_side else 0) if progress else None, fast[batch[0].decoder], device)
-            for position, batch in enumerate(batches)]
+    jobs = [(config, batch[0].decoder, checkpoints[batch[0].decoder], batch, body, position, fast[batch[0].decoder],
+             device) for position, batch in zip(bar_positions(len(batches), progress, processes, workers), batches)]
     kept, blocks, seconds, failures, times = [], [], {}, {}, None
     for trials, (batch, result, spent, failed) in zip(batches, run_jobs(decoder_batch, jobs, processes, workers)):
         seconds[trials[0].decoder] = seconds.get(trials[0].decoder, 0.0) + spent
@@ -198,6 +196,17 @@ def failed_record(kind: str, message: str, trace: str = "") -> dict:
     "traceback": trace}``."""
     message = " ".join(message.split()) or "(no message)"
     return {"status": "failed", "error": f"{kind}: {message}", "traceback": trace}
+
+
+def bar_positions(jobs: int, progress: bool, processes: int | None = None,
+                  workers: Workers | None = None) -> list[int | None]:
+    """The terminal line of each job's progress bars (:func:`step_bar`): a line each when the jobs run side by
+    side (on ``workers``, else on up to ``processes``), line 0 when they run in turn; None each without
+    ``progress``."""
+    if not progress:
+        return [None] * jobs
+    side_by_side = process_count(jobs, workers.processes if workers else processes) > 1
+    return [position if side_by_side else 0 for position in range(jobs)]
 
 
 @contextmanager
