@@ -10,7 +10,7 @@ from collections import defaultdict
 import numpy as np
 import pytest
 
-from master.outputs.tables import SUMMARY_COLUMNS
+from master.outputs.tables import SCHEMA_VERSION, SUMMARY_COLUMNS
 
 
 def rhi(*args, cache, one_core=False, **environment):
@@ -49,10 +49,11 @@ def test_quick_run_writes_the_contract(quick_run):
         count = sum(1 for _ in reader)
     assert header[:7] == ["decoder", "condition", "stimulation", "trial", "seed", "step", "time_s"]
     for column in ("drift_cm", "force_x_n", "gamma", "mu_shoulder_deg", "action_shoulder_deg_s",
-                   "action_rate_elbow", "attempted_hand_vx_m_s", "visual_time_s", "tactile_time_s"):
+                   "action_rate_elbow_deg_s2", "action_accel_x_m_s2", "visual_time_s", "tactile_time_s"):
         assert column in header
     assert count == 12 * 301  # 12 trials x (300 steps + the initial row)
     run = json.loads((quick_run / "run.json").read_text())
+    assert run["schema_version"] == SCHEMA_VERSION
     assert run["configuration"]["experiment"]["steps"] == 300
     assert len(run["seeds"]["trials"]) == 12 and "torch" in run["versions"]
     figures = sorted(p.name for p in (quick_run / "figures").iterdir())

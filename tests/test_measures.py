@@ -73,8 +73,8 @@ def test_drift_follows_the_sensed_hand_row_by_row():
     np.testing.assert_allclose(drift, [0.0, -1.0, -2.0, -3.0], rtol=0, atol=1e-9)
 
 
-def test_attempted_hand_velocity_is_the_action_rate_through_the_arms_jacobian():
-    """x-velocity of the hand = dx/dq . a_dot, the Jacobian by central differences of the forward kinematics at the
+def test_action_acceleration_is_the_action_rate_through_the_arms_jacobian():
+    """x-acceleration of the hand (m/s^2) = dx/dq . a_dot, the Jacobian by central differences of the forward kinematics at the
     SENSED angles (m/deg). A pure shoulder rate at the rest pose swings the hand about the shoulder, 0.5 m behind it:
     dx = -0.5 m x pi/180 per deg, to the left."""
     sensed = [np.array(REST_POSE), pose_at(-0.40, 0.45)]
@@ -86,8 +86,8 @@ def test_attempted_hand_velocity_is_the_action_rate_through_the_arms_jacobian():
     for trial, (pose, rate) in enumerate(zip(sensed, rates)):
         gradient = np.array([(forward(*(pose + d))[0] - forward(*(pose - d))[0]) / (2 * step)
                              for d in np.eye(2) * step])  # m/deg
-        np.testing.assert_allclose(out["attempted_hand_vx_m_s"][:, trial], gradient @ rate, rtol=1e-7)
-    assert out["attempted_hand_vx_m_s"][0, 0] == pytest.approx(-(REST_HAND[1] - SHOULDER[1]) * np.pi / 180, rel=1e-12)
+        np.testing.assert_allclose(out["action_accel_x_m_s2"][:, trial], gradient @ rate, rtol=1e-7)
+    assert out["action_accel_x_m_s2"][0, 0] == pytest.approx(-(REST_HAND[1] - SHOULDER[1]) * np.pi / 180, rel=1e-12)
 
 
 def test_every_column_comes_from_its_recorded_variable():
@@ -96,8 +96,8 @@ def test_every_column_comes_from_its_recorded_variable():
     out = measures(recording(mu, constant(rest), np.broadcast_to([0.125, -0.375], mu.shape)))
     expected = {"force_x_n": 1.5, "force_y_n": -2.5, "gamma": 0.25, "mu_shoulder_deg": rest[0] + 0.5,
                 "mu_elbow_deg": rest[1] - 0.25, "s_p_shoulder_deg": rest[0], "s_p_elbow_deg": rest[1],
-                "action_shoulder_deg_s": 0.75, "action_elbow_deg_s": -0.5, "action_rate_shoulder": 0.125,
-                "action_rate_elbow": -0.375, "visual_time_s": 4.0, "tactile_time_s": 4.05, "visual_error": 12.0,
+                "action_shoulder_deg_s": 0.75, "action_elbow_deg_s": -0.5, "action_rate_shoulder_deg_s2": 0.125,
+                "action_rate_elbow_deg_s2": -0.375, "visual_time_s": 4.0, "tactile_time_s": 4.05, "visual_error": 12.0,
                 "free_energy": 3.0, "ball_x_m": -0.45, "ball_y_m": 0.6}
     for key, value in expected.items():
         assert out[key].shape == (STEPS + 1, 1), key

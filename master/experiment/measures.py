@@ -12,8 +12,7 @@ def measures(result) -> dict[str, np.ndarray]:
     negative is to the left (DESIGN.md, Measures). The action measure of the paper's Fig. 3 d-f,
     ``action_accel_x_m_s2``, is the horizontal hand acceleration J a_dot: eq. 7's a_dot (deg/s^2)
     through the arm Jacobian at the sensed angles (m/deg), in m/s^2; 0 in row 0, before any step.
-    ``attempted_hand_vx_m_s`` holds the same numbers under its older name (it is an acceleration,
-    not a velocity; kept so that the columns of earlier runs keep their names and bytes).
+    Every key ends in its unit (none: dimensionless); docs/configuration.md lists them (from this function).
     """
     values = result.values
     mu = values["brain.mu"]
@@ -32,9 +31,8 @@ def measures(result) -> dict[str, np.ndarray]:
         "s_p_elbow_deg": values["body.q_elbow"],
         "action_shoulder_deg_s": values["brain.u_shoulder"],
         "action_elbow_deg_s": values["brain.u_elbow"],
-        "action_rate_shoulder": values["brain.action_rate"][..., 0],
-        "action_rate_elbow": values["brain.action_rate"][..., 1],
-        "attempted_hand_vx_m_s": attempted[..., 0],
+        "action_rate_shoulder_deg_s2": values["brain.action_rate"][..., 0],
+        "action_rate_elbow_deg_s2": values["brain.action_rate"][..., 1],
         "visual_time_s": values["stimulus.visual_time"],
         "tactile_time_s": values["stimulus.tactile_time"],
         "visual_error": values["decoder.visual_error"],

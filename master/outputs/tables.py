@@ -7,10 +7,13 @@ import io
 
 import numpy as np
 
+# The output schema's version, in run.json: raised whenever a column of summary.csv or trials.csv, or a
+# key of run.json, is renamed or removed (2: the action measure's columns named as in trials.csv).
+SCHEMA_VERSION = 2
 SUMMARY_COLUMNS = ["decoder", "condition", "stimulation", "n_trials", "drift_cm_mean", "drift_cm_sd",
                    "force_n_mean", "force_n_sd", "gamma_final_mean",
-                   "action_accel_mean_m_s2_mean", "action_accel_mean_m_s2_sd",
-                   "action_accel_final_m_s2_mean", "action_accel_final_m_s2_sd"]
+                   "action_accel_mean_x_m_s2_mean", "action_accel_mean_x_m_s2_sd",
+                   "action_accel_x_m_s2_mean", "action_accel_x_m_s2_sd"]
 # The per-trial values (keys of ``final`` in :func:`summary`) behind the mean +/- sd column pairs, in order.
 SUMMARY_MEASURES = ("drift_cm", "force_x_n", "gamma", "action_accel_mean_x_m_s2", "action_accel_x_m_s2")
 TRIAL_KEYS = ["decoder", "condition", "stimulation", "trial", "seed"]
