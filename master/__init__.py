@@ -5,8 +5,9 @@ The one obvious call::
     from master import System, simulate
     result = simulate(System([a, b], [("a.y", "b.u")]), stop_time=30.0, step_size=0.02)
 
-Sub-packages, imports going one way (README, Layout): ``commands`` -> ``sweeps``, ``bench`` ->
-``experiment``, ``export`` -> ``outputs`` -> ``cosim`` -> ``components``.
+Sub-packages, imports going one way (docs/architecture.md; tests/test_layering.py enforces it):
+``commands`` -> ``reference`` -> ``phenomena`` -> ``sweeps``, ``bench`` -> ``export`` -> ``experiment`` ->
+``outputs`` -> ``cosim`` -> ``components``.
 """
 from master.cosim import ConfigError, Connection, Result, SimulationError, System, simulate
 

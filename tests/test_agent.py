@@ -230,13 +230,13 @@ def test_rhi_export_agent_writes_a_valid_fmu_and_refuses_in_one_line(quick, tmp_
     assert sorted(p.name for p in tmp_path.iterdir()) == ["A.fmu", "folder.fmu"]  # nothing half-written
 
 
-def test_the_readme_table_of_ports_is_the_agents_declarations(quick):
-    """README's table of the agent FMU's ports, row by row, against the agent's declared variables."""
+def test_the_documented_table_of_ports_is_the_agents_declarations(quick):
+    """docs/fmi.md's generated table of the agent FMU's ports, row by row, against the agent's declared variables."""
     import math
 
-    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    section = text[text.index("| port | causality | type | unit | range | start | meaning |"):]
-    rows = section[:section.index("\n\n")].splitlines()[2:]
+    from docs_tables import block
+
+    rows = [line for line in block("fmi.md", "agent-ports").splitlines() if line.startswith("| ")][1:]  # no header
     agent = Agent(quick["decoder"]["conv_checkpoint"], "conv", quick)
 
     def number(v, kind):

@@ -23,7 +23,7 @@ from master.bench.baseline import PaperStyleAgent
 from tests.test_batching import STEPS, reference_runs, tiny_config, tiny_model
 
 MODES = ("baseline", "exact_single", "exact_batched", "exact_batched_optimised", "fast")
-# The targets of issue 8 (README, Performance), written here rather than read from master/bench/report.py.
+# The bench's targets (docs/performance.md), written here rather than read from master/bench/report.py.
 ISSUE_TARGETS = {"exact_batched_peak_fraction_paper": (">=", 0.5), "fast_protocol_agent_steps_per_s": (">=", 1500),
                  "fast_drift_relative_error": ("<=", 0.01), "master_step_vs_fmpy_simulate_fmu": ("<=", 1.2),
                  "protocol_peak_rss_mb": ("<", 2048),

@@ -145,7 +145,7 @@ def read_trials(folder):
 
 
 def test_the_quick_run_shows_the_illusion(quick_run):
-    """The paper's qualitative result (DESIGN.md, What the paper found), with the --quick decoders trained by the
+    """The paper's qualitative result (docs/design.md, What the paper found), with the --quick decoders trained by the
     run, 6 s per trial: under synchronous touch the perceived hand drifts toward the rubber hand (Left negative,
     Right positive, Center near 0) and the force points the same way; asynchronous touch attenuates the drift; gamma
     rises from gamma0 under synchronous touch and stays near it under asynchronous touch.

@@ -311,7 +311,7 @@ def test_fast_drift_is_the_exact_drift_to_the_first_order_error_of_its_drive(qui
     factor 1.25. Measured: |e_N| / E from 0.93 to 3.6 over tolerances 0.0025-0.08 deg and both quick decoders
     (0.97-3.0 here). The final drift error is then within the hand's Jacobian times 1.25 E, and within the fast
     check's bound (master.experiment.fast_check.DRIFT_BOUND) of the largest drift; the final error does not fall
-    monotonically with the tolerance (README, Fast mode)."""
+    monotonically with the tolerance (docs/decoders.md, "Fast mode")."""
     config = configuration.load(quick=True)
     trials = [t for t in experiment.plan(config) if t.decoder == "conv"]
     exact = experiment.run_batch(Decoder(quick_conv, threads=1), trials, config)

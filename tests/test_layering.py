@@ -1,7 +1,7 @@
 """Imports go one way: the rule table below, checked on every .py file under master/ and components/.
 
 Every ``import x`` and ``from x import y`` counts, at any depth (a lazy import inside a function too);
-a relative import is resolved against the file's package. README "Layout" mirrors the table.
+a relative import is resolved against the file's package. docs/architecture.md mirrors the table.
 """
 import ast
 from pathlib import Path
@@ -13,9 +13,10 @@ ROOT = Path(__file__).resolve().parents[1]
 # -- the rules, as data --------------------------------------------------------------------------
 # master's sub-packages by layer, top first. A sub-package may import itself and any lower layer;
 # never a higher layer, nor another member of its own layer (sweeps/bench). export sits on experiment: the
-# agent it exports is the experiment's system without its body (master/export/agent.py).
-MASTER_LAYERS = [("commands",), ("phenomena",), ("sweeps", "bench"), ("export",), ("experiment",), ("outputs",),
-                 ("cosim",)]
+# agent it exports is the experiment's system without its body (master/export/agent.py). reference writes
+# docs/'s tables from everything below it.
+MASTER_LAYERS = [("commands",), ("reference",), ("phenomena",), ("sweeps", "bench"), ("export",), ("experiment",),
+                 ("outputs",), ("cosim",)]
 # master's own files outside the sub-packages, and the sub-packages each may import.
 MASTER_FILES = {"master/__init__.py": ("cosim",), "master/__main__.py": ("commands",)}
 # ``from master import X`` (not a sub-package) reaches master/__init__.py, which re-exports this one:

@@ -1,4 +1,4 @@
-"""What a trial measures (DESIGN.md, Measures), by hand on constructed recordings: measures() and the sweep's
+"""What a trial measures (docs/design.md, Measures), by hand on constructed recordings: measures() and the sweep's
 per-trial outcome (master.experiment.runner.trial_outcome).
 
 The truth is written here: hand positions by inverse kinematics, the Jacobian by central differences of the
@@ -135,7 +135,7 @@ def test_trial_outcome_is_the_last_row_of_the_trials_measures(monkeypatch):
 
 
 def test_a_run_starts_with_the_belief_on_the_sensed_arm_at_rest():
-    """Before anything happened there is no illusion: mu(0) is the real arm's sensed pose, the rest pose DESIGN.md
+    """Before anything happened there is no illusion: mu(0) is the real arm's sensed pose, the rest pose docs/design.md
     fixes (the decoders are trained around it), so every trial's drift starts at exactly 0."""
     config = tiny_config(steps=2)
     result = run_batch(Decoder(tiny_model(), threads=1), three_trials(config), config)

@@ -1,6 +1,6 @@
 """Every component of the project describes itself as a schema-valid FMI 2.0 modelDescription.xml, and says what
 this file writes down by hand: value references, causality, variability, types, units and their SI definitions,
-start values and ranges, output dependencies, and the array ports FMI 2.0 cannot carry (DESIGN.md, the body
+start values and ranges, output dependencies, and the array ports FMI 2.0 cannot carry (docs/design.md, the body
 contract). The XML is read back with fmpy (and ElementTree for the vendor annotation), never compared with the
 variable list it was generated from."""
 import math
@@ -76,7 +76,7 @@ def test_native_body_meets_the_fmu_contract_as_written_here(tmp_path):
     assert variables["held"].start == "true" and variables["held"].initial == "exact"
     assert (variables["substeps"].type, variables["substeps"].start, variables["substeps"].min,
             variables["substeps"].max) == ("Integer", "20", "1", "10000")
-    # The rest pose of DESIGN.md (hand at (-0.30, 0.50) m, elbow outward), to the digits the XML carries.
+    # The rest pose of docs/design.md (hand at (-0.30, 0.50) m, elbow outward), to the digits the XML carries.
     assert float(variables["q0_shoulder"].start) == pytest.approx(147.71944544231397, abs=1e-12)
     assert float(variables["q0_elbow"].start) == pytest.approx(-91.22898516948906, abs=1e-12)
     assert (variables["q0_elbow"].min, variables["q0_elbow"].max) == ("-180.0", "0.0")

@@ -343,20 +343,19 @@ def test_the_trial_gif_is_enlarged_only_up_to_64_px():
     assert len(frames(mu, rubber_pose(-0.15), balls, 32)) == 3  # every 10th step of 21
 
 
-def test_the_readme_s_table_of_the_preset_is_the_shipped_file_and_the_defaults():
-    """The README's table (key | paper | default | why) is a second mention of master/paper.toml: tied here."""
+def test_the_documented_table_of_the_preset_is_the_shipped_file_and_the_defaults():
+    """docs/configuration.md's generated table (key | paper | default | why) against master/paper.toml."""
+    from docs_tables import rows
+
     from master.experiment.training import STOP_POSES
-    text = (ROOT / "README.md").read_text()
-    section = text[text.index("## The paper's scale"):text.index("### Training at 256")]
-    rows = {line.split("|")[1].strip().strip("`"): [cell.strip() for cell in line.split("|")[2:4]]
-            for line in section.splitlines() if line.startswith("| `")}
+    shown = {row[0].strip("`"): [cell.strip("`") for cell in row[1:3]] for row in rows("configuration.md", "paper-preset")}
     with open(ROOT / "master" / "paper.toml", "rb") as file:
         shipped = dict(flatten(tomllib.load(file)))
     default = dict(flatten(configuration.load()))
-    assert set(rows) == set(shipped)
-    for key, (paper, was) in rows.items():
+    assert set(shown) == set(shipped)
+    for key, (paper, was) in shown.items():
         assert tomllib.loads(f"a = {paper}\nb = {was}") == {"a": shipped[key], "b": default[key]}, key
-    assert f"read off {STOP_POSES} held-out poses" in section
+    assert f"read off {STOP_POSES} held-out poses" in (ROOT / "docs" / "decoders.md").read_text()
 
 
 def test_rhi_train_with_the_paper_preset_at_32_px_prints_the_checks(tmp_path, capsys):

@@ -54,7 +54,7 @@ def test_shipped_files_load_and_span_the_human_ranges():
         assert phenomenon.file == FILES[name] and sweep_file(name).name == FILES[name]
         xs = sorted({phenomenon.x_of(sweep.configs[t.point], t.condition, t.stimulation) for t in sweep.trials})
         spans[name] = (xs[0], xs[-1], len(xs))
-        assert all(config["decoder"]["fast"] for config in sweep.configs)  # fast mode, as the README says
+        assert all(config["decoder"]["fast"] for config in sweep.configs)  # fast mode, as docs/phenomena.md says
     assert spans == {"temporal-window": (0.0, 1.0, 13), "distance": (5.0, 45.0, 9), "time-course": (5.0, 30.0, 6)}
     # the fixed delay: delay_min = delay_max at every point
     for config in sweeps.load(sweep_file("temporal-window")).configs:

@@ -122,7 +122,7 @@ def resources(tmp_path_factory) -> Resources:
 
 # -- 1. data loss: --out . / "" / .. / a foreign folder with --force ----------------------------------
 @pytest.mark.parametrize("out", [".", "", "..", "./", "work/..", "/"])
-def test_1_the_working_folder_and_those_above_it_are_refused_even_with_force(tmp_path, monkeypatch, out):
+def test_the_working_folder_and_those_above_it_are_refused_even_with_force(tmp_path, monkeypatch, out):
     from master.outputs import files
 
     work = tmp_path / "work"
@@ -135,7 +135,7 @@ def test_1_the_working_folder_and_those_above_it_are_refused_even_with_force(tmp
     assert (work / "thesis.tex").read_text() == "precious" and sorted(os.listdir(tmp_path)) == ["work"]
 
 
-def test_1_force_replaces_only_rhi_s_own_output(tmp_path):
+def test_force_replaces_only_rhi_s_own_output(tmp_path):
     from master.outputs import files
 
     foreign = tmp_path / "foreign"
@@ -158,7 +158,7 @@ def test_1_force_replaces_only_rhi_s_own_output(tmp_path):
 
 
 # -- 2. a concurrent run: the lock, and publish's re-check ----------------------------------------------
-def test_2_a_second_run_into_the_same_folder_is_refused_while_the_first_holds_it(tmp_path):
+def test_a_second_run_into_the_same_folder_is_refused_while_the_first_holds_it(tmp_path):
     from master.outputs import files
 
     out = tmp_path / "race"
@@ -171,7 +171,7 @@ def test_2_a_second_run_into_the_same_folder_is_refused_while_the_first_holds_it
     assert sorted(os.listdir(tmp_path)) == ["race"]  # the lock file went with the run
 
 
-def test_2_publish_leaves_alone_what_appeared_meanwhile(tmp_path):
+def test_publish_leaves_alone_what_appeared_meanwhile(tmp_path):
     from master.outputs import files
 
     out = tmp_path / "race"
@@ -184,7 +184,7 @@ def test_2_publish_leaves_alone_what_appeared_meanwhile(tmp_path):
 
 
 # -- 3. a checkpoint of the wrong kind ---------------------------------------------------------------------
-def test_3_a_vae_checkpoint_in_the_conv_slot_is_refused_before_any_work(resources):
+def test_a_vae_checkpoint_in_the_conv_slot_is_refused_before_any_work(resources):
     from components.vision.checkpoint import CheckpointError
     from master.experiment import config as configuration
     from master.experiment.decoders import check_decoders, decoder_component
@@ -200,7 +200,7 @@ def test_3_a_vae_checkpoint_in_the_conv_slot_is_refused_before_any_work(resource
 # -- 4. duplicates in the protocol's lists ---------------------------------------------------------------
 @pytest.mark.parametrize("key, value", [("decoders", ["conv", "conv"]), ("conditions", ["left", "left"]),
                                         ("stimulations", ["sync", "async", "sync"])])
-def test_4_a_list_naming_an_entry_twice_is_refused_naming_the_key(key, value):
+def test_a_list_naming_an_entry_twice_is_refused_naming_the_key(key, value):
     from master.experiment import config as configuration
 
     with pytest.raises(ConfigError, match=rf"experiment\.{key} lists {value[0]} more than once"):
@@ -208,7 +208,7 @@ def test_4_a_list_naming_an_entry_twice_is_refused_naming_the_key(key, value):
 
 
 # -- 5. a cell whose every trial failed ----------------------------------------------------------------
-def test_5_a_cell_without_trials_has_an_empty_row_and_no_bar(tmp_path):
+def test_a_cell_without_trials_has_an_empty_row_and_no_bar(tmp_path):
     from master.experiment import Trial
     from master.outputs import figures, tables
 
@@ -228,7 +228,7 @@ def test_5_a_cell_without_trials_has_an_empty_row_and_no_bar(tmp_path):
     assert "a_drift_final.png" in written
 
 
-def test_5_a_decoder_whose_whole_batch_failed_costs_only_its_trials(monkeypatch):
+def test_a_decoder_whose_whole_batch_failed_costs_only_its_trials(monkeypatch):
     """A failure blaming no trial ends that decoder's batch; the other decoder's trials still run."""
     from master.cosim import SimulationError
     from master.experiment import config as configuration
@@ -271,7 +271,7 @@ def python_sigint():
     signal.signal(signal.SIGINT, before)
 
 
-def test_6_a_step_over_the_time_limit_fails_its_trial_naming_fmu_call_and_time(resources, python_sigint):
+def test_a_step_over_the_time_limit_fails_its_trial_naming_fmu_call_and_time(resources, python_sigint):
     from master.cosim import SimulationError
 
     began = time.monotonic()
@@ -283,7 +283,7 @@ def test_6_a_step_over_the_time_limit_fails_its_trial_naming_fmu_call_and_time(r
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the adapter's handlers are gone
 
 
-def test_6_ctrl_c_during_an_fmu_call_is_an_interrupt_not_a_failed_trial(resources, tmp_path, monkeypatch,
+def test_ctrl_c_during_an_fmu_call_is_an_interrupt_not_a_failed_trial(resources, tmp_path, monkeypatch,
                                                                        python_sigint):
     """Python's default SIGINT handler raises KeyboardInterrupt inside the FMU's own Python code, which the FMU
     used to turn into a 'fatal' status (a failed trial, and the run went on)."""
@@ -304,7 +304,7 @@ def test_6_ctrl_c_during_an_fmu_call_is_an_interrupt_not_a_failed_trial(resource
 
 
 # -- 7. export-body, atomically ----------------------------------------------------------------------------
-def test_7_export_builds_beside_the_target_and_renames(tmp_path, monkeypatch):
+def test_export_builds_beside_the_target_and_renames(tmp_path, monkeypatch):
     from master.export.body import build_fmu
 
     target = tmp_path / "Body.fmu"
@@ -327,7 +327,7 @@ def test_7_export_builds_beside_the_target_and_renames(tmp_path, monkeypatch):
 
 @pytest.mark.parametrize("out, says", [("/proc/v.fmu", "cannot write into /proc"), ("afile.txt/v.fmu", "is not a folder"),
                                        ("existing.fmu", "is a folder"), ("", "must be a file name ending in .fmu")])
-def test_7_unwritable_export_targets_are_refused_before_building(tmp_path, monkeypatch, out, says):
+def test_unwritable_export_targets_are_refused_before_building(tmp_path, monkeypatch, out, says):
     from master.export.body import build_fmu
 
     monkeypatch.chdir(tmp_path)
@@ -339,7 +339,7 @@ def test_7_unwritable_export_targets_are_refused_before_building(tmp_path, monke
 
 
 # -- 8. inputs that used to end in a traceback ----------------------------------------------------------
-def test_8_config_files_that_are_not_utf8_or_not_numbers_are_named(tmp_path):
+def test_config_files_that_are_not_utf8_or_not_numbers_are_named(tmp_path):
     from master.experiment import config as configuration
 
     path = tmp_path / "c.toml"
@@ -354,7 +354,7 @@ def test_8_config_files_that_are_not_utf8_or_not_numbers_are_named(tmp_path):
         configuration.load(path)
 
 
-def test_8_resolution_and_memory_have_upper_bounds_naming_the_memory():
+def test_resolution_and_memory_have_upper_bounds_naming_the_memory():
     from master.experiment import config as configuration
 
     with pytest.raises(ConfigError, match=r"experiment\.resolution must be at most 1024 pixels, got 100000 \(it "
@@ -365,7 +365,7 @@ def test_8_resolution_and_memory_have_upper_bounds_naming_the_memory():
         configuration.load(overrides={"experiment.steps": 10 ** 9})
 
 
-def test_8_the_decoder_cache_must_be_a_folder(tmp_path, monkeypatch):
+def test_the_decoder_cache_must_be_a_folder(tmp_path, monkeypatch):
     from master.experiment import config as configuration
     from master.experiment.decoders import check_decoders
 
@@ -375,7 +375,7 @@ def test_8_the_decoder_cache_must_be_a_folder(tmp_path, monkeypatch):
         check_decoders(configuration.load(quick=True))
 
 
-def test_8_an_fmu_whose_binary_does_not_load_is_refused_when_opened(resources):
+def test_an_fmu_whose_binary_does_not_load_is_refused_when_opened(resources):
     from components.component import ComponentError
     from components.fmu_adapter import FMUComponent
 
@@ -384,7 +384,7 @@ def test_8_an_fmu_whose_binary_does_not_load_is_refused_when_opened(resources):
         FMUComponent(resources.fmus["unloadable"])
 
 
-def test_8_train_checks_its_output_before_training(tmp_path):
+def test_train_checks_its_output_before_training(tmp_path):
     from master.experiment.training import check_target
 
     with pytest.raises(ConfigError, match="is a folder; name the checkpoint file"):
@@ -403,7 +403,7 @@ def test_8_train_checks_its_output_before_training(tmp_path):
     ("experiment.scheme", "jakobi", r"experiment\.scheme = 'jakobi' is not one of gauss-seidel, jacobi"),
     ("decoder.conv_checkpoint", "/", r"decoder\.conv_checkpoint: / is a folder, not a checkpoint file"),
 ])
-def test_9_named_messages(key, value, says):
+def test_named_messages(key, value, says):
     from master.experiment import config as configuration
     from master.experiment.decoders import check_decoders
 
@@ -411,7 +411,7 @@ def test_9_named_messages(key, value, says):
         check_decoders(configuration.load(overrides={key: value}))
 
 
-def test_9_every_sweep_point_is_validated_before_the_sweep_starts(tmp_path):
+def test_every_sweep_point_is_validated_before_the_sweep_starts(tmp_path):
     from master.sweeps import plan as sweeps
 
     path = tmp_path / "s.toml"
@@ -423,7 +423,7 @@ def test_9_every_sweep_point_is_validated_before_the_sweep_starts(tmp_path):
         sweeps.load(path)
 
 
-def test_9_usage_errors_are_one_line(capsys):
+def test_usage_errors_are_one_line(capsys):
     from master.commands.cli import main
 
     for argv in (["experiment"], ["experiment", "--trials", "many", "--out", "x"], ["fly"], []):
@@ -434,7 +434,7 @@ def test_9_usage_errors_are_one_line(capsys):
         assert len(lines) == 1 and lines[0].startswith("rhi") and ": error: " in lines[0], lines
 
 
-def test_9_stale_staging_of_ours_is_cleaned_and_nothing_else(tmp_path):
+def test_stale_staging_of_ours_is_cleaned_and_nothing_else(tmp_path):
     from master.outputs import files
 
     out = tmp_path / "run"
@@ -458,7 +458,7 @@ def test_9_stale_staging_of_ours_is_cleaned_and_nothing_else(tmp_path):
     ("body.substeps", 0, r"body\.substeps: body\.substeps = 0 is outside its range \[1, 10000\]"),
     ("stimulus.period", 0.0, r"stimulus\.period: stimulus\.period = 0\.0 is outside its range"),
 ])
-def test_10_settings_are_checked_before_the_staging_folder_and_training(tmp_path, monkeypatch, key, value, says):
+def test_settings_are_checked_before_the_staging_folder_and_training(tmp_path, monkeypatch, key, value, says):
     from master.experiment import config as configuration
     from master.experiment.publish import run_into
 
@@ -475,7 +475,7 @@ def test_10_settings_are_checked_before_the_staging_folder_and_training(tmp_path
     assert os.listdir(tmp_path) == []  # no cache made, nothing trained, no staging
 
 
-def test_10_a_bad_checkpoint_is_found_before_the_other_decoder_is_trained(tmp_path, monkeypatch):
+def test_a_bad_checkpoint_is_found_before_the_other_decoder_is_trained(tmp_path, monkeypatch):
     from components.vision.checkpoint import CheckpointError
     from master.experiment import config as configuration
     from master.experiment.publish import run_into
@@ -912,6 +912,6 @@ def test_catalogue_force_replaces_our_output_whole_and_nothing_else(resources, t
 
 
 def test_catalogue_size():
-    """How many bad inputs and faults the catalogue runs through the command line (stated in the README)."""
+    """How many bad inputs and faults the catalogue runs through the command line: at least 60."""
     assert len(CASES) + 3 >= 60
 

@@ -160,7 +160,7 @@ def test_local_pool_and_dask_cluster_give_the_same_trials(dask_cluster, tmp_path
     assert run_sweep(args(path, tmp_path / "cluster", scheduler=dask_cluster)) == 0
     # the fixture's workers run with Dask's defaults: one note names every setting they lack
     assert notes() == ["rhi sweep: note: 2 of 2 Dask workers lack the settings for long CPU-bound tasks "
-                       f"({', '.join(sorted(WORKER_SETTINGS))}), which slows the trials; README, Sweeps, "
+                       f"({', '.join(sorted(WORKER_SETTINGS))}), which slows the trials; docs/sweeps.md "
                        "shows how to start them"]
     local, cluster, truth = records(tmp_path / "local"), records(tmp_path / "cluster"), expected(sweep)
     assert set(local) == set(cluster) == set(truth) and len(truth) == 16
@@ -527,17 +527,17 @@ print(unsteady, faults())
     assert unsteady >= 50 * 100 and steady < 100, (unsteady, steady)  # hundreds of pages per array, against none
 
 
-def test_readme_starts_cluster_workers_with_the_worker_settings():
-    """The README's `dask worker` line sets, by Dask's own reading of environment variables, exactly
-    WORKER_SETTINGS (the local pool's settings)."""
+def test_the_documented_dask_worker_command_has_the_worker_settings():
+    """docs/sweeps.md's generated `dask worker` line sets, by Dask's own reading of environment variables,
+    exactly WORKER_SETTINGS (the local pool's settings)."""
     import re
 
     import dask
+    from docs_tables import block as generated
 
     from master.sweeps.runner import WORKER_SETTINGS
 
-    text = (REPO / "README.md").read_text()
-    block = text[text.index("4. Start workers on each machine"):text.index("5. Run the sweep against it")]
+    block = generated("sweeps.md", "worker-command")
     variables = dict(re.findall(r"\b(DASK_[A-Z_]+)=(\S+)", block))
     assert len(variables) == len(WORKER_SETTINGS)
     collected = dask.config.collect_env(variables)

@@ -1,10 +1,10 @@
 /* A body written in C: the ideal kinematic arm of components/body/variants.py as an FMI 2.0
- * co-simulation FMU, meeting the body contract of DESIGN.md.
+ * co-simulation FMU, meeting the body contract of docs/design.md.
  *
  * Free: the joints follow the command exactly, q(t + h) = q(t) + h u.
  * Held: the joints do not move; the hand force is the statics of the servo, tau = clip(K u, +-limit)
  * (u in rad/s) balanced at the clamped hand, F = J^-T tau, J = d(hand)/d(angles) in m/rad.
- * Geometry (DESIGN.md): shoulder at (-0.20, 0), upper arm 0.3595 m, forearm 0.3694 m; angles in deg,
+ * Geometry (docs/design.md): shoulder at (-0.20, 0), upper arm 0.3595 m, forearm 0.3694 m; angles in deg,
  * the shoulder from +x, the elbow relative to the upper arm.
  *
  * Built by master/export/c_body.py with the FMI 2.0 headers that fmpy ships. One instance is one trial.

@@ -84,7 +84,7 @@ def _reduce(canvas: Image.Image, factor: int) -> np.ndarray:
     """Box-average a canvas by ``factor`` in exact integer arithmetic, as float32 in [0, 1]."""
     pixels = np.asarray(canvas)
     rows, columns = pixels.shape[0] // factor, pixels.shape[1] // factor
-    # Rows first (contiguous memory), then columns: faster than one sum over axes (1, 3) (README, Performance).
+    # Rows first (contiguous memory), then columns: faster than one sum over axes (1, 3) (docs/performance.md).
     band_sums = pixels.reshape(rows, factor, -1).sum(axis=1, dtype=np.uint32)
     sums = band_sums.reshape(rows, columns, factor).sum(axis=2, dtype=np.uint32)
     return (sums / (255.0 * factor * factor)).astype(np.float32)

@@ -1,6 +1,6 @@
 """Planar 2-link arm kinematics (pure numpy, vectorised over any leading shape).
 
-Frame (DESIGN.md): metres, x to the right (body midline x = 0), y forward. The left
+Frame (docs/design.md): metres, x to the right (body midline x = 0), y forward. The left
 shoulder is fixed at SHOULDER. Angles in degrees as in the paper's released agent:
 ``shoulder`` is the absolute angle of the upper arm from +x, ``elbow`` the angle of the
 forearm relative to the upper arm. The resting hand is at REST_HAND with the elbow

@@ -60,7 +60,7 @@ def smallest_inertia(upper_mass, forearm_mass, elbow_deg):
 
 
 class ArmPlant(Component):
-    """The arm (body FMU contract of DESIGN.md): joint-velocity command in, angles, hand and force out."""
+    """The arm (body FMU contract of docs/design.md): joint-velocity command in, angles, hand and force out."""
 
     def __init__(self, name: str = "body"):
         super().__init__(name, [

@@ -1,7 +1,7 @@
 """The rubber (virtual) arm: a kinematic arm on the real shoulder, posed by inverse kinematics.
 
 Its hand sits at REST_HAND + (offset_x, offset_y): Left offset_x = -0.15 m, Center 0,
-Right +0.15 m (DESIGN.md); any other offset is allowed for distance studies. It does not
+Right +0.15 m (docs/design.md); any other offset is allowed for distance studies. It does not
 move within a trial, so its outputs are computed once, at initialization.
 """
 from __future__ import annotations

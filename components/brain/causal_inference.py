@@ -4,10 +4,10 @@ gamma = p(c1 | t_v, t_t) is the belief that the visual and the tactile event sha
 source, the seen hand. It weights the visual drive of the belief (paper eq. 6).
 
 Equation numbers are those of the compiled paper: eq. 8 is Bayes' rule (source label
-``eq:8``), eq. 9 the update rule (source label ``eq:11``; DESIGN.md's "eqs. 10-11").
+``eq:8``), eq. 9 the update rule (source label ``eq:11``; docs/design.md's "eqs. 10-11").
 
-Choices the paper leaves open (DESIGN.md wins where it speaks):
-- The decay measures time from the last *tactile* event t_t (DESIGN.md and the released
+Choices the paper leaves open (docs/design.md wins where it speaks):
+- The decay measures time from the last *tactile* event t_t (docs/design.md and the released
   agent), not from max(t_v, t_t) as the paper's eq. 9 prints.
 - Before any tactile event has been observed there is no time since touch to measure: the
   decay is skipped and gamma holds. Gamma is then still at its start and floor gamma0 (only

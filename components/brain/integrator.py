@@ -1,6 +1,6 @@
 """The brain: the free-energy integrator of belief mu and action a (paper eqs. 6-7).
 
-Each step, for each of the B trials, in the released agent's order (DESIGN.md, "Brain"):
+Each step, for each of the B trials, in the released agent's order (docs/design.md, "Brain"):
 
 1. gamma from the events (eqs. 8-9, :mod:`components.brain.causal_inference`; with the
    extension over space there, ``spatial_sd`` finite, also from the seen and felt hands);
@@ -16,7 +16,7 @@ velocity servo turns it into joint torques, and the held arm into a force at the
 - tau = inf is the paper's law as the released agent runs it: a <- clip(a + dt * a_dot),
   the action integrates a_dot (eq. 7). The held arm cannot move, so s_p stays put and any
   lasting belief-sense gap mu - s_p integrates until the clip: the final force then gives a
-  direction, not a size (README, The action). ``tau = inf`` gives this law bit for bit
+  direction, not a size (docs/results.md, "The action law"). ``tau = inf`` gives this law bit for bit
   (:func:`action_update` takes the paper's branch).
 - tau finite (the default, 0.1 s) is a leaky integrator, the reflex arc of active inference
   (the action is driven by the proprioceptive prediction error) with a first-order
@@ -27,7 +27,7 @@ velocity servo turns it into joint torques, and the held arm into a force at the
   of the human stretch-reflex loop and of muscle force development (tens of ms to about a
   hundred), far shorter than the touch period and the rise of gamma, so the force follows the
   belief rather than its history. While the action stays off the clip, tau scales the force
-  in proportion and leaves its signs and ratios as they are (README, The action).
+  in proportion and leaves its signs and ratios as they are (docs/results.md, "The action law").
   Explicit Euler of the leak is stable while dt/tau < 2 (the step fails otherwise).
 The paper's action measure (Fig. 3 d-f, the horizontal hand acceleration J a_dot) reads
 a_dot of step 3, which does not depend on the law.
@@ -74,7 +74,7 @@ def belief_rate(s_p, mu, gamma, visual_drive, proprioceptive_variance):
 
 
 def action_rate(s_p, mu, proprioceptive_variance):
-    """Paper eq. 7 as DESIGN.md and the released agent write it: a_dot = -(s_p - mu)/Sigma_p.
+    """Paper eq. 7 as docs/design.md and the released agent write it: a_dot = -(s_p - mu)/Sigma_p.
 
     The paper's extra factor dt (from ds/da = dt) is left out, as in the released agent.
     """

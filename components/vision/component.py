@@ -32,8 +32,8 @@ from components.vision.checkpoint import check_matches, load
 from components.vision.networks import normalise
 
 REFERENCE_PIXELS = 256 * 256
-# Calibrated at the 256x256 reference with this project's camera and decoders (README, "Calibrating the
-# visual variance"), the value master/defaults.toml uses; the released agent's 3000 was for its own images.
+# Calibrated at the 256x256 reference with this project's camera and decoders (docs/results.md, "Calibrating
+# the visual variance"), the value master/defaults.toml uses; the released agent's 3000 was for its own images.
 DEFAULT_VISUAL_VARIANCE = 20.0
 
 
@@ -62,7 +62,7 @@ def resolve_device(name: str) -> str:
         if not torch.cuda.is_available():
             build = "a CPU-only build" if torch.version.cuda is None else f"built for CUDA {torch.version.cuda}"
             raise ComponentError(f"device {name}: torch {torch.__version__} ({build}) sees no CUDA GPU here; "
-                                 "use --device cpu or auto (README: installing a CUDA build of torch)")
+                                 "use --device cpu or auto (docs/configuration.md: installing a CUDA build of torch)")
         if name != "cuda" and int(name[5:]) >= torch.cuda.device_count():
             raise ComponentError(f"device {name}: torch sees {torch.cuda.device_count()} CUDA GPU(s) (cuda:0 ...)")
         return name

@@ -36,7 +36,7 @@ from components.variables import Variable
 from components.vision.component import Decoder, jacobian_gram, largest_eigenvalue, visual_error
 from components.vision.optimised import optimised
 
-DEFAULT_TOLERANCE = 0.005  # deg: every cell's final drift within 1 % of the exact integrator's (README, Fast mode)
+DEFAULT_TOLERANCE = 0.005  # deg: every cell's final drift within 1 % of the exact integrator's (docs/decoders.md, "Fast mode")
 
 
 def linearised_terms(projected, squared, gram, step):

@@ -1,7 +1,7 @@
 """The paper's two visual generative models, sharing one decoder definition.
 
 The decoder g maps the belief mu, normalised to [-1, 1] over the training ranges, to
-a grayscale image (DESIGN.md "Visual decoders")::
+a grayscale image (docs/design.md "Visual decoders")::
 
     Linear(2 -> hidden), Linear(hidden -> C0 * s * s), reshape to (C0, s, s),
     per stage: ConvTranspose(k4, s2, p1) + Conv(k3, s1, p1), ReLU after each,
@@ -62,7 +62,7 @@ class Preset:
 
 
 PRESETS = {
-    # The paper's ConvDecoder at 256x256 (DESIGN.md); trains on a 2-core CPU with channels-last layout.
+    # The paper's ConvDecoder at 256x256 (docs/design.md); trains on a 2-core CPU with channels-last layout.
     "paper": Preset(hidden=1024, channels=(128, 64, 32, 16), resolution=256),
     # Sized to train in a few minutes on a 2-core CPU at 64x64: 4x4 -> 64x64.
     "default": Preset(hidden=256, channels=(32, 16, 8), resolution=64),
@@ -111,7 +111,7 @@ class Encoder(nn.Module):
         for channels in sizes.encoder_channels:  # len(channels) + 1 pools: resolution -> start
             # Pooled before the ReLU: relu(max(x)) = max(relu(x)) exactly (ReLU is monotonic), and the
             # gradients are the same too, with the ReLU on a quarter of the pixels (at 256 x 256 the full-size
-            # ReLU of the first stage was a large part of the VAE's training step, README).
+            # ReLU of the first stage was a large part of the VAE's training step, docs/decoders.md).
             layers += [nn.Conv2d(previous, channels, 3, 1, 1), nn.MaxPool2d(2), nn.ReLU()]
             previous = channels
         self.convolutions = nn.Sequential(*layers)

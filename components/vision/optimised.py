@@ -2,7 +2,7 @@
 
 :func:`optimised` copies a :class:`GenerativeModel` into a :class:`TangentModel`, the same
 function to float rounding (tested against torch.func.jvp). Each change below was kept because
-it made the step faster on a CPU (the README's performance section has the numbers):
+it made the step faster on a CPU (docs/performance.md):
 
 - forward-mode JVPs written out layer by layer, the primal and both tangents as one batch
   (half the FLOPs of two JVPs through PyTorch's own rules);

@@ -3,7 +3,7 @@
 The ConvDecoder minimises the image MSE of g(normalised angles). The VAE minimises
 image MSE of g(z), z ~ q(z | image) (reparameterised), plus ``kl_weight`` times the
 KL divergence from q to a narrow Gaussian (``prior_variance``, 0.001) centred on the
-true normalised angles, so that the latent is joint space (DESIGN.md).
+true normalised angles, so that the latent is joint space (docs/design.md).
 
 The data are split once (seeded) into training and validation; the learning rate
 follows a cosine from ``lr`` down to ``lr * final_lr_fraction``; training stops early
@@ -12,8 +12,8 @@ epoch's weights are kept. With the same data, settings, device and thread count,
 runs give bitwise identical weights.
 
 For large images (the paper preset at 256 x 256) three settings make a step faster on a
-CPU, at the price of other float rounding than the plain path (README, "The paper's
-scale"): ``channels_last`` (the convolutions in channels-last layout, oneDNN's fast
+CPU, at the price of other float rounding than the plain path (docs/decoders.md,
+"The paper's scale"): ``channels_last`` (the convolutions in channels-last layout, oneDNN's fast
 kernels), ``fused_adam`` (one fused optimiser step), and ``stop_hand_error_cm`` (stop
 as soon as a caller's ``check`` says the decoder is good enough, so that the epochs are
 an upper bound). ``device`` runs the training on a GPU (``cuda``); the batches and the

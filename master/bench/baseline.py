@@ -10,7 +10,7 @@ gamma, mu and a in numpy.
 
 Here the environment (Unity in the paper) is this project's body, camera, stimulus and rubber
 arm components, stepped directly in the master's Gauss-Seidel order without the master. The
-agent itself is written out below from the paper and DESIGN.md, as the released agent wrote
+agent itself is written out below from the paper and docs/design.md, as the released agent wrote
 it, and takes NOTHING from the integrator (``components.brain``), the decoder component or the
 experiment (``master.experiment``): the eq. 6 belief update, the eq. 7 action and its clip,
 the eqs. 8-9 gamma (Bayes on a pair of events, the decay between them, the clamp) and the
@@ -41,7 +41,7 @@ from components.body.plant import ArmPlant
 from components.body.rubber_arm import RubberArm
 from components.stimulus import Stimulus
 
-REFERENCE_PIXELS = 256 * 256  # Sigma_v is per pixel at the paper's 256x256 (README, Calibrating the visual variance)
+REFERENCE_PIXELS = 256 * 256  # Sigma_v is per pixel at the paper's 256x256 (docs/results.md, "Calibrating the visual variance")
 
 
 class PaperStyleAgent:
@@ -63,7 +63,7 @@ class PaperStyleAgent:
         self.rubber_arm, self.stimulus, self.camera, self.body = self.environment
         self.setup_seconds = self.step_seconds = self.decoder_seconds = 0.0
         # The environment's settings: the trial's rubber hand and delays, the configured stimulus, camera and
-        # body; the real arm starts at rest (DESIGN.md).
+        # body; the real arm starts at rest (docs/design.md).
         settings = {
             "rubber_arm": {"offset_x": trial.offset_x, "offset_y": 0.0},
             "stimulus": {**config["stimulus"], "delay_min": trial.delay_min, "delay_max": trial.delay_max,
@@ -117,7 +117,7 @@ class PaperStyleAgent:
         return p1 * gamma / evidence if evidence > 0 else gamma
 
     def decay(self, gamma: float, time_now: float, tactile_time: float, dt: float) -> float:
-        """Eq. 9, between events: gamma * exp(-(t - t_t)^2 dt r_decay), t_t the last touch felt (DESIGN.md);
+        """Eq. 9, between events: gamma * exp(-(t - t_t)^2 dt r_decay), t_t the last touch felt (docs/design.md);
         before the first touch there is no time since touch, and gamma holds."""
         if not math.isfinite(tactile_time):
             return gamma

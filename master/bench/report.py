@@ -23,7 +23,7 @@ def targets(report: dict) -> dict:
         "default_run_cpu_utilisation": (report["default_run"].get("cpu_utilisation"), ">=", 1.7),
         # Over the sweep's task window (master/bench/sweep_rate.py): its start-up is a constant, not a rate.
         "sweep_vs_lockstep_rate": (report["sweep_rate"]["window_vs_lockstep"], ">=", 0.8),
-        # Issue 17: the whole protocol at 256 x 256 with the trained paper decoders (measured only when cached).
+        # The whole protocol at 256 x 256 with the trained paper decoders (measured only when cached).
         "paper_protocol_seconds": (protocol["seconds"] if protocol.get("trained") and protocol["preset"] == "paper"
                                    else None, "<=", 180.0),
     }

@@ -5,8 +5,8 @@ camera, stimulus, rubber arm, decoder, brain, master). Measured per preset (pape
 and the paper's decoder; default: 64x64 and the default decoder), with UNTRAINED seeded
 decoders of the right architecture (speed does not depend on the weights):
 
-- baseline: :class:`master.baseline.PaperStyleAgent`, one trial the way the released agent runs;
-- exact_single: this project's integrator, B = 1 through :func:`master.algorithm.simulate`;
+- baseline: :class:`master.bench.baseline.PaperStyleAgent`, one trial the way the released agent runs;
+- exact_single: this project's integrator, B = 1 through :func:`master.cosim.simulate`;
 - exact_batched: all ``batch`` trials of the protocol in lockstep, one decoder call per step;
 - exact_batched_optimised: the same with the decoder's JVPs written out, in channels-last layout;
 - fast: the linearised decoder (:mod:`components.vision.fast`), batched.
@@ -18,7 +18,7 @@ also counts the JVP step), the achieved FLOP/s against a measured fp32 matmul pe
 component's share of the step, the master's per-step time against fmpy.simulate_fmu on the
 same body FMU (both set the inputs and read the outputs every step), the whole paper protocol
 in fast mode (in a child process, for its peak memory), the fast mode's drift error against
-the exact integrator with a trained default decoder when one is cached (README, Performance), and
+the exact integrator with a trained default decoder when one is cached (docs/performance.md), and
 the protocol as a sweep on the local pool against the same trials in lockstep
 (:mod:`master.bench.sweep_rate`).
 """

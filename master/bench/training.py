@@ -11,7 +11,7 @@ phase on camera images, for each decoder kind, in two ways:
 
 Both wall time and CPU time (user + system of this process) are reported: on a machine shared with
 other work the wall time grows with the load while the CPU time per sample barely moves, so
-CPU seconds per sample / threads projects the rate on a quiet machine (README, "The paper's scale").
+CPU seconds per sample / threads projects the rate on a quiet machine (docs/performance.md).
 
 Example::
 

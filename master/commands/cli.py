@@ -92,7 +92,7 @@ def build_parser() -> argparse.ArgumentParser:
     run_system.set_defaults(run=lambda args: __import__(module, fromlist=["_"]).run_run_system(args))
 
     sweep = commands.add_parser("sweep", help="run a parameter sweep, locally or on a Dask cluster")
-    sweep.add_argument("--config", metavar="FILE", required=True, help="the sweep file (TOML, see README)")
+    sweep.add_argument("--config", metavar="FILE", required=True, help="the sweep file (TOML, see docs/sweeps.md)")
     sweep.add_argument("--scheduler", metavar="ADDRESS",
                        help="a Dask scheduler, tcp://HOST:PORT (default: a process pool on this machine)")
     sweep.add_argument("--out", metavar="DIR", required=True)

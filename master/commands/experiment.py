@@ -1,4 +1,4 @@
-"""`rhi experiment`: the paper's protocol end to end, into DIR (DESIGN.md, Command line contract)."""
+"""`rhi experiment`: the paper's protocol end to end, into DIR (docs/design.md, Command line contract)."""
 from __future__ import annotations
 
 import sys

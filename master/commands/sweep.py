@@ -1,6 +1,6 @@
 """`rhi sweep --config FILE [--scheduler ADDRESS] [--force] --out DIR`: run a sweep, resumably.
 
-Running the same command again runs only the trials that have no successful record (README, Sweeps).
+Running the same command again runs only the trials that have no successful record (docs/sweeps.md).
 """
 from __future__ import annotations
 

@@ -4,7 +4,7 @@ A checkpoint named in ``[decoder]`` is used as given. Otherwise the default deco
 trained with the ``[train]`` settings at the experiment's resolution on the camera's images at
 ``[camera] blur``, named by a hash of what made it (the settings, and the blur when it is not the
 default): the package ships the checkpoints of the default settings (``SHIPPED``, which `rhi train`
-reproduces byte for byte, README), and any other is trained once, the decoders side by side
+reproduces byte for byte, docs/decoders.md), and any other is trained once, the decoders side by side
 (:mod:`master.experiment.parallel`), and cached under ``$RHI_CACHE`` (default ``~/.cache/rhi``),
 so a changed setting trains a new one and an unchanged one is reused.
 Either way a loaded checkpoint is checked against the camera at the configured blur.

@@ -27,7 +27,7 @@ from components.body import camera, kinematics
 from master.cosim import ConfigError
 from master.outputs.files import atomic_write
 
-HALF_RANGES = (40.0, 50.0)  # deg: shoulder, elbow, about the rest pose (DESIGN.md)
+HALF_RANGES = (40.0, 50.0)  # deg: shoulder, elbow, about the rest pose (docs/design.md)
 CHUNK = 256                 # poses rendered per call (bounds memory at 256 x 256)
 
 

@@ -20,7 +20,7 @@ from components.component import ComponentError
 from master.cosim import ConfigError, System, simulate
 from master.experiment.protocol import Trial, plan
 
-# Gauss-Seidel order within one step (DESIGN.md): the decoder reads the brain's mu of time t and the
+# Gauss-Seidel order within one step (docs/design.md): the decoder reads the brain's mu of time t and the
 # image of time t; the brain then integrates; the body finally receives the new action.
 CONNECTIONS = [
     ("rubber_arm.hand", "stimulus.target"),
@@ -71,7 +71,7 @@ PARAMETER_SOURCES = {
     "brain.proprioceptive_variance": "brain.proprioceptive_variance",
     "brain.gamma0": "brain.gamma0",
     "brain.mu0": "derived: the rest pose, components.body.kinematics.REST_POSE; the belief starts where the "
-                 "real arm rests (DESIGN.md fixes the geometry; the decoders are trained around it)",
+                 "real arm rests (docs/design.md fixes the geometry; the decoders are trained around it)",
     "brain.sync_sd": "brain.sync_sd",
     "brain.async_density": "brain.async_density",
     "brain.decay_rate": "brain.decay_rate",
@@ -80,9 +80,9 @@ PARAMETER_SOURCES = {
     "brain.spatial_sd": "brain.spatial_sd",
     "body.held": "body.held",
     "body.q0_shoulder": "derived: the rest pose's shoulder, components.body.kinematics.REST_POSE[0]; the real arm "
-                        "starts at rest (DESIGN.md fixes the geometry; the decoders are trained around it)",
+                        "starts at rest (docs/design.md fixes the geometry; the decoders are trained around it)",
     "body.q0_elbow": "derived: the rest pose's elbow, components.body.kinematics.REST_POSE[1]; the real arm "
-                     "starts at rest (DESIGN.md fixes the geometry; the decoders are trained around it)",
+                     "starts at rest (docs/design.md fixes the geometry; the decoders are trained around it)",
     "body.substeps": "body.substeps",
     "body.servo_gain": "body.servo_gain",
     "body.torque_limit": "body.torque_limit",
@@ -139,7 +139,7 @@ def parameters(trials: list[Trial], config: dict) -> dict:
 def undeclared(given: dict, system: System) -> list[str]:
     """The ``body.*`` paths of ``given`` that the system's body does not declare.
 
-    A body swapped in (an FMU, a variant) must meet the body contract (DESIGN.md: held, q0_*), not
+    A body swapped in (an FMU, a variant) must meet the body contract (docs/design.md: held, q0_*), not
     carry the native plant's physics: the [body] keys it lacks are left out, and the run records them.
     Any other component's parameter is always declared (tests/test_defaults.py).
     """

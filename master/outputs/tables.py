@@ -1,4 +1,4 @@
-"""The experiment's tables (DESIGN.md, "Command line contract"): summary.csv and trials.csv, and the
+"""The experiment's tables (docs/design.md, "Command line contract"): summary.csv and trials.csv, and the
 statistics every table and figure shares: trials grouped by cell, mean and sample sd (ddof 1)."""
 from __future__ import annotations
 

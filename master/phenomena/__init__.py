@@ -1,4 +1,4 @@
-"""Named protocols for the human phenomena the model is compared with (DESIGN.md, Measures).
+"""Named protocols for the human phenomena the model is compared with (docs/design.md, Measures).
 
 Each phenomenon is a sweep file shipped beside this module (a user copies and edits it) and a
 report (:mod:`master.phenomena.report`) that reads the sweep's trial records and writes a table

@@ -26,10 +26,10 @@ from master.experiment.runner import failed_record
 from master.outputs.files import atomic_write
 from master.sweeps.plan import DEFAULT_TASK, Sweep, TrialSpec
 
-# Dask's settings for workers whose tasks are long, single-threaded and CPU-bound (README, Sweeps): no
+# Dask's settings for workers whose tasks are long, single-threaded and CPU-bound (docs/sweeps.md): no
 # statistical profiler (by default it takes the GIL every 10 ms to walk the running task's stack), and
 # the event loop's health check and the monitors at a pace that such tasks do not notice. The local
-# pool's workers get them; a cluster's workers take them as environment variables (README).
+# pool's workers get them; a cluster's workers take them as environment variables (docs/sweeps.md).
 WORKER_SETTINGS = {
     "distributed.worker.profile.enabled": False,
     "distributed.admin.tick.interval": "1s",
@@ -79,11 +79,11 @@ def check_workers(client, task: str) -> None:
     for worker, answer in answers.items():
         if isinstance(answer, BaseException):
             raise ConfigError(f"Dask worker {worker} cannot import {module} ({answer}); "
-                              "install this package on every worker (see README, Sweeps)")
+                              "install this package on every worker (see docs/sweeps.md)")
     unset = sorted({key for answer in answers.values() for key in answer})
     if unset:
         print(f"rhi sweep: note: {sum(map(bool, answers.values()))} of {len(answers)} Dask workers lack the settings "
-              f"for long CPU-bound tasks ({', '.join(unset)}), which slows the trials; README, Sweeps, "
+              f"for long CPU-bound tasks ({', '.join(unset)}), which slows the trials; docs/sweeps.md "
               "shows how to start them", file=sys.stderr)
 
 
@@ -104,7 +104,7 @@ def check_decoders(sweep: Sweep) -> None:
 
 def prepare_decoders(sweep: Sweep) -> None:
     """The experiment's trials load trained decoders; train any missing default here, once, never on
-    the workers (a remote worker must see the same checkpoint paths, see README)."""
+    the workers (a remote worker must see the same checkpoint paths, see docs/sweeps.md)."""
     if sweep.task != DEFAULT_TASK:
         return
     from master.experiment.decoders import ensure_checkpoints
@@ -119,7 +119,7 @@ def steady_malloc() -> None:
 
     Dask's nanny starts its workers with ``MALLOC_TRIM_THRESHOLD_=65536``, which turns glibc's dynamic
     thresholds off: every array above 128 KiB a step frees goes back to the system, and the next step
-    faults its pages in again (README, Sweeps). Idempotent; called by every task, so that a worker that
+    faults its pages in again (docs/sweeps.md). Idempotent; called by every task, so that a worker that
     joins during the sweep gets it too.
     """
     try:

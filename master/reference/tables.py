@@ -1,0 +1,206 @@
+"""Each generated table of docs/: a function of the code that returns its Markdown.
+
+A column without a meaning in :data:`MEANINGS` raises, so a new output column cannot reach a run
+without reaching docs/configuration.md too.
+"""
+from __future__ import annotations
+
+import math
+import re
+from importlib import resources
+from types import SimpleNamespace
+
+import numpy as np
+
+# What every output column means (the names say their units; none: dimensionless).
+MEANINGS = {
+    "decoder": "visual decoder: conv or vae",
+    "condition": "rubber-hand position: left, center, right (or a condition the configuration adds)",
+    "stimulation": "sync or async (or a stimulation the configuration adds)",
+    "trial": "trial index within its cell",
+    "seed": "the trial's seed (a hash of the master seed, condition, stimulation and index)",
+    "step": "communication step, 0 = the initial state",
+    "time_s": "time of the row",
+    "n_trials": "trials of the cell that finished (0: every one failed, the statistics are empty)",
+    "drift_cm": "perceived minus real hand x; negative = to the left",
+    "force_x_n": "horizontal force the held arm exerts at the hand",
+    "force_y_n": "force along y at the hand",
+    "gamma": "belief in a common cause of the seen and the felt touch",
+    "mu_shoulder_deg": "belief mu, shoulder", "mu_elbow_deg": "belief mu, elbow",
+    "s_p_shoulder_deg": "sensed shoulder angle s_p", "s_p_elbow_deg": "sensed elbow angle s_p",
+    "action_shoulder_deg_s": "action a (commanded joint velocity), shoulder",
+    "action_elbow_deg_s": "action a, elbow",
+    "action_rate_shoulder_deg_s2": "a_dot = -(s_p - mu)/Sigma_p (paper eq. 7), shoulder",
+    "action_rate_elbow_deg_s2": "a_dot, elbow",
+    "action_accel_x_m_s2": "the paper's action measure (Fig. 3 d-f): horizontal hand acceleration J a_dot",
+    "visual_time_s": "time of the last observed visual event (-inf before any)",
+    "tactile_time_s": "time of the last observed tactile event (-inf before any)",
+    "visual_error": "1/2 e^T e (256^2/HW) / Sigma_v, e = s_v - g(mu)",
+    "free_energy": "sum (s_p - mu)^2/(2 Sigma_p) + gamma visual_error, at the step's starting mu",
+    "ball_x_m": "ball position x", "ball_y_m": "ball position y",
+    "drift_cm_mean": "final drift, mean over the cell's trials", "drift_cm_sd": "its sample sd (ddof 1)",
+    "force_n_mean": "final force_x_n, mean", "force_n_sd": "its sample sd",
+    "gamma_final_mean": "final gamma, mean", "gamma_final_sd": "its sample sd",
+    "action_accel_mean_x_m_s2_mean": "action_accel_x_m_s2 averaged over the trial's steps, mean over trials",
+    "action_accel_mean_x_m_s2_sd": "its sample sd",
+    "action_accel_x_m_s2_mean": "final action_accel_x_m_s2, mean over trials", "action_accel_x_m_s2_sd": "its sample sd",
+    "id": "the trial's ID (a hash of everything that decides its result)", "point": "the sweep point's index",
+    "KEY": "one column per swept key: the point's value",
+    "n_failed": "trials of the cell that failed", "status": "ok or failed",
+    "force_n": "final force_x_n", "gamma_final": "final gamma",
+    "elapsed_s": "the trial's chunk's wall time", "error": "a failed trial's error",
+    "x": "the swept quantity: delay_s, distance_cm or time_s",
+    "drift_half_time_s_mean": "when the drift first reaches half its final value, mean",
+    "drift_half_time_s_sd": "its sample sd", "drift_relative": "mean drift relative to the protocol's reference",
+}
+
+
+def markdown(header: list[str], rows: list[list]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    return "\n".join(lines + ["| " + " | ".join(str(cell).replace("|", "\\|") for cell in row) + " |"
+                              for row in rows])
+
+
+def columns(names: list[str]) -> str:
+    missing = [name for name in names if not MEANINGS.get(name)]
+    if missing:
+        raise KeyError(f"master/reference/tables.py MEANINGS lacks the output columns {', '.join(missing)}")
+    return markdown(["column", "meaning"], [[f"`{name}`", MEANINGS[name]] for name in names])
+
+
+def summary_columns() -> str:
+    from master.outputs.tables import SUMMARY_COLUMNS
+    return columns(SUMMARY_COLUMNS)
+
+
+def trials_columns() -> str:
+    """trials.csv's header, from the code that writes it, run on a recording of one step and one trial."""
+    from master.experiment.measures import measures
+    from master.outputs.tables import trials_csv
+
+    pairs = ("brain.mu", "brain.action_rate", "stimulus.ball")
+
+    class Recording(dict):
+        def __missing__(self, path):
+            return np.zeros((2, 1, 2) if path in pairs else (2, 1))
+
+    per_step = measures(SimpleNamespace(values=Recording()))
+    trial = SimpleNamespace(decoder="conv", condition="left", stimulation="sync", index=0, seed=0)
+    return columns(trials_csv([trial], np.zeros(2), per_step).splitlines()[0].split(","))
+
+
+def sweep_columns() -> str:
+    from master.sweeps import tables
+    sweep = SimpleNamespace(keys=["KEY"], trials=[], points=[])
+    index = tables.index_rows(sweep, {}).splitlines()[0].split(",")
+    summary = tables.summary_csv(sweep, list(tables.MEASURES), []).splitlines()[0].split(",")
+    return "`index.csv`:\n\n" + columns(index) + "\n\n`summary.csv`:\n\n" + columns(summary)
+
+
+def phenomenon_columns() -> str:
+    from master.phenomena.report import PHENOMENA, table
+    return columns(["x", *table(next(iter(PHENOMENA.values())), []).splitlines()[0].split(",")[1:]])
+
+
+def commented_keys(name: str) -> list[tuple[str, str, str]]:
+    """(dotted key, value as written, comment) for every key of the shipped ``master/NAME.toml``; a key
+    without a comment of its own takes its table's; [quick]'s entries are keys whole."""
+    rows, table, table_comment, last = [], "", [""], None
+    text = resources.files("master").joinpath(f"{name}.toml").read_text()
+    for line in text.splitlines():
+        header = re.match(r"^\[([\w.]+)\]\s*(?:#\s*(.*))?$", line)
+        entry = re.match(r"^([\w\"-]+)\s*=\s*(.*?)\s*(?:#\s*(.*))?$", line)
+        more = re.match(r"^\s+#\s*(.*)$", line)
+        if header:
+            table, table_comment = header.group(1), [header.group(2) or ""]
+            last = table_comment
+        elif entry:
+            rows.append([f"{table}.{entry.group(1)}", entry.group(2), entry.group(3) or None, table_comment])
+            last = rows[-1] if entry.group(3) else None
+        elif more and last is not None:
+            if last is table_comment:
+                last[0] += " " + more.group(1)
+            else:
+                last[2] += " " + more.group(1)
+        else:
+            last = None
+    return [(key, value, comment or inherited[0]) for key, value, comment, inherited in rows]
+
+
+def configuration_keys() -> str:
+    return markdown(["key", "default", "meaning"],
+                    [[f"`{key}`", f"`{value}`", comment] for key, value, comment in commented_keys("defaults")])
+
+
+def paper_preset() -> str:
+    defaults = {key: value for key, value, _ in commented_keys("defaults")}
+    return markdown(["key", "paper", "default", "why"],
+                    [[f"`{key}`", f"`{value}`", f"`{defaults[key]}`", why]
+                     for key, value, why in commented_keys("paper")])
+
+
+def number(value, integer: bool = False) -> str:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "NaN"
+    if math.isinf(value):
+        return "∞" if value > 0 else "−∞"
+    return str(int(value)) if integer or float(value).is_integer() else f"{value:g}"
+
+
+def port_rows(variables) -> list[list[str]]:
+    """One row per variable: port, causality, type, unit, range, start (none for an output), meaning."""
+    rows = []
+    for v in variables:
+        integer = v.type == "Integer"
+        low = "−∞" if v.min is None else number(v.min, integer)
+        high = "∞" if v.max is None else number(v.max, integer)
+        start = "" if v.causality == "output" else (str(v.start).lower() if v.type == "Boolean"
+                                                   else number(v.start, integer))
+        bounds = "" if v.type == "Boolean" else f"[{low}, {high}]"
+        rows.append([f"`{v.name}`", v.causality, v.type, v.unit or "1", bounds, start, v.description])
+    return rows
+
+
+PORTS = ["port", "causality", "type", "unit", "range", "start", "meaning"]
+
+
+def agent_ports() -> str:
+    from master.experiment import config
+    from master.experiment.decoders import checkpoint_path
+    from master.export.agent import Agent
+
+    defaults = config.load()
+    agent = Agent(checkpoint_path("conv", defaults, must_exist=True), "conv", defaults)
+    return markdown(PORTS, port_rows(agent.variables.values()))
+
+
+def body_contract():
+    try:
+        from components.body.contract import BODY_CONTRACT
+    except ImportError:
+        from components.fmu_adapter import BODY_CONTRACT
+    return BODY_CONTRACT
+
+
+def body_ports() -> str:
+    """The pymunk plant's ports, with whether the body contract requires each."""
+    from components.body.plant import ArmPlant
+    required = {v.name for v in body_contract()}
+    variables = list(ArmPlant().variables.values())
+    return markdown(PORTS[:-1] + ["required", "meaning"],
+                    [row[:-1] + ["yes" if v.name in required else "", row[-1]]
+                     for v, row in zip(variables, port_rows(variables))])
+
+
+def worker_command() -> str:
+    """The `dask worker` command with :data:`master.sweeps.runner.WORKER_SETTINGS` as environment variables."""
+    from master.sweeps.runner import WORKER_SETTINGS
+    settings = [f"DASK_{key.upper().replace('.', '__').replace('-', '_')}={value}"
+                for key, value in WORKER_SETTINGS.items()]
+    return "\n".join(["```", *(f"{setting} \\" for setting in settings),
+                      ".venv/bin/dask worker tcp://SCHEDULER-HOST:8786 --nworkers $(nproc) --nthreads 1", "```"])
+
+
+TABLES = {"configuration-keys": configuration_keys, "paper-preset": paper_preset, "summary-columns": summary_columns,
+          "trials-columns": trials_columns, "sweep-columns": sweep_columns, "phenomenon-columns": phenomenon_columns,
+          "agent-ports": agent_ports, "body-ports": body_ports, "worker-command": worker_command}

@@ -1,0 +1,98 @@
+"""docs/ against the code: every generated table is what `python -m master.reference` writes now, and the
+tables' keys, defaults, ports and columns are read back and compared with what the code uses and writes."""
+from __future__ import annotations
+
+import csv
+import math
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from docs_tables import DOCS, block, names, rows
+from master.experiment import config as configuration
+from master.reference.__main__ import blocks, regenerate
+from master.reference.tables import TABLES
+
+ROOT = DOCS.parent
+
+
+def header(path: Path) -> list[str]:
+    with open(path, newline="") as file:
+        return next(csv.reader(file))
+
+
+def test_every_generated_table_in_docs_is_what_the_code_writes_now():
+    pages = sorted(DOCS.glob("*.md"))
+    found = {name: page for page in pages for name in blocks(page.read_text())}
+    assert set(found) == set(TABLES), "each generated table appears in exactly one docs page"
+    tables = {name: make() for name, make in TABLES.items()}
+    for page in pages:
+        text = page.read_text()
+        for name, shown in blocks(text).items():
+            assert shown == tables[name], f"docs/{page.name}, table {name}: stale (run python -m master.reference)"
+        assert regenerate(text, tables) == text
+
+
+def test_the_configuration_table_lists_every_key_with_its_default():
+    shown = {row[0].strip("`"): row[1].strip("`") for row in rows("configuration.md", "configuration-keys")}
+    defaults = configuration.defaults()
+
+    def leaves(table, prefix=""):
+        for key, value in table.items():
+            if isinstance(value, dict) and prefix != "quick.":
+                yield from leaves(value, f"{prefix}{key}.")
+            else:
+                yield f"{prefix}{key}", value
+
+    expected = dict(leaves(defaults))
+    run = configuration.load()
+    assert list(shown) == list(expected)
+    for key, text in shown.items():
+        assert tomllib.loads(f"a = {text}")["a"] == expected[key], key
+    for key, value in expected.items():  # what a run uses: the loaded configuration, [quick] aside
+        if not key.startswith("quick."):
+            table, _, name = key.rpartition(".")
+            loaded = run
+            for part in table.split("."):
+                loaded = loaded[part]
+            assert loaded[name] == value or (math.isnan(value) and math.isnan(loaded[name])), key
+
+
+def test_the_preset_table_is_the_shipped_preset_over_the_defaults():
+    preset = configuration.preset("paper")
+    default = configuration.load()
+    found = {}
+    for key, paper, was, _ in rows("configuration.md", "paper-preset"):
+        table, name = key.strip("`").split(".")
+        found[key.strip("`")] = tomllib.loads(f"a = {paper.strip('`')}\nb = {was.strip('`')}")
+        assert found[key.strip("`")] == {"a": preset[table][name], "b": default[table][name]}, key
+    assert set(found) == {f"{table}.{name}" for table, keys in preset.items() for name in keys}
+
+
+def test_the_output_column_tables_are_the_shipped_files_headers():
+    assert names("configuration.md", "summary-columns") == header(DOCS / "summary.csv")
+    assert names("configuration.md", "summary-columns") == header(DOCS / "paper" / "summary.csv")
+    for table in sorted((DOCS / "phenomena").glob("*.csv")):
+        assert names("sweeps.md", "phenomenon-columns")[1:] == header(table)[1:], table.name
+    sweep = header(DOCS / "sweeps" / "paper_visual_variance" / "summary.csv")
+    documented = block("sweeps.md", "sweep-columns").split("`summary.csv`:")[1]
+    assert [line.split("|")[1].strip(" `") for line in documented.splitlines()[3:] if line.startswith("| ")] == [
+        "KEY" if column == "decoder.visual_variance" else column for column in sweep]
+
+
+def test_the_body_table_marks_exactly_the_body_contract():
+    from master.reference.tables import body_contract
+    contract = {v.name: v for v in body_contract()}
+    shown = {row[0].strip("`"): row for row in rows("fmi.md", "body-ports")}
+    assert {name for name, row in shown.items() if row[6] == "yes"} == set(contract)
+    for name, variable in contract.items():
+        assert shown[name][1:4] == [variable.causality, variable.type, variable.unit or "1"], name
+
+
+def test_an_unknown_output_column_is_refused_until_it_is_documented(monkeypatch):
+    from master.outputs import tables
+    from master.reference import tables as reference
+    monkeypatch.setattr(tables, "SUMMARY_COLUMNS", [*tables.SUMMARY_COLUMNS, "new_thing_kg"])
+    with pytest.raises(KeyError, match="new_thing_kg"):
+        reference.summary_columns()
