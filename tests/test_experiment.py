@@ -9,6 +9,7 @@ from collections import defaultdict
 
 import numpy as np
 import pytest
+from docs_tables import names
 
 from master.outputs.tables import SCHEMA_VERSION, SUMMARY_COLUMNS
 
@@ -52,6 +53,8 @@ def test_quick_run_writes_the_contract(quick_run):
                    "action_rate_elbow_deg_s2", "action_accel_x_m_s2", "visual_time_s", "tactile_time_s"):
         assert column in header
     assert count == 12 * 301  # 12 trials x (300 steps + the initial row)
+    assert header == names("configuration.md", "trials-columns")  # docs/configuration.md lists a run's columns
+    assert list(rows[0]) == names("configuration.md", "summary-columns")
     run = json.loads((quick_run / "run.json").read_text())
     assert run["schema_version"] == SCHEMA_VERSION
     assert run["configuration"]["experiment"]["steps"] == 300
