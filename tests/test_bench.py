@@ -27,10 +27,10 @@ MODES = ("baseline", "exact_single", "exact_batched", "exact_batched_optimised",
 ISSUE_TARGETS = {"exact_batched_peak_fraction_paper": (">=", 0.5), "fast_protocol_agent_steps_per_s": (">=", 1500),
                  "fast_drift_relative_error": ("<=", 0.01), "master_step_vs_fmpy_simulate_fmu": ("<=", 1.2),
                  "protocol_peak_rss_mb": ("<", 2048),
-                 # issue 16: the default run from an empty cache, and the sweep against lockstep
+                 # the default run from an empty cache, and the sweep against lockstep
                  "default_run_wall_s": ("<=", 100), "default_run_cpu_utilisation": (">=", 1.7),
                  "sweep_vs_lockstep_rate": (">=", 0.8),
-                 "paper_protocol_seconds": ("<=", 180)}  # issue 17
+                 "paper_protocol_seconds": ("<=", 180)}  # the paper protocol with its trained decoders
 
 
 @pytest.fixture(scope="module")

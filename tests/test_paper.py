@@ -1,4 +1,4 @@
-"""The paper's scale (issue 17), at small sizes: the `--preset paper` configuration, the training settings it
+"""The paper's scale (`--preset paper`), at small sizes: the `--preset paper` configuration, the training settings it
 uses (channels-last, fused Adam, stopping on the hand error), devices, caching, the paper network end to end
 at 32 x 32, and the bench's protocol with trained decoders. CI never trains a paper-scale decoder."""
 import argparse
@@ -33,7 +33,7 @@ from master.experiment.decoders import checkpoint_path, ensure_checkpoints
 from master.experiment.training import train_settings
 
 ROOT = Path(__file__).resolve().parents[1]
-# The TrainSettings fields a cached decoder's name was a hash of before this work (issue 17).
+# The TrainSettings fields a cached decoder's name was a hash of before the paper preset's keys existed.
 EARLIER_FIELDS = ("samples", "epochs", "batch_size", "lr", "final_lr_fraction", "patience", "seed", "preset",
                   "resolution", "validation_fraction", "kl_weight", "prior_variance", "quality_poses", "threads")
 # A small paper run: the paper preset and its networks, at 32 x 32 (start size 1 x 1), few samples and steps.
@@ -59,7 +59,7 @@ def test_the_paper_preset_is_the_paper_s_scale_merged_over_the_defaults():
     with open(ROOT / "master" / "paper.toml", "rb") as file:
         shipped = dict(flatten(tomllib.load(file)))
     paper, default = (dict(flatten(configuration.load(preset_name=name))) for name in ("paper", None))
-    # What issue 17 asks of it, written here: 256 px, the paper's networks, the fast mode, the CPU speed-ups.
+    # What the preset must be, written here: 256 px, the paper's networks, the fast mode, the CPU speed-ups.
     assert paper["experiment.resolution"] == 256 and paper["train.preset"] == "paper"
     assert paper["decoder.fast"] is True and paper["train.channels_last"] is True
     assert paper["train.stop_hand_error_cm"] > 0

@@ -35,7 +35,7 @@ from master.experiment import training_data
 from master.experiment.training import train_settings
 
 PHASES = ("data", "encoder", "decoder_and_loss", "backward", "optimiser")
-BEFORE_BATCH = 32  # the batch size of the measurements before (issue 17)
+BEFORE_BATCH = 32  # the batch size of the earlier measurements (CHANGELOG.md)
 
 
 def relu_before_pool(model) -> None:
