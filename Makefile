@@ -13,8 +13,10 @@ $(STAMP): pyproject.toml constraints.txt
 .PHONY: setup test experiment
 setup: $(STAMP)
 
+# Two xdist workers, a module to each (modules share expensive fixtures); TEST_WORKERS=0 runs in one process.
+TEST_WORKERS ?= 2
 test: $(STAMP)
-	$(VENV)/bin/python -m pytest -q --durations=20
+	$(VENV)/bin/python -m pytest -q --durations=20 -n $(TEST_WORKERS) --dist loadfile
 
 experiment: $(STAMP)
 	$(VENV)/bin/rhi experiment --out results

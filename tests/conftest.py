@@ -5,6 +5,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from filelock import FileLock
 
 # Passive OpenMP waiting, as `rhi` sets it in master.commands.cli.main (see the reason there): the tests
 # load torch themselves, not through main(), and conftest runs before any test module imports it.
@@ -13,17 +14,40 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 ROOT = Path(__file__).resolve().parents[1]
 
 
-@pytest.fixture(scope="session")
-def quick_cache(tmp_path_factory):
-    """A $RHI_CACHE folder holding the default --quick decoders (conv and vae), trained once per session.
+# The modules whose shared set-up takes longest run first, so that under pytest-xdist (`make test`: two
+# workers, a module to a worker) neither worker is left with a long module at the end.
+FIRST = ("test_reliability.py", "test_c_body.py", "test_sweep.py", "test_agent.py", "test_bench.py")
 
-    Trained in a child process (as `rhi experiment --quick` trains them: same settings, same cache names), so
-    that training's torch thread settings stay out of this process. ``rhi experiment --quick`` with this
-    RHI_CACHE finds them and trains nothing."""
-    folder = tmp_path_factory.mktemp("decoders")
+
+def pytest_collection_modifyitems(items):
+    rank = {name: position for position, name in enumerate(FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(FIRST)))  # stable: file order kept otherwise
+
+
+def train_quick_decoders(folder: Path) -> None:
     code = ("from master.experiment import config; from master.experiment.decoders import ensure_checkpoints; "
             "ensure_checkpoints(config.load(quick=True), progress=False)")
     done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env={**os.environ, "RHI_CACHE": str(folder)},
                           capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
-    return folder
+
+
+@pytest.fixture(scope="session")
+def quick_cache(tmp_path_factory, worker_id):
+    """A $RHI_CACHE folder holding the default --quick decoders (conv and vae), trained once per test run.
+
+    Trained in a child process (as `rhi experiment --quick` trains them: same settings, same cache names), so
+    that training's torch thread settings stay out of this process. ``rhi experiment --quick`` with this
+    RHI_CACHE finds them and trains nothing. Under pytest-xdist the workers share one folder beside their
+    own temporary folders: the first to take the lock trains, the others wait and then find it."""
+    if worker_id == "master":  # not under xdist
+        folder = tmp_path_factory.mktemp("decoders")
+        train_quick_decoders(folder)
+        return folder
+    shared = tmp_path_factory.getbasetemp().parent / "decoders"
+    with FileLock(str(shared) + ".lock"):
+        if not (shared / "complete").exists():
+            shared.mkdir(exist_ok=True)
+            train_quick_decoders(shared)
+            (shared / "complete").touch()
+    return shared
