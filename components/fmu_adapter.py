@@ -31,6 +31,7 @@ import os
 import shutil
 import signal
 import sys
+import tempfile
 import threading
 import time
 import zipfile
@@ -39,6 +40,7 @@ from xml.etree import ElementTree as ET
 
 import numpy as np
 
+from components.archives import ArchiveError, check_archive, extract
 from components.component import INITIALIZATION, STEPPING, Component, ComponentError, Status, StepFailure
 from components.variables import Variable
 
@@ -80,10 +82,18 @@ def library_path(unzipdir: str, model_identifier: str) -> str:
 def check_contract(path, contract=BODY_CONTRACT) -> list[str]:
     """Every reason the file at ``path`` cannot serve as an FMU honouring ``contract`` (empty: fine)."""
     path = os.fspath(path)
+    if os.path.isdir(path):
+        return [f"{path} is a folder, not an FMU file"]
+    if os.path.exists(path) and not os.path.isfile(path):
+        return [f"{path} is not a regular file"]
     if not os.path.isfile(path):
         return [f"{path} does not exist"]
     if not zipfile.is_zipfile(path):
         return [f"{path} is not an FMU: it is not a zip archive"]
+    try:
+        check_archive(path)
+    except ArchiveError as error:
+        return [str(error)]
     with zipfile.ZipFile(path) as archive:
         names = set(archive.namelist())
         if "modelDescription.xml" not in names:
@@ -104,11 +114,13 @@ def check_contract(path, contract=BODY_CONTRACT) -> list[str]:
         binary = library_path("", interface.get("modelIdentifier", "")).replace(os.sep, "/")
         if binary not in names:
             problems.append(f"no binary for this platform ({binary} is missing)")
-    declared = {}
+    declared, references = {}, {}
     for element in root.iterfind("ModelVariables/ScalarVariable"):
         typed = next(iter(element), None)
         declared[element.get("name")] = (element.get("causality", "local"),
                                          typed.tag if typed is not None else "none", _unit(root, typed))
+        references[element.get("name")] = element.get("valueReference")
+    problems += _shared_references(contract, declared, references)
     for wanted in contract:
         if wanted.name not in declared:
             problems.append(f"missing variable {wanted.name} ({wanted.causality} {wanted.type}"
@@ -121,6 +133,22 @@ def check_contract(path, contract=BODY_CONTRACT) -> list[str]:
             problems.append(f"{wanted.name} has type {kind}, the contract needs {wanted.type}")
         elif unit != wanted.unit:
             problems.append(f"{wanted.name} has unit {unit or 'none'!r}, the contract needs {wanted.unit or 'none'!r}")
+    return problems
+
+
+def _shared_references(contract, declared, references) -> list[str]:
+    """Each contract port whose value reference an earlier port of the same type already has: an FMU
+    reads and writes by reference, so the two would be one value (an alias), not two ports."""
+    owner, problems = {}, []
+    for wanted in contract:
+        if wanted.name not in declared or references.get(wanted.name) is None:
+            continue
+        key = (declared[wanted.name][1], references[wanted.name])
+        if key in owner:
+            problems.append(f"{wanted.name} has the value reference {key[1]} of {owner[key]}: the two ports would "
+                            "be one value")
+        else:
+            owner[key] = wanted.name
     return problems
 
 
@@ -154,12 +182,18 @@ def guard_library(unzipdir: str, model_identifier: str) -> None:
 
 
 def extracted(path: str) -> str:
-    """The FMU at ``path`` unzipped, once per process and file version (removed at exit)."""
-    from fmpy import extract
+    """The FMU at ``path`` unzipped (checked: :func:`components.archives.extract`), once per process and
+    file version (removed at exit)."""
     status = os.stat(path)
     key = (path, status.st_mtime_ns, status.st_size)
     if key not in _EXTRACTED:
-        _EXTRACTED[key] = extract(path)
+        folder = tempfile.mkdtemp(prefix="rhi_fmu_")
+        try:
+            extract(path, folder)
+        except BaseException:
+            shutil.rmtree(folder, ignore_errors=True)
+            raise
+        _EXTRACTED[key] = folder
     return _EXTRACTED[key]
 
 

@@ -18,15 +18,38 @@ import numpy as np
 
 
 def fmpy_run(request: dict) -> dict:
-    """FMPy's SSP master (``fmpy.ssp.simulation.simulate_ssp``), unchanged.
+    """FMPy's SSP master (``fmpy.ssp.simulation.simulate_ssp``), its algorithm unchanged.
 
+    It is given the package and its FMUs unpacked and checked already (the request's ``ssp`` folder and
+    ``fmus``), in place of its own unzipping, which neither bounds sizes nor refuses links.
     FMPy applies no parameter binding of the SSD itself: it takes a parameter set whose names are
     prefixed with the component's name, which is what it is given here, from the package's own files.
     Its loop adds the step size to the time until it reaches the stop time; a stop time half a step
     before the last step's end gives exactly ``steps`` steps.
     """
+    import io
+    import zipfile
+
+    from fmpy.ssp import simulation
     from fmpy.ssp.simulation import simulate_ssp
-    from fmpy.ssp.ssd import Parameter, ParameterSet
+    from fmpy.ssp.ssd import Parameter, ParameterSet, read_ssd
+
+    folder, fmus = request["ssp"], request["fmus"]
+
+    def read_unpacked(_, validate=True):  # FMPy reads the SSD and its parameter files from a zip archive
+        buffer = io.BytesIO()
+        with zipfile.ZipFile(buffer, "w") as archive:
+            for root, _folders, files in os.walk(folder):
+                for file in files:
+                    relative = os.path.relpath(os.path.join(root, file), folder).replace(os.sep, "/")
+                    if relative not in fmus:
+                        archive.write(os.path.join(root, file), relative)
+        return read_ssd(buffer, validate)
+
+    def unpacked(filename, *args, **kwargs):
+        return folder if filename == folder else fmus[os.path.relpath(filename, folder).replace(os.sep, "/")]
+
+    simulation.read_ssd, simulation.extract = read_unpacked, unpacked
 
     parameters = ParameterSet(name="rhi")
     for component, values in request["parameters"].items():
@@ -35,7 +58,7 @@ def fmpy_run(request: dict) -> dict:
             parameter.type, parameter.value = kind, value
             parameters.parameters.append(parameter)
     h, steps = request["step_size"], request["steps"]
-    rows = simulate_ssp(request["ssp"], start_time=0.0, stop_time=(steps - 0.5) * h, step_size=h,
+    rows = simulate_ssp(folder, start_time=0.0, stop_time=(steps - 0.5) * h, step_size=h,
                         parameter_set=parameters)
     result = {"time": rows["time"] + h}
     for name in rows.dtype.names:
@@ -45,8 +68,9 @@ def fmpy_run(request: dict) -> dict:
 
 
 def libcosim_run(request: dict) -> dict:
-    """libcosim's fixed-step master (``CosimExecution.from_ssp_file``), unchanged: it applies the parameter
-    set the SSD binds to each component; a trial asked for in its place is set as initial values."""
+    """libcosim's fixed-step master (``CosimExecution.from_ssp_file``), unchanged, on the unpacked and checked
+    package (the request's ``ssp`` folder): it applies the parameter set the SSD binds to each component; a
+    trial asked for in its place is set as initial values."""
     from libcosimpy.CosimExecution import CosimExecution
     from libcosimpy.CosimObserver import CosimObserver
 

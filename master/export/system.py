@@ -25,6 +25,7 @@ there must not take the command down.
 from __future__ import annotations
 
 import json
+import math
 import os
 import subprocess
 import sys
@@ -54,6 +55,9 @@ BODY_PARAMETERS = "resources/body.ssv"
 TRIALS = "resources/trials"
 FMU_TYPE = "application/x-fmu-sharedlibrary"
 MASTERS = ("fmpy", "libcosim")
+# run-system's communication steps: 2.8 h of the experiment's 0.01 s steps, its recorded connectors (about 20
+# float64 each) 160 MB; far beyond the protocol's runs, far below what would exhaust memory or run for days.
+MAX_STEPS = 1_000_000
 
 for _prefix, _uri in NS.items():
     ET.register_namespace(_prefix, _uri)
@@ -280,6 +284,7 @@ def read_ssp(path) -> Package:
         missing from the package or unusable, a parameter file missing, a connection to an element or
         variable that does not exist or of the wrong causality or type, a parameter its FMU lacks.
     """
+    from components.archives import ArchiveError, check_archive
     from components.fmu_adapter import check_contract
 
     path, name = os.fspath(path), os.path.basename(os.fspath(path))
@@ -287,6 +292,10 @@ def read_ssp(path) -> Package:
         raise ConfigError(f"{path} does not exist" if not os.path.exists(path) else f"{path} is not a file")
     if not zipfile.is_zipfile(path):
         raise ConfigError(f"{name} is not an SSP package: it is not a zip archive")
+    try:
+        check_archive(path)
+    except ArchiveError as error:
+        raise ConfigError(str(error)) from None
     package = Package(path)
     with zipfile.ZipFile(path) as archive, tempfile.TemporaryDirectory(prefix="rhi_ssp_") as folder:
         members = set(archive.namelist())
@@ -343,10 +352,24 @@ def read_ssp(path) -> Package:
                 check_parameters(archive, name, source, package.variables[component], component)
         experiment = root.find("ssd:DefaultExperiment", NS)
         if experiment is not None:
-            package.stop_time = float(experiment.get("stopTime")) if experiment.get("stopTime") else None
+            package.stop_time = _time(name, "stopTime", experiment.get("stopTime"))
             step = experiment.find(".//osp:FixedStepAlgorithm", NS)
-            package.step_size = float(step.get("baseStepSize")) if step is not None else None
+            package.step_size = _time(name, "baseStepSize", step.get("baseStepSize") if step is not None else None)
     return package
+
+
+def _time(name: str, attribute: str, text: str | None) -> float | None:
+    """A default experiment's time attribute (s): None if absent, else a positive finite number."""
+    if text is None or not text.strip():
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not (math.isfinite(value) and value > 0):
+        raise ConfigError(f"{name}: its default experiment's {attribute} = {text[:40]!r} is not a positive finite "
+                          "number of seconds")
+    return value
 
 
 def check_parameters(archive: zipfile.ZipFile, name: str, source: str, declared: dict, component: str) -> dict:
@@ -437,16 +460,23 @@ def run_ssp(path, master: str, trial: str | None = None, steps: int | None = Non
         steps = round(package.stop_time / package.step_size)
     if steps < 1:
         raise ConfigError(f"steps must be at least 1, got {steps}")
+    if steps > MAX_STEPS:
+        raise ConfigError(f"{os.path.basename(package.path)}: {steps} steps, over the limit of {MAX_STEPS} "
+                          "(lower the stop time, or give --steps)")
     with tempfile.TemporaryDirectory(prefix="rhi_ssp_run_") as folder:
+        unpacked, fmus = unpack(package, Path(folder))
         request = Path(folder) / "request.json"
         request.write_text(json.dumps({
-            "ssp": os.path.abspath(package.path), "master": master, "steps": steps, "step_size": package.step_size,
+            "ssp": str(unpacked), "fmus": fmus, "master": master, "steps": steps, "step_size": package.step_size,
             "parameters": {c: {k: [t, v] for k, (t, v) in values.items()} for c, values in parameters.items()},
             "connectors": {c: [v for v, (causality, kind) in package.variables[c].items()
                                if causality in ("input", "output") and kind == "Real"] for c in package.components},
             "out": str(Path(folder) / "result.npz")}))
-        env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(Path(__file__).resolve().parents[2]),
-                                                                          os.environ.get("PYTHONPATH")]))}
+        scratch = Path(folder) / "tmp"  # the masters' own unpacked copies, removed with the folder
+        scratch.mkdir()
+        env = {**os.environ, "TMPDIR": str(scratch),
+               "PYTHONPATH": os.pathsep.join(filter(None, [str(Path(__file__).resolve().parents[2]),
+                                                           os.environ.get("PYTHONPATH")]))}
         try:
             done = subprocess.run([sys.executable, "-m", "master.export.ssp_runner", str(request)], capture_output=True,
                                   text=True, timeout=timeout, env=env)
@@ -458,6 +488,25 @@ def run_ssp(path, master: str, trial: str | None = None, steps: int | None = Non
             raise SimulationError(master, 0.0, reason.removeprefix("rhi-ssp-runner: "), "error")
         with np.load(Path(folder) / "result.npz") as result:
             return {key: result[key] for key in result.files}
+
+
+def unpack(package: Package, folder: Path) -> tuple[Path, dict]:
+    """The checked package unpacked for a master: ``folder/ssp`` holds it (every member checked,
+    :func:`components.archives.extract`), each component's FMU unpacked (checked) into ``folder/fmus/N``
+    and, at its place in the package, packed again from those checked files (libcosim takes an FMU only
+    as a zip archive, and unpacks it itself). Returns the package's folder and ``{source: FMU folder}``."""
+    from components.archives import ArchiveError, extract, pack
+
+    ssp, fmus = folder / "ssp", {}
+    try:
+        extract(package.path, ssp)
+        for index, source in enumerate(package.components.values()):
+            fmus[source] = str(extract(ssp / source, folder / "fmus" / str(index)))
+            (ssp / source).unlink()
+            pack(fmus[source], ssp / source)
+    except ArchiveError as error:
+        raise ConfigError(str(error)) from None
+    return ssp, fmus
 
 
 def final_drift_cm(values: dict, agent: str = AGENT, body: str = BODY) -> float:

@@ -1,0 +1,247 @@
+"""Hostile files: archives that try to write outside their folder or to unpack into gigabytes, output
+folders that are not rhi's, and inputs that ask for unbounded work.
+
+Each case reproduces a way a downloaded or hand-made file could make rhi write, delete or allocate what it
+should not, through the command line where the behaviour is the command's (a subprocess, cwd a fresh
+folder, TMPDIR and RHI_CACHE inside the case's own tree), in-process where a function is the unit.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import stat
+import subprocess
+import sys
+import warnings
+import zipfile
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import pytest
+
+from components.archives import LIMITS, ArchiveError, check_archive, extract
+
+REPO = Path(__file__).resolve().parents[1]
+ENV = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
+ONE_BODY = """<?xml version="1.0" encoding="UTF-8"?>
+<ssd:SystemStructureDescription version="1.0" name="x" xmlns:ssd="http://ssp-standard.org/SSP1/SystemStructureDescription"
+ xmlns:ssc="http://ssp-standard.org/SSP1/SystemStructureCommon" xmlns:osp="https://opensimulationplatform.com/SSP/OSPAnnotations">
+<ssd:System name="x"><ssd:Elements><ssd:Component name="body" type="application/x-fmu-sharedlibrary"
+ source="resources/body.fmu"/></ssd:Elements></ssd:System>
+<ssd:DefaultExperiment startTime="0.0" stopTime="0.05"><ssd:Annotations><ssc:Annotation type="com.opensimulationplatform">
+<osp:Algorithm><osp:FixedStepAlgorithm baseStepSize="0.01"/></osp:Algorithm></ssc:Annotation></ssd:Annotations>
+</ssd:DefaultExperiment></ssd:SystemStructureDescription>
+"""
+SSD = ('<?xml version="1.0" encoding="UTF-8"?>\n<ssd:SystemStructureDescription version="1.0" name="x" '
+       'xmlns:ssd="http://ssp-standard.org/SSP1/SystemStructureDescription"><ssd:System name="x"/>'
+       '</ssd:SystemStructureDescription>\n')
+
+
+# -- hostile archives, made by hand ------------------------------------------------------------------------
+def member(name: str, mode: int | None = None) -> zipfile.ZipInfo:
+    info = zipfile.ZipInfo(name)
+    if mode is not None:
+        info.external_attr = mode << 16
+    return info
+
+
+def write_zip(path: Path, members) -> Path:
+    """``members``: (ZipInfo or name, bytes) pairs, deflated (a name twice on purpose: no warning)."""
+    with warnings.catch_warnings(), zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as archive:
+        warnings.simplefilter("ignore", UserWarning)
+        for info, data in members:
+            archive.writestr(info, data)
+    return path
+
+
+def hostile_members(escape: Path) -> dict[str, list]:
+    """Member lists that each break one rule; ``escape`` is where an escaping member would land."""
+    relative = os.path.relpath(escape, "/")
+    return {
+        "dot_dot": [("../../../../../../../../../../" + relative, b"pwned")],
+        "absolute": [(str(escape), b"pwned")],
+        "symlink": [(member("resources/link", stat.S_IFLNK | 0o777), str(escape).encode())],
+        "device": [(member("resources/null", stat.S_IFCHR | 0o666), b"")],
+        "fifo": [(member("resources/pipe", stat.S_IFIFO | 0o666), b"")],
+        "twice": [("resources/a.txt", b"one"), ("resources/a.txt", b"two")],
+        "bomb": [("resources/filler.bin", bytes(LIMITS.ratio_floor * 8))],  # zeros pack about 1000:1
+    }
+
+
+def snapshot(folder: Path) -> dict:
+    """Every entry under ``folder``: relative path -> (kind, content hash)."""
+    found = {}
+    for path in sorted(folder.rglob("*")):
+        key = str(path.relative_to(folder))
+        if path.is_symlink():
+            found[key] = ("link", os.readlink(path))
+        elif path.is_dir():
+            found[key] = ("folder",)
+        else:
+            found[key] = ("file", hashlib.sha256(path.read_bytes()).hexdigest())
+    return found
+
+
+def rhi(root: Path, *args, timeout=60):
+    """``rhi ARGS`` with cwd root/work, TMPDIR root/tmp and RHI_CACHE root/cache."""
+    for name in ("work", "tmp", "cache"):
+        (root / name).mkdir(parents=True, exist_ok=True)
+    env = {**ENV, "TMPDIR": str(root / "tmp"), "RHI_CACHE": str(root / "cache")}
+    return subprocess.run([sys.executable, "-m", "master", *map(str, args)], cwd=root / "work", env=env,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def refused(done, says: str) -> None:
+    """Exit status 2, one line on stderr holding ``says``, no traceback."""
+    shown = f"status {done.returncode}, stderr {done.stderr[-800:]!r}"
+    assert done.returncode == 2, shown
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and says in lines[0] and "Traceback" not in done.stderr, shown
+
+
+@pytest.fixture(scope="module")
+def body_fmu(tmp_path_factory):
+    from master.export.body import build_fmu
+
+    return build_fmu(tmp_path_factory.mktemp("body") / "Body.fmu", "kinematic")
+
+
+def one_body_package(body: Path, out: Path, extra=()) -> Path:
+    """A fair SSP package of one component (the body FMU, 5 steps of 0.01 s), with ``extra`` members."""
+    return write_zip(out, [("SystemStructure.ssd", ONE_BODY), ("resources/body.fmu", body.read_bytes()), *extra])
+
+
+# ======================================================================================================
+# Archives never write outside their folder, and never unpack without bounds
+# ======================================================================================================
+@pytest.mark.parametrize("kind", list(hostile_members(Path("/x"))))
+def test_a_hostile_member_is_refused_by_name_before_anything_is_unpacked(tmp_path, kind):
+    escape = tmp_path / "outside" / "F"
+    archive = write_zip(tmp_path / "bad.zip", [("modelDescription.xml", b"<x/>")] + hostile_members(escape)[kind])
+    with pytest.raises(ArchiveError) as error:
+        extract(archive, tmp_path / "into")
+    assert "bad.zip: " in str(error.value) and "refused" in str(error.value)
+    assert not escape.exists() and not (tmp_path / "into").exists()
+
+
+def test_a_fair_archive_unpacks_whole_with_its_executable_bits(tmp_path):
+    archive = write_zip(tmp_path / "ok.zip", [("a/b.txt", b"b"), (member("bin/x.so", stat.S_IFREG | 0o755), b"so"),
+                                              ("c.txt", bytes(LIMITS.ratio_floor // 2))])
+    folder = extract(archive, tmp_path / "into")
+    assert snapshot(folder).keys() == {"a", "a/b.txt", "bin", "bin/x.so", "c.txt"}
+    assert (folder / "a" / "b.txt").read_bytes() == b"b" and os.access(folder / "bin" / "x.so", os.X_OK)
+
+
+def test_the_member_count_and_the_total_size_are_bounded(tmp_path):
+    from components.archives import Limits
+
+    archive = write_zip(tmp_path / "many.zip", [(f"m{i}", b"x" * 10) for i in range(11)])
+    with pytest.raises(ArchiveError, match="11 members, over the limit of 10"):
+        check_archive(archive, Limits(members=10))
+    with pytest.raises(ArchiveError, match="unpacks to over 100 bytes"):
+        check_archive(archive, Limits(total_bytes=100))
+    with pytest.raises(ArchiveError, match="unpacks to 10 bytes, over the limit of 9"):
+        check_archive(archive, Limits(member_bytes=9))
+
+
+# every rule broken by a package; the rules whose breaking writes or fills a disk by a body inside it and by a
+# body packed with export-system; FMPy's master on one (the check comes before either master)
+HOSTILE_RUNS = ([(kind, "ssp-libcosim") for kind in hostile_members(Path("/x"))]
+                + [(kind, what) for kind in ("dot_dot", "absolute", "bomb") for what in ("fmu-in-ssp", "export-body")]
+                + [("dot_dot", "ssp-fmpy"), ("symlink", "export-body")])
+
+
+@pytest.fixture(scope="module")
+def hostile_runs(body_fmu, tmp_path_factory):
+    """HOSTILE_RUNS: a hostile member list as an SSP for ``run-system``, as the FMU inside an SSP, or as a body
+    FMU for ``export-system --body``; each run in a tree of its own."""
+    root = tmp_path_factory.mktemp("hostile")
+    cases = []
+    for kind, what in HOSTILE_RUNS:
+        case = root / f"{kind}-{what}"
+        work = case / "work"
+        work.mkdir(parents=True)
+        bad = hostile_members(case / "outside" / "F")[kind]
+        if what.startswith("ssp"):  # a package that runs (under the unchecked extraction, it wrote outside)
+            one_body_package(body_fmu, work / "X.ssp", bad)
+            args = ["run-system", "X.ssp", "--master", what.partition("-")[2], "--out", "out.csv"]
+        elif what == "fmu-in-ssp":
+            fmu = write_zip(case / "bad.fmu", [("modelDescription.xml", b"<x/>")] + bad)
+            ssd = SSD.replace('<ssd:System name="x"/>', '<ssd:System name="x"><ssd:Elements><ssd:Component '
+                              'name="body" source="resources/body.fmu"/></ssd:Elements></ssd:System>')
+            write_zip(work / "X.ssp", [("SystemStructure.ssd", ssd), ("resources/body.fmu", fmu.read_bytes())])
+            fmu.unlink()
+            args = ["run-system", "X.ssp", "--out", "out.csv"]
+        else:
+            write_zip(work / "Bad.fmu", [("modelDescription.xml", b"<x/>")] + bad)
+            args = ["export-system", "--quick", "--body", "Bad.fmu", "--out", "out.ssp"]
+        cases.append((case, args, snapshot(case)))
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        done = list(pool.map(lambda c: rhi(c[0], *c[1]), cases))
+    return [(case, args, before, result, snapshot(case)) for (case, args, before), result in zip(cases, done)]
+
+
+@pytest.mark.parametrize("master", ["libcosim", "fmpy"])
+def test_a_fair_package_runs_from_its_checked_folder_under_both_masters(body_fmu, tmp_path, master):
+    (tmp_path / "work").mkdir()
+    one_body_package(body_fmu, tmp_path / "work" / "Y.ssp")
+    done = rhi(tmp_path, "run-system", "Y.ssp", "--master", master, "--out", "y.csv")
+    assert done.returncode == 0, done.stderr[-800:]
+    rows = (tmp_path / "work" / "y.csv").read_text().splitlines()
+    assert len(rows) == 1 + 5 and rows[-1].startswith("0.05")  # 0.05 s / 0.01 s: 5 steps after the header
+    assert not any((tmp_path / "tmp").iterdir())  # the masters' unpacked copies went with rhi's folder
+
+
+def test_every_hostile_archive_is_refused_in_one_line(hostile_runs):
+    for case, args, before, done, after in hostile_runs:
+        refused(done, "refused")
+        assert "member" in done.stderr or "unpacks" in done.stderr, (case.name, done.stderr)
+
+
+def test_no_command_writes_anything_anywhere_on_a_hostile_archive(hostile_runs):
+    """The whole tree of each case (its working folder, TMPDIR, RHI_CACHE and the folder an escaping member
+    names) is as it was, but for the empty TMPDIR and cache folders the run is given."""
+    for case, args, before, done, after in hostile_runs:
+        new = {path: entry for path, entry in after.items() if before.get(path) != entry}
+        assert set(new) <= {"tmp", "cache"}, (case.name, new)
+        assert not any(path.startswith(("tmp/", "cache/")) for path in after), (case.name, sorted(after))
+
+
+# ======================================================================================================
+# The body contract: distinct ports, and a body that is not a file named as such
+# ======================================================================================================
+def with_description(fmu: Path, out: Path, edit) -> Path:
+    """A copy of ``fmu`` whose modelDescription.xml is ``edit(text)``."""
+    with zipfile.ZipFile(fmu) as old, zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as new:
+        for info in old.infolist():
+            data = old.read(info)
+            new.writestr(info, edit(data.decode()).encode() if info.filename == "modelDescription.xml" else data)
+    return out
+
+
+def test_two_contract_ports_sharing_a_value_reference_are_refused(body_fmu, tmp_path):
+    from xml.etree import ElementTree as ET
+
+    from components.fmu_adapter import check_contract
+
+    assert check_contract(body_fmu) == []
+    root = ET.fromstring(zipfile.ZipFile(body_fmu).read("modelDescription.xml"))
+    reference = {v.get("name"): v.get("valueReference") for v in root.iter("ScalarVariable")}
+
+    def alias(text):  # q_elbow given q_shoulder's value reference
+        return text.replace(f'name="q_elbow" valueReference="{reference["q_elbow"]}"',
+                            f'name="q_elbow" valueReference="{reference["q_shoulder"]}"')
+
+    bad = with_description(body_fmu, tmp_path / "Alias.fmu", alias)
+    assert alias(zipfile.ZipFile(body_fmu).read("modelDescription.xml").decode()) != \
+        zipfile.ZipFile(body_fmu).read("modelDescription.xml").decode()  # the edit took
+    assert check_contract(bad) == [f"q_elbow has the value reference {reference['q_shoulder']} of q_shoulder: "
+                                   "the two ports would be one value"]
+
+
+def test_a_folder_or_a_device_as_body_is_named_as_such(tmp_path):
+    from components.fmu_adapter import check_contract
+
+    assert check_contract(tmp_path) == [f"{tmp_path} is a folder, not an FMU file"]
+    assert check_contract("/dev/zero") == ["/dev/zero is not a regular file"]
