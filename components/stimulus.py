@@ -5,7 +5,9 @@ t = period, 2 period, ...; visual event k is followed by a tactile event on the 
 after a delay drawn from U[delay_min, delay_max) (synchronous 0..0.1 s, asynchronous
 0..1 s; delay_min == delay_max is a fixed delay), from a numpy Generator seeded per trial.
 An event is observed on the first communication step that ends at or after its time; the
-outputs hold the time of the last observed event of each kind (-inf before any).
+outputs hold the time of the last observed event of each kind (-inf before any). No visual
+event (and so no tactile one) happens after ``stop_time`` (inf: stroking never stops); the
+ball then rests where the last touch left it.
 
 The ball approaches the target (the rubber hand) in a straight line from ``ball_distance``
 metres forward of it (+y), linearly over each period, and reaches it at the visual event.
@@ -34,6 +36,8 @@ class Stimulus(Component):
             Variable("seed", "parameter", "Integer", start=0, min=0, unit="1", description="per-trial seed"),
             Variable("ball_distance", "parameter", start=0.25, min=0.0, unit="m",
                      description="how far forward of the target the ball starts each period"),
+            Variable("stop_time", "parameter", start=np.inf, min=0.0, unit="s",
+                     description="no touch after this time (inf: the stroking never stops)"),
             Variable("target", "input", "Array", shape=(2,), start=(-0.30, 0.50), unit="m",
                      description="where the ball touches: the rubber hand (x, y)"),
             Variable("visual_time", "output", start=-np.inf, unit="s", depends_on=(),
@@ -67,6 +71,11 @@ class Stimulus(Component):
     def _publish(self, now: float):
         period = self.values["period"]
         visual_count = np.floor((now + TOLERANCE) / period).astype(np.int64)  # events at period * k, k >= 1
+        stop = self.values["stop_time"]
+        stopped = np.isfinite(stop) & (now + TOLERANCE > stop)
+        if stopped.any():  # the last touch at or before stop_time (the paper's stop_time = inf never enters)
+            last = np.floor((np.where(np.isfinite(stop), stop, 0.0) + TOLERANCE) / period).astype(np.int64)
+            visual_count = np.where(stopped, np.minimum(visual_count, last), visual_count)
         latest = int(visual_count.max())
         k = np.arange(1, latest + 1)
         tactile = k[None, :] * period[:, None] + self.delays(latest)
@@ -75,7 +84,7 @@ class Stimulus(Component):
         self.values["tactile_time"] = np.where(observed, tactile, -np.inf).max(axis=1, initial=-np.inf)
         remaining = (visual_count + 1) * period - now  # until the next visual event
         at_event = (visual_count > 0) & (np.abs(visual_count * period - now) <= TOLERANCE)
-        remaining = np.where(at_event, 0.0, remaining)
+        remaining = np.where(at_event | (stopped & (visual_count * period <= now)), 0.0, remaining)
         ball = np.array(self.values["target"], dtype=np.float64, copy=True)
         ball[:, 1] += self.values["ball_distance"] * np.clip(remaining / period, 0.0, 1.0)
         self.values["ball"] = ball

@@ -55,7 +55,8 @@ def test_shipped_files_load_and_span_the_human_ranges():
         xs = sorted({phenomenon.x_of(sweep.configs[t.point], t.condition, t.stimulation) for t in sweep.trials})
         spans[name] = (xs[0], xs[-1], len(xs))
         assert all(config["decoder"]["fast"] for config in sweep.configs)  # fast mode, as docs/phenomena.md says
-    assert spans == {"temporal-window": (0.0, 1.0, 13), "distance": (5.0, 45.0, 9), "time-course": (5.0, 30.0, 6)}
+    assert spans == {"temporal-window": (0.0, 1.0, 13), "distance": (5.0, 45.0, 9), "time-course": (5.0, 30.0, 6),
+                     "persistence": (30.0, 90.0, 5), "vision-only": (0.0, 2.0, 3)}
     # the fixed delay: delay_min = delay_max at every point
     for config in sweeps.load(sweep_file("temporal-window")).configs:
         assert config["stimulations"]["fixed"]["delay_min"] == config["stimulations"]["fixed"]["delay_max"]
@@ -100,8 +101,11 @@ def test_rows_and_table_by_hand(tmp_path):
     assert found[1]["drift_relative"] == pytest.approx(-0.75 / -3.0) and found[0]["drift_relative"] == 1.0
     assert np.isnan(found[0]["drift_half_time_s_mean"])  # not in these outcomes: left blank
     lines = reports.table(reports.PHENOMENA["temporal-window"], found).splitlines()
-    assert lines[0].startswith("delay_s,decoder,condition,stimulation,n_trials,drift_cm_mean,drift_cm_sd,")
-    assert lines[1].split(",")[:7] == ["0", "conv", "left", "fixed", "2", "-3", "1.41421"]
+    assert lines[0].startswith("model,delay_s,decoder,condition,stimulation,n_trials,drift_cm_mean,drift_cm_sd,")
+    assert lines[1].split(",")[:8] == ["paper", "0", "conv", "left", "fixed", "2", "-3", "1.41421"]
+    header = lines[0].split(",")  # the population's median of two trials is their mean; quartiles by hand
+    assert lines[1].split(",")[header.index("drift_cm_median")] == "-3"
+    assert lines[1].split(",")[header.index("drift_cm_q25")] == "-3.5"  # -4 + 0.25 * (-2 - -4)
     assert lines[2].endswith(",0.25")
     # a failed trial is left out, and an empty sweep is an error naming the folder
     records[sweep.trials[0].id] = {"status": "failed", "error": "x"}
@@ -122,7 +126,9 @@ def quick_copy(name: str, folder: Path) -> Path:
     base["sweep"].update(quick=True, workers=1, trials=1)
     if "points" in base["sweep"]:
         base["sweep"]["points"] = delays(base, 0.0, 0.4)
-    elif name == "time-course":
+    elif name == "vision-only":
+        pass  # one point: its x is the stimulation
+    elif name in ("time-course", "persistence"):
         base["sweep"]["grid"] = {"experiment.steps": [150, 300]}  # 3 and 6 s
     else:
         base["sweep"]["grid"] = {"conditions.right": [0.05, 0.3]}
@@ -135,14 +141,19 @@ def quick_copy(name: str, folder: Path) -> Path:
 def test_each_protocol_end_to_end_at_quick_size(name, cache, tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("RHI_CACHE", str(cache))
     out = tmp_path / "out"
-    assert main(["phenomenon", name, "--config", str(quick_copy(name, tmp_path)), "--out", str(out)]) == 0
+    command = ["phenomenon", name, "--config", str(quick_copy(name, tmp_path)), "--out", str(out), "--model", "paper"]
+    assert main(command) == 0
     stem = FILES[name].removesuffix(".toml")
-    assert (out / f"{stem}.png").stat().st_size > 10_000 and (out / "sweep.json").exists()
+    assert (out / f"{stem}.png").stat().st_size > 10_000 and (out / "paper" / "sweep.json").exists()
     rows = list(csv.DictReader(open(out / f"{stem}.csv")))
-    assert len(rows) == {"temporal-window": 4, "distance": 2, "time-course": 4}[name]
+    assert len(rows) == {"temporal-window": 4, "distance": 2, "time-course": 4, "persistence": 2,
+                         "vision-only": 6}[name]
     for row in rows:
         assert row["n_trials"] == "1" and np.isfinite(float(row["drift_cm_mean"]))
         assert float(row["gamma_final_mean"]) > 0
+    if name == "vision-only":  # no touch: the paper's gamma stays at gamma0, its drift at 0
+        vision = [r for r in rows if r["stimulation"] == "vision"]
+        assert vision and all(float(r["gamma_final_mean"]) == 0.01 for r in vision)
     if name == "time-course":  # the half time is given at the longest trial only
         assert [bool(r["drift_half_time_s_mean"]) for r in rows] == [False, True, False, True]
         assert all(0 < float(r["drift_half_time_s_mean"]) <= 6.0 for r in rows if r["drift_half_time_s_mean"])
@@ -150,7 +161,7 @@ def test_each_protocol_end_to_end_at_quick_size(name, cache, tmp_path, monkeypat
     assert f"rhi phenomenon {name}: wrote" in printed
     # run again: nothing reruns (the sweep resumes), the same table
     before = (out / f"{stem}.csv").read_bytes()
-    assert main(["phenomenon", name, "--config", str(quick_copy(name, tmp_path)), "--out", str(out)]) == 0
+    assert main(command) == 0
     assert (out / f"{stem}.csv").read_bytes() == before
     assert "(0 now)" in capsys.readouterr().out
 

@@ -15,6 +15,7 @@ def add_arguments(parser) -> None:
     scale = parser.add_mutually_exclusive_group()
     scale.add_argument("--quick", action="store_true", help="a small version, for smoke tests")
     add_preset(scale)
+    add_model(parser)
     parser.add_argument("--out", metavar="DIR", required=True)
     parser.add_argument("--force", action="store_true", help="replace DIR if it holds other content")
     parser.add_argument("--trials", type=int, help="trials per decoder x condition x stimulation")
@@ -30,6 +31,12 @@ def add_preset(parser) -> None:
     parser.add_argument("--preset", choices=configuration.PRESETS,
                         help="a shipped configuration merged over the defaults, under --config: paper = 256x256 "
                              "and the paper's decoders (master/paper.toml)")
+
+
+def add_model(parser) -> None:
+    parser.add_argument("--model", choices=configuration.MODELS, default="paper",
+                        help="the model (master/models/NAME.toml, docs/model.md): paper = the paper's (default), "
+                             "causal = body-space visual evidence and causal inference over space and time")
 
 
 def add_device(parser) -> None:
@@ -48,7 +55,7 @@ def overrides(args) -> dict:
 def run_experiment(args) -> int:
     started = time.perf_counter()
     config = configuration.load(args.config, overrides(args), quick=args.quick,  # before torch loads: fast refusals
-                                preset_name=args.preset)
+                                preset_name=args.preset, model_name=args.model)
     check_output(args.out, args.force)
     from components.vision.component import resolve_device
     from master.experiment.publish import run_into

@@ -1,8 +1,10 @@
 """`rhi phenomenon NAME [--config FILE] [--scheduler ADDRESS] [--force] --out DIR`: one human phenomenon.
 
 Runs the phenomenon's sweep (the shipped file master/phenomena/NAME.toml, or an edited copy given
-with --config) exactly as `rhi sweep` does, resumably, then writes DIR/NAME.csv and DIR/NAME.png,
-the model beside the human reference (master/phenomena/human.toml).
+with --config) exactly as `rhi sweep` does, resumably, once per model (``--model``, default both:
+the paper's into DIR/paper, the causal one into DIR/causal with ``causal.participants`` trials per
+point), then writes DIR/NAME.csv and DIR/NAME.png, the models beside the human reference
+(master/phenomena/human.toml).
 """
 from __future__ import annotations
 
@@ -21,17 +23,29 @@ def add_arguments(parser) -> None:
                         help="a Dask scheduler, tcp://HOST:PORT (default: a process pool on this machine)")
     parser.add_argument("--out", metavar="DIR", required=True)
     parser.add_argument("--force", action="store_true", help="replace a different sweep in DIR")
+    parser.add_argument("--model", choices=("both", "paper", "causal"), default="both",
+                        help="which model(s) to run, side by side on one figure (default: both; docs/model.md)")
 
 
 def run_phenomenon(args) -> int:
     from master.commands.sweep import run_sweep
     from master.phenomena.report import report
 
+    from master.experiment import config as configuration
+
     started = time.perf_counter()
     path = Path(args.config) if args.config else sweep_file(args.name)
-    status = run_sweep(argparse.Namespace(config=str(path), out=args.out, scheduler=args.scheduler,
-                                          force=args.force, debug=args.debug))
-    written = report(args.name, path, Path(args.out))
+    models = ("paper", "causal") if getattr(args, "model", "both") == "both" else (args.model,)
+    Path(args.out).mkdir(parents=True, exist_ok=True)
+    folders, trials, status = {}, {}, 0
+    for model in models:
+        folders[model] = Path(args.out) / model
+        if model != "paper":  # a population: one participant per trial
+            trials[model] = configuration.load(model_name=model)["causal"]["participants"]
+        status = max(status, run_sweep(argparse.Namespace(
+            config=str(path), out=str(folders[model]), scheduler=args.scheduler, force=args.force, debug=args.debug,
+            model=model, trials=trials.get(model))))
+    written = report(args.name, path, Path(args.out), folders, trials)
     print(f"rhi phenomenon {args.name}: wrote {', '.join(str(Path(args.out) / name) for name in written)} "
           f"({time.perf_counter() - started:.0f} s)")
     print((Path(args.out) / written[0]).read_text(), end="")

@@ -23,7 +23,7 @@ def run_sweep(args) -> int:
     """The command: 0 when every trial succeeded, 1 when some failed (each listed on one line)."""
     from tqdm import tqdm
 
-    sweep = sweeps.load(args.config)
+    sweep = sweeps.load(args.config, getattr(args, "model", None), getattr(args, "trials", None))
     task = sweeps.resolve_task(sweep.task)
     out = Path(args.out)
     check_decoders(sweep)

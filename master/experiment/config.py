@@ -24,6 +24,7 @@ LISTS = ("decoders", "conditions", "stimulations")  # experiment.* lists: non-em
 SCHEMES = ("gauss-seidel", "jacobi")
 MAX_RESOLUTION = 1024  # px; the paper's decoders work at 256
 PRESETS = ("paper",)  # --preset NAME merges master/NAME.toml over the defaults
+MODELS = ("paper", "causal")  # --model NAME merges master/models/NAME.toml over the defaults (docs/model.md)
 
 
 def defaults() -> dict:
@@ -37,6 +38,32 @@ def preset(name: str) -> dict:
         raise ConfigError(f"preset {name!r} is unknown; choose one of {', '.join(PRESETS)}")
     with resources.files("master").joinpath(f"{name}.toml").open("rb") as file:
         return tomllib.load(file)
+
+
+def model(name: str) -> dict:
+    """The shipped model ``name`` (``master/models/NAME.toml``); ConfigError if unknown.
+
+    A model's tables that defaults.toml lacks (``[model]``, ``[causal]``) become part of the
+    configuration's keys; its keys in existing tables override the defaults. ``paper`` is empty:
+    the defaults are the paper's model, and its configuration is the defaults' bytes.
+    """
+    if name not in MODELS:
+        raise ConfigError(f"model {name!r} is unknown; choose one of {', '.join(MODELS)}")
+    with resources.files("master").joinpath("models", f"{name}.toml").open("rb") as file:
+        return tomllib.load(file)
+
+
+def model_name(config: dict) -> str:
+    """The model a configuration runs: ``[model] name``, or ``paper`` (the defaults) when it has none."""
+    return config.get("model", {}).get("name", "paper")
+
+
+def with_model(config: dict, name: str) -> dict:
+    """``config`` with the model ``name`` merged over it (its new tables added, its other keys merged)."""
+    shipped = model(name)
+    added = {table: values for table, values in shipped.items() if table not in config}
+    return merge({**config, **copy.deepcopy(added)},
+                 {table: values for table, values in shipped.items() if table not in added})
 
 
 def read_toml(path: str | Path) -> dict:
@@ -114,12 +141,13 @@ def check_type(path: str, value, default):
 
 
 def load(path: str | Path | None = None, overrides: dict | None = None, quick: bool = False,
-         preset_name: str | None = None) -> dict:
+         preset_name: str | None = None, model_name: str = "paper") -> dict:
     """The effective configuration: defaults, then ``[quick]`` if asked, then the preset named, then the
-    file, then overrides.
+    model, then the file, then overrides.
 
     overrides: ``{"experiment.trials": 3, ...}`` from the command line.
     preset_name: a shipped preset (:data:`PRESETS`), e.g. ``"paper"``; None: none.
+    model_name: a shipped model (:data:`MODELS`); ``paper`` (the default) adds nothing.
     """
     config = defaults()
     quick_values = config.pop("quick")
@@ -127,6 +155,7 @@ def load(path: str | Path | None = None, overrides: dict | None = None, quick: b
         config = merge(config, quick_values)
     if preset_name is not None:
         config = merge(config, preset(preset_name))
+    config = with_model(config, model_name)
     if path is not None:
         config = merge(config, read_toml(path))
     config = merge(config, nest(overrides or {}))

@@ -56,6 +56,28 @@ def half_time(times: np.ndarray, values: np.ndarray) -> np.ndarray:
     return np.where(reached.any(axis=0), np.asarray(times)[first], np.nan)
 
 
+def half_decay(times: np.ndarray, drift: np.ndarray, tactile_time: np.ndarray) -> np.ndarray:
+    """Per trial (B,): seconds from the last touch until the drift first falls to half its value then.
+
+    The last touch is the last tactile event observed (``tactile_time`` of the last row); falling means
+    ``drift / drift at the last touch <= 1/2``. NaN where there was no touch, no drift at it, or the
+    drift never halves before the trial ends (the persistence protocol's measure).
+    """
+    times = np.asarray(times)
+    last = tactile_time[-1]
+    result = np.full(drift.shape[1], np.nan)
+    for trial in range(drift.shape[1]):
+        if not np.isfinite(last[trial]):
+            continue
+        start = int(np.searchsorted(times, last[trial] - 1e-9))
+        if start >= len(times) or drift[start, trial] == 0:
+            continue
+        fallen = np.flatnonzero(drift[start:, trial] / drift[start, trial] <= 0.5)
+        if fallen.size:
+            result[trial] = times[start + fallen[0]] - last[trial]
+    return result
+
+
 def end_of_trial(times: np.ndarray, per_step: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """Per trial (B,): every measure's value after the last step, and the measures of a whole trial.
 
@@ -66,5 +88,6 @@ def end_of_trial(times: np.ndarray, per_step: dict[str, np.ndarray]) -> dict[str
     final = {key: values[-1] for key, values in per_step.items()}
     final["action_accel_mean_x_m_s2"] = per_step["action_accel_x_m_s2"][1:].mean(axis=0)
     final["drift_half_time_s"] = half_time(times, per_step["drift_cm"])
+    final["drift_half_decay_s"] = half_decay(times, per_step["drift_cm"], per_step["tactile_time_s"])
     return final
 

@@ -57,7 +57,8 @@ def run_into(out, config: dict, body: str | None = None, force: bool = False, pr
             *figures.panel_jobs(staging / "figures", trials, times, per_step, final, None)])
         provenance = {
             "schema_version": tables.SCHEMA_VERSION,
-            "command": "rhi experiment", "configuration": config, "body": body or "native pymunk plant",
+            "command": "rhi experiment", "model": config.get("model", {}).get("name", "paper"),
+            "configuration": config, "body": body or "native pymunk plant",
             "body_keys_not_declared": sorted(f"body.{key}" for key in config["body"]
                                              if declared is not None and key not in declared),
             "checkpoints": checkpoints, "fast_mode": modes, "device": device,

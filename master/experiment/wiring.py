@@ -62,6 +62,7 @@ PARAMETER_SOURCES = {
     "stimulus.seed": "experiment.seed (hashed per trial: protocol.trial_seed of seed, condition, stimulation, "
                      "index)",
     "stimulus.ball_distance": "stimulus.ball_distance",
+    "stimulus.stop_time": "stimulus.stop_time",
     "camera.resolution": "experiment.resolution (structural: build_system gives it to Camera(resolution=...))",
     "camera.blur": "camera.blur",
     "camera.ball_radius": "camera.ball_radius",
@@ -112,6 +113,9 @@ def config_key(source: str) -> str | None:
 
 def build_system(decoder, config: dict, body=None) -> System:
     """The rubber-hand system around a decoder component; ``body`` defaults to the native pymunk plant."""
+    if config.get("model", {}).get("name", "paper") == "causal":  # the pose encoder and the causal brain
+        from master.experiment import causal
+        return System(*causal.components(decoder, config, {}, body))
     resolution = config["experiment"]["resolution"]
     components = [RubberArm(), Stimulus(), Camera(resolution=resolution), decoder, Brain(),
                   body if body is not None else ArmPlant()]
@@ -151,12 +155,15 @@ def run_batch(decoder, trials: list[Trial], config: dict, body=None, progress=No
     """Run ``trials`` (all with this decoder component) in lockstep; returns the master's Result."""
     experiment = config["experiment"]
     system = build_system(decoder, config, body)
-    given = parameters(trials, config)
+    given, record = parameters(trials, config), RECORD
+    if config.get("model", {}).get("name", "paper") == "causal":
+        from master.experiment import causal
+        given, record = causal.parameters(trials, config, given), RECORD + causal.EXTRA_RECORD
     for path in undeclared(given, system):
         del given[path]
     return simulate(system, stop_time=experiment["steps"] * experiment["step_size"],
                     step_size=experiment["step_size"], scheme=experiment["scheme"], batch_size=len(trials),
-                    parameters=given, record=RECORD, progress=progress)
+                    parameters=given, record=record, progress=progress)
 
 
 def check_parameters(config: dict) -> None:

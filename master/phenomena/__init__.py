@@ -6,7 +6,12 @@ and a figure with the human reference (``human.toml``, one source per number) be
 
 - ``temporal-window``: drift, force and gamma against a fixed visuo-tactile delay, 0 to 1 s;
 - ``distance``: drift and force against the rubber hand's lateral distance, 5 to 45 cm;
-- ``time-course``: when the drift reaches half its final value under synchronous touch.
+- ``time-course``: when the drift reaches half its final value under synchronous touch;
+- ``persistence``: the stroking stops at 30 s; drift and gamma followed to 90 s;
+- ``vision-only``: the drift under synchronous and asynchronous touch and under vision alone.
+
+Each protocol runs for both models (``--model``, docs/model.md) side by side: the causal model with
+``causal.participants`` simulated participants per point, reported as the population's median and spread.
 
 ``rhi phenomenon NAME --out DIR`` runs the sweep (the ``rhi sweep`` machinery: resumable, a local
 pool or Dask) and then the report. This module stays light (no matplotlib) so that the command
@@ -17,7 +22,8 @@ from __future__ import annotations
 from importlib import resources
 from pathlib import Path
 
-FILES = {"temporal-window": "temporal_window.toml", "distance": "distance.toml", "time-course": "time_course.toml"}
+FILES = {"temporal-window": "temporal_window.toml", "distance": "distance.toml", "time-course": "time_course.toml",
+         "persistence": "persistence.toml", "vision-only": "vision_only.toml"}
 NAMES = tuple(FILES)
 
 

@@ -29,7 +29,10 @@ from master.sweeps.folder import read_records  # noqa: E402
 HUMAN = "tab:green"
 # per-trial outcome keys (master.experiment.trial_outcome) -> the table's mean (and sd) columns
 OUTCOMES = {"drift_cm": True, "force_n": True, "gamma_final": False, "action_accel_mean_x_m_s2": True,
-            "drift_half_time_s": True}
+            "drift_half_time_s": True, "drift_half_decay_s": True}
+POPULATION = ("drift_cm", "drift_half_time_s", "drift_half_decay_s")  # also as median, 25th and 75th percentile
+MODELS = ("paper", "causal")
+STIMULATION_CODES = {"sync": 0.0, "async": 1.0, "vision": 2.0}  # the vision-only protocol's x
 
 
 @dataclass(frozen=True)
@@ -55,6 +58,13 @@ PHENOMENA = {p.name: p for p in (
                "time from the start of the trial (s; the first touch at 2 s)",
                lambda config, condition, stimulation: round(config["experiment"]["steps"]
                                                             * config["experiment"]["step_size"], 9), "last"),
+    Phenomenon("persistence", FILES["persistence"], "persistence", "time_s",
+               "time from the start of the trial (s; the last touch at 30 s)",
+               lambda config, condition, stimulation: round(config["experiment"]["steps"]
+                                                            * config["experiment"]["step_size"], 9), "first"),
+    Phenomenon("vision-only", FILES["vision-only"], "vision_only", "stimulation_code",
+               "stimulation: 0 synchronous, 1 asynchronous, 2 vision only (no touch)",
+               lambda config, condition, stimulation: STIMULATION_CODES.get(stimulation, 3.0), "first"),
 )}
 
 
@@ -75,10 +85,14 @@ def rows(phenomenon: Phenomenon, sweep: sweeps.Sweep, records: dict[str, dict]) 
     found = []
     for (decoder, condition, stimulation, x), outcomes in sorted(groups.items(), key=lambda item: item[0]):
         row = {"x": x, "decoder": decoder, "condition": condition, "stimulation": stimulation,
-               "n_trials": len(outcomes)}
+               "line": "all" if phenomenon.name == "vision-only" else stimulation, "n_trials": len(outcomes)}
         for key in OUTCOMES:
             mean, sd = mean_sd([o.get(key, np.nan) for o in outcomes])
             row[f"{key}_mean"], row[f"{key}_sd"] = float(mean), float(sd)
+        for key in POPULATION:
+            values = np.array([o.get(key, np.nan) for o in outcomes], dtype=float)
+            quartiles = np.nanpercentile(values, (25, 50, 75)) if np.isfinite(values).any() else [np.nan] * 3
+            row[f"{key}_q25"], row[f"{key}_median"], row[f"{key}_q75"] = map(float, quartiles)
         found.append(row)
     for line in lines(found).values():
         xs = [r["x"] for r in line]
@@ -88,25 +102,29 @@ def rows(phenomenon: Phenomenon, sweep: sweeps.Sweep, records: dict[str, dict]) 
             reference = line[0 if phenomenon.relative_to == "first" else -1]["drift_cm_mean"]
         for r in line:
             r["drift_relative"] = r["drift_cm_mean"] / reference if reference else np.nan
-        if phenomenon.name == "time-course":  # the half time is the protocol's at the longest trial only
+        if phenomenon.name in ("time-course", "persistence"):  # the protocol's half times: the longest trial's
             for r in line:
                 if r["x"] != max(xs):
-                    r["drift_half_time_s_mean"] = r["drift_half_time_s_sd"] = np.nan
+                    for key in ("drift_half_time_s", "drift_half_decay_s"):
+                        for stat in ("mean", "sd", "q25", "median", "q75"):
+                            r[f"{key}_{stat}"] = np.nan
     return found
 
 
 def lines(found: list[dict]) -> dict[tuple, list[dict]]:
-    """Rows grouped by decoder x condition x stimulation, each sorted by x."""
+    """Rows grouped by decoder x condition x stimulation (the vision-only protocol: decoder x condition, its x
+    being the stimulation), each sorted by x."""
     grouped: dict[tuple, list[dict]] = {}
     for row in found:
-        grouped.setdefault((row["decoder"], row["condition"], row["stimulation"]), []).append(row)
+        grouped.setdefault((row.get("model", "paper"), row["decoder"], row["condition"], row["line"]), []).append(row)
     return {key: sorted(value, key=lambda r: r["x"]) for key, value in grouped.items()}
 
 
 def table(phenomenon: Phenomenon, found: list[dict]) -> str:
     stats = [f"{key}_{s}" for key, with_sd in OUTCOMES.items() for s in (("mean", "sd") if with_sd else ("mean",))]
-    header = [phenomenon.x_name, "decoder", "condition", "stimulation", "n_trials", *stats, "drift_relative"]
-    body = [[number(r["x"]), r["decoder"], r["condition"], r["stimulation"], r["n_trials"],
+    stats += [f"{key}_{s}" for key in POPULATION for s in ("median", "q25", "q75")]
+    header = ["model", phenomenon.x_name, "decoder", "condition", "stimulation", "n_trials", *stats, "drift_relative"]
+    body = [[r.get("model", "paper"), number(r["x"]), r["decoder"], r["condition"], r["stimulation"], r["n_trials"],
              *("" if np.isnan(r[s]) else number(r[s]) for s in stats),
              "" if np.isnan(r["drift_relative"]) else number(r["drift_relative"])] for r in found]
     return csv_text(header, body)
@@ -145,10 +163,10 @@ def caption(references: list[dict], model: str) -> str:
 
 
 def plot_lines(axis, phenomenon, found, value, sd=None):
-    for (decoder, condition, stimulation), line in lines(found).items():
+    for (_, decoder, condition, stimulation), line in lines(found).items():
         xs = [r["x"] for r in line]
         ys = np.array([r[value] for r in line])
-        if phenomenon.name == "time-course":  # no drift before the first step
+        if phenomenon.name in ("time-course",):  # no drift before the first step
             xs, ys = [0.0, *xs], np.concatenate([[0.0], ys])
         axis.plot(xs, ys, STYLES.get(decoder, ":"), marker="o", ms=3, color=COLOURS.get(condition, "k"),
                   label=f"{decoder} {condition} {stimulation}")
@@ -160,32 +178,48 @@ def plot_lines(axis, phenomenon, found, value, sd=None):
     axis.grid(alpha=0.3)
 
 
-def figure(phenomenon: Phenomenon, found: list[dict], path: Path, model: str) -> None:
+PANELS = {"temporal-window": [("drift_relative", None, "drift / drift at the shortest delay"),
+                              ("force_n_mean", "force_n_sd", "final force (N)"),
+                              ("gamma_final_mean", None, "final gamma")],
+          "distance": [("drift_cm_mean", "drift_cm_sd", "final drift (cm)"),
+                       ("drift_relative", None, "drift / largest drift"),
+                       ("gamma_final_mean", None, "final gamma (belief in a common cause)"),
+                       ("force_n_mean", "force_n_sd", "final force (N)")],
+          "time-course": [("drift_relative", None, "drift / drift at the end of the longest trial"),
+                          ("drift_half_time_s_mean", None, "drift half time (s)")],
+          "persistence": [("drift_cm_mean", "drift_cm_sd", "drift (cm)"),
+                          ("drift_relative", None, "drift / drift at the last touch (30 s)"),
+                          ("gamma_final_mean", None, "gamma (belief in a common cause)")],
+          "vision-only": [("drift_cm_mean", "drift_cm_sd", "final drift (cm)"),
+                          ("drift_relative", None, "drift / synchronous drift"),
+                          ("gamma_final_mean", None, "final gamma")]}
+
+
+def figure(phenomenon: Phenomenon, found: list[dict], path: Path, descriptions: dict[str, str]) -> None:
+    """One row of panels per model (paper above causal), each with the human reference."""
     references = human_references(phenomenon.human)
-    panels = {"temporal-window": [("drift_relative", None, "drift / drift at the shortest delay"),
-                                  ("force_n_mean", "force_n_sd", "final force (N)"),
-                                  ("gamma_final_mean", None, "final gamma")],
-              "distance": [("drift_cm_mean", "drift_cm_sd", "final drift (cm)"),
-                           ("drift_relative", None, "drift / largest drift"),
-                           ("gamma_final_mean", None, "final gamma (belief in a common cause)"),
-                           ("force_n_mean", "force_n_sd", "final force (N)")],
-              "time-course": [("drift_relative", None, "drift / drift at the end of the longest trial"),
-                              ("drift_half_time_s_mean", None, "drift half time (s)")]}[phenomenon.name]
-    fig, axes = plt.subplots(1, len(panels), figsize=(5.0 * len(panels), 4.6), squeeze=False)
-    for number_, (axis, (value, sd, ylabel)) in enumerate(zip(axes[0], panels)):
-        if phenomenon.name == "time-course" and value == "drift_half_time_s_mean":
-            half_times(axis, found)
-        else:
-            plot_lines(axis, phenomenon, found, value, sd)
-            axis.set_ylabel(ylabel)
-        if phenomenon.name == "time-course":
-            axis.set_xlim(0, max(35.0, max(r["x"] for r in found) + 2))
-        draw_human(axis, references, with_labels=number_ == 0)
-        if number_ == 0:
-            axis.legend(fontsize=6.5, loc="best")
-    fig.suptitle(f"rhi phenomenon {phenomenon.name}: model (lines) and human reference", fontsize=10)
-    fig.text(0.01, 0.01, caption(references, model), fontsize=6, va="bottom", ha="left")
-    fig.tight_layout(rect=(0, 0.14, 1, 0.97))
+    panels = PANELS[phenomenon.name]
+    models = [m for m in MODELS if any(r.get("model", "paper") == m for r in found)]
+    fig, axes = plt.subplots(len(models), len(panels), figsize=(5.0 * len(panels), 4.2 * len(models) + 0.8),
+                             squeeze=False)
+    for row_axes, model in zip(axes, models):
+        mine = [r for r in found if r.get("model", "paper") == model]
+        for number_, (axis, (value, sd, ylabel)) in enumerate(zip(row_axes, panels)):
+            if value == "drift_half_time_s_mean":
+                half_times(axis, mine)
+            else:
+                plot_lines(axis, phenomenon, mine, value, sd)
+                axis.set_ylabel(ylabel)
+            if phenomenon.name == "time-course":
+                axis.set_xlim(0, max(35.0, max(r["x"] for r in found) + 2))
+            draw_human(axis, references, with_labels=number_ == 0)
+            axis.set_title(f"model {model}", fontsize=9)
+            if number_ == 0:
+                axis.legend(fontsize=6.5, loc="best")
+    fig.suptitle(f"rhi phenomenon {phenomenon.name}: the models (lines) and the human reference", fontsize=10)
+    text = " | ".join(f"{model}: {descriptions[model]}" for model in models)
+    fig.text(0.01, 0.005, caption(references, text), fontsize=6, va="bottom", ha="left")
+    fig.tight_layout(rect=(0, 0.1 / len(models) + 0.04, 1, 0.97))
     fig.savefig(path, dpi=110, metadata=METADATA)
     plt.close(fig)
 
@@ -203,23 +237,37 @@ def half_times(axis, found: list[dict]) -> None:
     axis.grid(alpha=0.3)
 
 
-def report(name: str, sweep_path: str | Path, out: Path) -> list[str]:
-    """Write ``out/NAME.csv`` and ``out/NAME.png`` from the sweep in ``out``; returns the file names."""
+def describe(config: dict, sweep: sweeps.Sweep) -> str:
+    """The model's run in words, for the caption."""
+    durations = sorted({c["experiment"]["steps"] * c["experiment"]["step_size"] for c in sweep.configs})
+    length = (f"{durations[0]:g} s trials" if len(durations) == 1 else
+              f"trials of {durations[0]:g}-{durations[-1]:g} s (each the start of the longest)")
+    text = (f"{', '.join(config['experiment']['decoders'])} decoders, "
+            f"{'fast (linearised)' if config['decoder']['fast'] else 'exact'} mode, {length}, "
+            f"{config['experiment']['trials']} trial(s) per point")
+    if "causal" in config:
+        return text + " (one simulated participant each)"
+    return text + (f", brain.action_time_constant = {config['brain']['action_time_constant']:g} s, "
+                   f"brain.spatial_sd = {config['brain']['spatial_sd']:g} m")
+
+
+def report(name: str, sweep_path: str | Path, out: Path, models: dict[str, Path] | None = None,
+           trials: dict[str, int] | None = None) -> list[str]:
+    """Write ``out/NAME.csv`` and ``out/NAME.png`` from the sweeps of each model; returns the file names.
+
+    models: model -> the folder its sweep ran in (default: ``{"paper": out}``, the sweep in ``out``);
+    trials: model -> the trials per point it ran with (as ``rhi phenomenon`` gave them).
+    """
     phenomenon = PHENOMENA[name]
-    sweep = sweeps.load(sweep_path)
-    found = rows(phenomenon, sweep, read_records(out, sweep))
+    found, descriptions = [], {}
+    for model, folder in (models or {"paper": out}).items():
+        sweep = sweeps.load(sweep_path, model=model, trials=(trials or {}).get(model))
+        mine = rows(phenomenon, sweep, read_records(folder, sweep))
+        found += [{**r, "model": model} for r in mine]
+        descriptions[model] = describe(sweep.configs[0], sweep)
     if not found:
         raise ConfigError(f"no successful trial in {out} to report {name} from")
     stem = phenomenon.file.removesuffix(".toml")
     atomic_write(out / f"{stem}.csv", table(phenomenon, found))
-    config = sweep.configs[0]
-    durations = sorted({c["experiment"]["steps"] * c["experiment"]["step_size"] for c in sweep.configs})
-    length = (f"{durations[0]:g} s trials" if len(durations) == 1 else
-              f"trials of {durations[0]:g}-{durations[-1]:g} s (each the start of the longest)")
-    model = (f"{', '.join(config['experiment']['decoders'])} decoders, "
-             f"{'fast (linearised)' if config['decoder']['fast'] else 'exact'} mode, {length}, "
-             f"{config['experiment']['trials']} trial(s) per point, "
-             f"brain.action_time_constant = {config['brain']['action_time_constant']:g} s, "
-             f"brain.spatial_sd = {config['brain']['spatial_sd']:g} m")
-    figure(phenomenon, found, out / f"{stem}.png", model)
+    figure(phenomenon, found, out / f"{stem}.png", descriptions)
     return [f"{stem}.csv", f"{stem}.png"]

@@ -7,6 +7,7 @@ plus a ``[sweep]`` table saying what varies::
     trials = 3                     # per point and decoder x condition x stimulation (= experiment.trials)
     quick = true                   # start from the [quick] defaults, like `rhi experiment --quick`
     # preset = "paper"             # or from a shipped preset, like `rhi experiment --preset paper`
+    model = "causal"               # the model (master/models/NAME.toml), like `rhi experiment --model`; paper by default
     task = "master.experiment:trial_outcome"   # the trial function (module:function), this by default
     batch = 10                     # at most this many trials per task (default: all of a point's decoder)
     workers = 2                    # processes of the local pool (default: one per core)
@@ -45,7 +46,7 @@ from master.cosim import ConfigError
 from master import experiment
 
 DEFAULT_TASK = "master.experiment:trial_outcome"
-SWEEP_KEYS = ("trials", "quick", "preset", "task", "batch", "workers", "grid", "points")
+SWEEP_KEYS = ("trials", "quick", "preset", "model", "task", "batch", "workers", "grid", "points")
 BATCHING = "lockstep-chunks/1"  # in the fingerprint of a batched sweep: folders of per-trial sweeps differ
 
 
@@ -132,6 +133,8 @@ def check_settings(settings: dict) -> None:
         raise ConfigError(f"sweep.quick must be true or false, got {settings['quick']!r}")
     if "preset" in settings and settings["preset"] not in configuration.PRESETS:
         raise ConfigError(f"sweep.preset = {settings['preset']!r} is not one of {', '.join(configuration.PRESETS)}")
+    if "model" in settings and settings["model"] not in configuration.MODELS:
+        raise ConfigError(f"sweep.model = {settings['model']!r} is not one of {', '.join(configuration.MODELS)}")
     if settings.get("quick") and "preset" in settings:
         raise ConfigError("sweep: give either sweep.quick or sweep.preset, not both")
     if not isinstance(settings.get("task", DEFAULT_TASK), str):
@@ -197,17 +200,22 @@ def plan(configs: list[dict], task: str, batch: int | None = None) -> tuple[list
     return trials, positions
 
 
-def load(path: str | Path) -> Sweep:
-    """Read and check a sweep file; every point's configuration is validated before anything runs."""
+def load(path: str | Path, model: str | None = None, trials: int | None = None) -> Sweep:
+    """Read and check a sweep file; every point's configuration is validated before anything runs.
+
+    model, trials: instead of the file's ``sweep.model`` and ``sweep.trials`` (`rhi phenomenon --model`).
+    """
     fixed = configuration.read_toml(path)
     settings = fixed.pop("sweep", None)
     if not isinstance(settings, dict):
         raise ConfigError(f"sweep file {path} has no [sweep] table (it says what to vary)")
+    settings = {**settings, **({"model": model} if model else {}), **({"trials": trials} if trials else {})}
     check_settings(settings)
     task = settings.get("task", DEFAULT_TASK)
     resolve_task(task)
     base = configuration.merge(configuration.load(quick=settings.get("quick", False),
-                                                  preset_name=settings.get("preset")), fixed)
+                                                  preset_name=settings.get("preset"),
+                                                  model_name=settings.get("model", "paper")), fixed)
     configuration.validate(base)
     if "trials" in settings:
         base["experiment"]["trials"] = settings["trials"]

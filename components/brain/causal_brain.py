@@ -1,0 +1,184 @@
+"""The causal model's brain: belief mu from proprioception and the seen arm's pose, weighted by gamma.
+
+Each step, for each of the B trials (docs/model.md):
+
+1. gamma_timing <- :func:`~components.brain.body_inference.hazard_predict` (the common-cause state
+   persists, relaxing to its prior over ``switching_time``); at a new visuo-tactile pair it is
+   updated by the perceived delay's likelihood ratio (the delay plus this participant's timing noise);
+2. gamma = posterior(gamma_timing, spatial likelihood ratio of the seen pose x_v and the felt pose s_p);
+3. mu_dot = (s_p - mu)/Sigma_p + gamma (x_v - mu)/Sigma_x + pixel_weight * gamma * visual_drive
+   (:func:`belief_rate`): x_v and Sigma_x (deg, deg^2 per joint) come from the pose encoder;
+4. a_dot and the action as in the paper's brain (:mod:`components.brain.integrator`).
+
+The brain reads no position from the simulator: the seen arm reaches it only through the camera's
+image and the pose encoder, the felt arm only as the sensed joint angles s_p. Each trial is one
+participant: its parameters are drawn from the population once, at initialization, from its
+``participant_seed`` (:func:`~components.brain.body_inference.participants`).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from components.brain.body_inference import hazard_predict, participants, posterior, spatial_likelihood_ratio, \
+    timing_likelihood_ratio
+from components.brain.causal_inference import observe_events
+from components.brain.integrator import STABILITY_LIMIT, _require_finite, _trials, action_rate, action_update
+from components.component import Component, ComponentError, StepFailure
+from components.variables import Variable
+
+
+def belief_rate(s_p, mu, gamma, seen_pose, seen_variance, proprioceptive_variance, pixel_weight, visual_drive):
+    """mu_dot = (s_p - mu)/Sigma_p + gamma (x_v - mu)/Sigma_x + w gamma J^T (s_v - g(mu))/Sigma_v, (B, 2) deg/s.
+
+    The gradient of the free energy of two Gaussian observations of the arm's joint angles, the felt
+    s_p (variance Sigma_p, the paper's eq. 6 term) and the seen x_v (the pose encoder's calibrated
+    variance Sigma_x), the seen one weighted by gamma; w = pixel_weight adds the paper's pixel term.
+    s_p, mu, seen_pose, seen_variance, visual_drive: (B, 2); gamma, proprioceptive_variance, pixel_weight: (B,).
+    """
+    return ((s_p - mu) / proprioceptive_variance[:, None] + gamma[:, None] * (seen_pose - mu) / seen_variance
+            + (pixel_weight * gamma)[:, None] * visual_drive)
+
+
+def free_energy(s_p, mu, gamma, seen_pose, seen_variance, proprioceptive_variance, pixel_weight, visual_error):
+    """F = sum (s_p - mu)^2/(2 Sigma_p) + gamma sum (x_v - mu)^2/(2 Sigma_x) + w gamma visual_error, (B,)."""
+    return (((s_p - mu) ** 2).sum(axis=1) / (2.0 * proprioceptive_variance)
+            + gamma * ((seen_pose - mu) ** 2 / (2.0 * seen_variance)).sum(axis=1) + pixel_weight * gamma * visual_error)
+
+
+class CausalBrain(Component):
+    """The causal model's integrator: belief mu, action a, gamma (and its timing part), free energy."""
+
+    def __init__(self, name="brain"):
+        joint = dict(type="Array", shape=(2,))
+        state = dict(causality="output", depends_on=())
+        positive = dict(min=1e-12)
+        super().__init__(name, [
+            Variable("proprioceptive_variance", "parameter", start=1.0, unit="deg2", **positive,
+                     description="Sigma_p, proprioceptive variance (the paper's)"),
+            Variable("mu0", "parameter", start=(0.0, 0.0), unit="deg", **joint, description="initial belief"),
+            Variable("sync_sd", "parameter", start=0.2, unit="s", **positive,
+                     description="sd of the true visuo-tactile delay under a common cause (paper eq. 8)"),
+            Variable("async_density", "parameter", start=0.5, unit="1/s", **positive,
+                     description="uniform density of the delay under separate causes (p2)"),
+            Variable("action_limit", "parameter", start=1.0, unit="deg/s", **positive,
+                     description="the action is clipped to [-action_limit, action_limit]"),
+            Variable("action_time_constant", "parameter", start=0.1, unit="s", min=0.0,
+                     description="tau of the action law (inf: the paper's eq. 7)"),
+            Variable("pixel_weight", "parameter", start=0.0, unit="1", min=0.0,
+                     description="weight of the paper's pixel term beside the body-space term (0: off)"),
+            Variable("common_cause_prior", "parameter", start=0.28, unit="1", min=1e-6, max=1.0 - 1e-6,
+                     description="population median of the common-cause chain's stationary probability"),
+            Variable("switching_time", "parameter", start=20.0, unit="s", **positive,
+                     description="population median of 1/(k_on + k_off), the common-cause state's memory"),
+            Variable("timing_noise_sd", "parameter", start=0.1, unit="s", min=0.0,
+                     description="population median sd of the perceived visuo-tactile delay's noise"),
+            Variable("coupling_sd", "parameter", start=(1.0, 1.0), unit="deg", **joint,
+                     description="population median spread of the seen from the felt pose under one cause"),
+            Variable("workspace_mean", "parameter", start=(0.0, 0.0), unit="deg", **joint,
+                     description="centre of the seen pose's density under separate causes"),
+            Variable("workspace_sd", "parameter", start=(1.0, 1.0), unit="deg", **joint,
+                     description="sd of the seen pose's density under separate causes"),
+            Variable("participant_seed", "parameter", "Integer", start=0, min=0, unit="1",
+                     description="seeds this trial's participant and its timing noise"),
+            Variable("timing_noise_log_sd", "parameter", start=0.3, unit="1", min=0.0,
+                     description="population: sd of log timing_noise_sd"),
+            Variable("switching_log_sd", "parameter", start=0.3, unit="1", min=0.0,
+                     description="population: sd of log switching_time"),
+            Variable("coupling_log_sd", "parameter", start=0.2, unit="1", min=0.0,
+                     description="population: sd of log coupling_sd"),
+            Variable("prior_concentration", "parameter", start=20.0, unit="1", **positive,
+                     description="population: the prior is Beta(prior k, (1 - prior) k)"),
+            Variable("q_shoulder", "input", start=np.nan, unit="deg", description="s_p: sensed shoulder angle"),
+            Variable("q_elbow", "input", start=np.nan, unit="deg", description="s_p: sensed elbow angle"),
+            Variable("seen_pose", "input", start=(np.nan, np.nan), unit="deg", **joint,
+                     description="x_v: the seen arm's joint angles, from the pose encoder"),
+            Variable("seen_pose_variance", "input", start=(1.0, 1.0), unit="deg2", **joint,
+                     description="Sigma_x: the pose encoder's calibrated variance of x_v"),
+            Variable("visual_drive", "input", start=(0.0, 0.0), unit="deg/s", **joint,
+                     description="the paper's pixel term, read only when pixel_weight > 0"),
+            Variable("visual_error", "input", start=0.0, unit="1", min=0.0,
+                     description="the paper's visual error, read only when pixel_weight > 0"),
+            Variable("visual_stiffness", "input", start=0.0, unit="1/s", min=0.0,
+                     description="the pixel term's stiffness, for the stability guard"),
+            Variable("visual_time", "input", start=-np.inf, unit="s", description="last visual touch event"),
+            Variable("tactile_time", "input", start=-np.inf, unit="s", description="last tactile event"),
+            Variable("mu", unit="deg", **joint, **state, description="belief of the joint angles"),
+            Variable("u_shoulder", unit="deg/s", **state, description="action a: commanded shoulder velocity"),
+            Variable("u_elbow", unit="deg/s", **state, description="action a: commanded elbow velocity"),
+            Variable("action_rate", unit="deg/s2", **joint, **state, description="a_dot (shoulder, elbow)"),
+            Variable("gamma", unit="1", min=0.0, max=1.0, **state,
+                     description="belief in a common cause of the seen and the felt arm, over space and time"),
+            Variable("gamma_timing", unit="1", min=0.0, max=1.0, **state,
+                     description="the common-cause state's belief from the touches' timing alone"),
+            Variable("free_energy", unit="1", **state, description="F at the step's start mu"),
+        ])
+
+    def publish_initial(self):
+        batch, v = self.batch_size, self.values
+        medians = {key: v[key] for key in ("common_cause_prior", "switching_time", "timing_noise_sd")}
+        log_sds = {"timing_noise_sd": v["timing_noise_log_sd"], "switching_time": v["switching_log_sd"],
+                   "coupling_scale": v["coupling_log_sd"]}
+        self.participant, self._generators = participants(v["participant_seed"], medians, log_sds,
+                                                          v["prior_concentration"])
+        self.participant["coupling_sd"] = v["coupling_sd"] * self.participant.pop("coupling_scale")[:, None]
+        v["mu"] = v["mu0"].copy()
+        v["gamma_timing"] = self.participant["common_cause_prior"].copy()
+        v["gamma"] = v["gamma_timing"].copy()
+        v["u_shoulder"], v["u_elbow"] = np.zeros(batch), np.zeros(batch)
+        v["action_rate"] = np.zeros((batch, 2))
+        v["free_energy"] = np.full(batch, np.nan)
+        self._events = (np.full(batch, -np.inf), np.full(batch, -np.inf), np.zeros(batch, bool), np.zeros(batch, bool))
+
+    def initialize(self):
+        for name in ("coupling_sd", "workspace_sd"):
+            if not np.all(self.values[name] > 0):
+                raise ComponentError(f"{self.name}.{name} must be positive, got {self.values[name].tolist()!r}")
+        if not np.all(np.isfinite(self.values["mu0"])):
+            raise ComponentError(f"{self.name}.mu0 must be finite, got {self.values['mu0'].tolist()!r}")
+        self.publish_initial()
+
+    def step(self, t, h):
+        v, who = self.values, self.participant
+        for name in ("q_shoulder", "q_elbow", "seen_pose", "seen_pose_variance"):
+            _require_finite(name, v[name])
+        for name in ("visual_time", "tactile_time"):
+            _require_finite(name, v[name], allow_minus_inf=True)
+        if np.any(v["seen_pose_variance"] <= 0):
+            raise StepFailure("seen_pose_variance must be positive")
+        s_p = np.stack([v["q_shoulder"], v["q_elbow"]], axis=1)
+        mu, variance = v["mu"], v["proprioceptive_variance"]
+
+        # 1. the common-cause state: predict over the step, then the touches' timing where a pair is new.
+        pair, *events = observe_events(*self._events, v["visual_time"], v["tactile_time"])
+        timing = hazard_predict(v["gamma_timing"], who["common_cause_prior"], who["switching_time"], h)
+        if pair.any():
+            noise = np.array([g.standard_normal() if fired else 0.0 for g, fired in zip(self._generators, pair)])
+            delay = np.where(pair, v["visual_time"] - np.where(pair, v["tactile_time"], 0.0), 0.0)
+            ratio = timing_likelihood_ratio(delay + who["timing_noise_sd"] * noise, v["sync_sd"],
+                                            who["timing_noise_sd"], v["async_density"])
+            timing = np.where(pair, posterior(timing, ratio), timing)
+        # 2. the seen and the felt pose, counted once.
+        spatial = spatial_likelihood_ratio(v["seen_pose"], v["seen_pose_variance"], s_p, variance,
+                                           who["coupling_sd"], v["workspace_mean"], v["workspace_sd"])
+        gamma = posterior(timing, spatial)
+
+        stiffness = h * (1.0 / variance + gamma * (1.0 / v["seen_pose_variance"]).max(axis=1)
+                         + v["pixel_weight"] * gamma * v["visual_stiffness"])
+        if np.any(~(stiffness < STABILITY_LIMIT)):
+            raise StepFailure(f"step too large for stable explicit Euler in {_trials(~(stiffness < STABILITY_LIMIT))}: "
+                              f"dt * (1/Sigma_p + gamma/Sigma_x + ...) = {stiffness.max():.4g} >= 2")
+        pixels = v["pixel_weight"] > 0
+        drive = np.where(pixels[:, None], v["visual_drive"], 0.0)
+        error = np.where(pixels, v["visual_error"], 0.0)
+        new_mu = mu + h * belief_rate(s_p, mu, gamma, v["seen_pose"], v["seen_pose_variance"], variance,
+                                      v["pixel_weight"], drive)
+        a_dot = action_rate(s_p, new_mu, variance)
+        action = action_update(np.stack([v["u_shoulder"], v["u_elbow"]], axis=1), a_dot, v["action_time_constant"],
+                               v["action_limit"], h)
+        energy = free_energy(s_p, mu, gamma, v["seen_pose"], v["seen_pose_variance"], variance, v["pixel_weight"],
+                             error)
+        for name, value in (("mu", new_mu), ("action_rate", a_dot), ("free_energy", energy)):
+            _require_finite(name, value)
+        self._events = tuple(events)
+        v["mu"], v["gamma"], v["gamma_timing"], v["action_rate"], v["free_energy"] = new_mu, gamma, timing, a_dot, energy
+        v["u_shoulder"], v["u_elbow"] = action[:, 0].copy(), action[:, 1].copy()
