@@ -10,13 +10,17 @@ $(STAMP): pyproject.toml constraints.txt
 	$(VENV)/bin/pip install --quiet -c constraints.txt -e '.[test]'
 	touch $(STAMP)
 
-.PHONY: setup test experiment
+.PHONY: setup test test-kernels experiment
 setup: $(STAMP)
 
 # Two xdist workers, a module to each (modules share expensive fixtures); TEST_WORKERS=0 runs in one process.
 TEST_WORKERS ?= 2
 test: $(STAMP)
 	$(VENV)/bin/python -m pytest -q --durations=20 -n $(TEST_WORKERS) --dist loadfile
+
+# The numeric tests again under the AVX2 and the baseline kernels: other CPUs' rounding (tests/kernels.py).
+test-kernels: $(STAMP)
+	$(VENV)/bin/python -m tests.kernels
 
 experiment: $(STAMP)
 	$(VENV)/bin/rhi experiment --out results

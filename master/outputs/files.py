@@ -64,8 +64,36 @@ def atomic_write(path: str | os.PathLike, data: str | bytes | Callable[[BinaryIO
         raise
 
 
-def package_versions() -> dict[str, str]:
-    versions = {"python": sys.version.split()[0], "platform": platform.platform()}
+# The CPU features that choose torch's, oneDNN's and numpy's kernels, and so the last bits of a result.
+VECTOR_EXTENSIONS = ("sse4_2", "avx", "avx2", "fma", "avx512f", "avx512bw", "avx512vl", "avx512_vnni",
+                     "avx512_bf16", "avx512_fp16", "amx_tile")
+KERNEL_SETTINGS = ("ATEN_CPU_CAPABILITY", "DNNL_MAX_CPU_ISA", "OPENBLAS_CORETYPE")  # environment overrides
+
+
+def cpu_description() -> dict:
+    """The CPU a result came from: its model, which of VECTOR_EXTENSIONS it has, the kernels torch runs
+    (ATen's CPU capability, when torch is loaded) and the environment variables that override them."""
+    model, flags = platform.processor() or platform.machine(), set()
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as file:
+            for line in file:
+                key, _, value = line.partition(":")
+                if key.strip() == "model name":
+                    model = value.strip()
+                elif key.strip() == "flags":
+                    flags = set(value.split())
+                    break
+    except OSError:
+        pass  # not Linux: the model from platform, the extensions unknown
+    described = {"model": model, "vector_extensions": [name for name in VECTOR_EXTENSIONS if name in flags]}
+    if "torch" in sys.modules:
+        described["torch_kernels"] = sys.modules["torch"].backends.cpu.get_cpu_capability()
+    described.update({name: os.environ[name] for name in KERNEL_SETTINGS if name in os.environ})
+    return described
+
+
+def package_versions() -> dict:
+    versions = {"python": sys.version.split()[0], "platform": platform.platform(), "cpu": cpu_description()}
     for package in PACKAGES:
         try:
             versions[package] = metadata.version(package)
@@ -84,8 +112,8 @@ _ACTIVE: dict[Path, "OutputLock"] = {}  # staging folder -> its lock, while this
 def foreign_entries(folder: Path) -> list[str]:
     """What in ``folder`` an earlier `rhi experiment` did not write (empty: the folder is one of its outputs).
 
-    Its own output holds run.json with ``"command": "rhi experiment"``, otherwise only summary.csv,
-    trials.csv and figures/, and figures/ only the files run.json lists; none of them a link.
+    Its own output holds run.json with ``"command": "rhi experiment"``, otherwise only the files summary.csv
+    and trials.csv and the folder figures/, and figures/ only the files run.json lists; none of them a link.
     """
     try:
         names = sorted(entry.name for entry in folder.iterdir())
@@ -97,7 +125,8 @@ def foreign_entries(folder: Path) -> list[str]:
         run = None
     if not isinstance(run, dict) or run.get("command") != OUTPUT_COMMAND:
         return names or ["nothing"]
-    foreign = [name for name in names if name not in OUTPUT_ENTRIES or (folder / name).is_symlink()]
+    foreign = [name for name in names if name not in OUTPUT_ENTRIES or (folder / name).is_symlink()
+               or not ((folder / name).is_dir() if name == "figures" else (folder / name).is_file())]
     figures = folder / "figures"
     if figures.is_dir() and not figures.is_symlink():
         listed = set(run.get("figures") or [])
