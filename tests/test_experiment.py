@@ -241,7 +241,7 @@ def test_a_failing_trial_is_left_out_and_the_rest_are_written(quick_run, cache, 
     assert len(written) == 23 and ("conv", "left", "sync", 1) not in written
     for key, trial in written.items():
         assert len(trial["step"]) == 21 and np.isfinite(trial["force_x_n"]).all(), key
-        if key[3] == 0:
+        if key[3] == 0:  # rerun in a smaller batch: other float32 sums, as tests/test_batching.py derives
             for name, column in trial.items():
                 np.testing.assert_allclose(column, native[key][name][:21], rtol=1e-5, atol=1e-9, err_msg=f"{key} {name}")
     assert sorted(p.name for p in out.iterdir()) == ["figures", "run.json", "summary.csv", "trials.csv"]

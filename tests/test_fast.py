@@ -39,8 +39,9 @@ def test_tolerance_zero_is_the_exact_decoder(exact, fast_layout, threads):
     decoder, fast = run_fast(tiny_model(), 0.0, fast_layout, threads=threads)
     # The initial call, then one every step but the first (the decoder steps before the brain moves mu).
     assert (decoder.relinearisations == STEPS).all()
-    for path in COMPARED:  # visual_error: float32 sums of ~1e8 over the image, in another order
-        rtol = 1e-5 if path == "decoder.visual_error" else 1e-6
+    for path in COMPARED:  # the same sums in another order: the visual error within N u = 32^2 u of itself,
+        # the rest as the batching test derives (tests/test_batching.py)
+        rtol = 32 * 32 * 2.0 ** -24 if path == "decoder.visual_error" else 1e-6
         np.testing.assert_allclose(fast.values[path], exact.values[path], rtol=rtol, atol=1e-6, err_msg=path)
 
 
@@ -75,7 +76,7 @@ def test_trials_within_the_tolerance_share_a_point():
     assert decoder.call_sizes == [2] and decoder.relinearisations.tolist() == [1, 1, 1]
     with torch.no_grad():
         g0, jacobian = model.predict_with_jacobian(torch.tensor(rest[None], dtype=torch.float32))
-    expected = (g0[0] + 0.3 * jacobian[0, 0]).numpy()
+    expected = (g0[0] + 0.3 * jacobian[0, 0]).numpy()  # pixels <= 1, so a few float32 roundings: atol 16 u
     np.testing.assert_allclose(decoder.values["prediction"][1], expected, rtol=0, atol=1e-6)
     np.testing.assert_allclose(decoder.values["prediction"][0], g0[0].numpy(), rtol=0, atol=1e-6)
 
@@ -102,8 +103,11 @@ def test_an_exactly_linear_decoder_needs_one_linearisation():
     decoder, fast = run_fast(model, 1e6, config=config)
     assert (decoder.relinearisations == 1).all() and decoder.decoder_calls == 1  # identical start: one call
     assert np.abs(exact_run.values["brain.mu"][-1] - exact_run.values["brain.mu"][0]).max() > 0.1
-    for path in COMPARED:
-        np.testing.assert_allclose(fast.values[path], exact_run.values[path], rtol=1e-5, atol=1e-5, err_msg=path)
+    for path in COMPARED:  # an exact tangent model: only float32 rounding differs, the drive's sum over 32^2
+        # pixels within N u = 6e-5 of itself; rtol 1e-5 of mu (~150 deg) is 1.5e-3 deg, 20x the 0.8 deg it moves
+        # times N u; the visual error as a float32 sum (N u)
+        rtol = 32 * 32 * 2.0 ** -24 if path == "decoder.visual_error" else 1e-5
+        np.testing.assert_allclose(fast.values[path], exact_run.values[path], rtol=rtol, atol=1e-5, err_msg=path)
 
 
 def start(component, batch, mu, image, **parameters):
@@ -144,9 +148,11 @@ def test_one_step_against_finite_differences_and_numpy():
     np.testing.assert_allclose(decoder.values["prediction"][0], predicted, rtol=0, atol=1e-6)
     precision = resolution_weight(32, 32) / 2.0
     drive = np.tensordot(jacobian, image[0] - predicted, axes=([1, 2], [0, 1])) * precision
-    np.testing.assert_allclose(decoder.values["visual_drive"][0], drive, rtol=1e-3)  # float32 sums
+    # float32 sums of 32^2 terms J e (N u = 6e-5 of the sum of |J e|), against a drive with cancellation
+    # between pixels of either sign, |sum J e| about a tenth of sum |J e| here: rtol 1e-3
+    np.testing.assert_allclose(decoder.values["visual_drive"][0], drive, rtol=1e-3)
     error = 0.5 * ((image[0] - predicted) ** 2).sum() * precision
-    np.testing.assert_allclose(decoder.values["visual_error"][0], error, rtol=1e-4)
+    np.testing.assert_allclose(decoder.values["visual_error"][0], error, rtol=1e-4)  # positive terms: N u = 6e-5
     np.testing.assert_allclose(decoder.values["prediction"][1], g(mu0[1] + step[1]), rtol=0, atol=1e-6)
 
 
@@ -171,7 +177,8 @@ def test_optimised_jacobians_equal_torch_func_jvp():
             assert torch.equal(prediction, reference[0]) and torch.equal(column, reference[1][:, joint])
         fast = optimised(model)
         assert isinstance(fast, TangentModel)
-        for got, want in zip(fast.predict_with_jacobian(mu), reference):
+        for got, want in zip(fast.predict_with_jacobian(mu), reference):  # other float32 sums: the sub-pixel
+            # layer's 8 x 3 x 3 = 72 terms and its reordering of the layers before, within 1e-5 of the largest
             torch.testing.assert_close(got, want, rtol=0, atol=1e-5 * want.abs().max().item())
         flops = [counted_flops(lambda m=m: m.predict_with_jacobian(mu)) for m in (model, fast)]
     assert reference[1].abs().max() > 0  # a real Jacobian
@@ -190,7 +197,7 @@ def test_chunks_of_trials_give_the_whole_batch(monkeypatch):
         whole = model.predict_with_jacobian(mu)
         monkeypatch.setattr(optimisation, "ACTIVATION_BUDGET", 3 * 4 * 2048)
         chunked = model.predict_with_jacobian(mu)
-    for got, want in zip(chunked, whole):
+    for got, want in zip(chunked, whole):  # the same per-trial arithmetic, chunked: images <= 1, atol 16 u
         torch.testing.assert_close(got, want, rtol=0, atol=1e-6)
 
 
@@ -287,7 +294,7 @@ def test_the_squared_error_has_its_d_G_d_term():
     precision = resolution_weight(32, 32) / 0.01
     error = 0.5 * np.einsum("bi,ij,bj->b", steps, gram, steps) * precision
     assert error.min() > 0.1  # the whole error is the d^T G d term here (0 without it)
-    for component in (fast, exact):
+    for component in (fast, exact):  # a float32 sum of 32^2 positive terms: N u = 6e-5
         np.testing.assert_allclose(component.values["visual_error"], error, rtol=1e-4)
         drive = -steps @ gram * precision  # float32 images: a pixel's rounding is 1e-7 of the largest term
         np.testing.assert_allclose(component.values["visual_drive"], drive, rtol=0, atol=1e-4 * np.abs(drive).max())
