@@ -32,7 +32,7 @@ BASE_UNITS = {
 VARIABILITY = {"parameter": "fixed", "input": "continuous", "output": "continuous", "local": "continuous"}
 
 
-def _format(value) -> str:
+def xml_value(value) -> str:
     """A start value as XML Schema writes it (true/false, INF, -INF, NaN)."""
     if isinstance(value, bool):
         return "true" if value else "false"
@@ -69,7 +69,7 @@ def typed_attributes(variable) -> dict:
     cast = {"Real": float, "Integer": int}.get(variable.type)
     for bound in ("min", "max"):
         if getattr(variable, bound) is not None and cast is not None:
-            attributes[bound] = _format(cast(getattr(variable, bound)))
+            attributes[bound] = xml_value(cast(getattr(variable, bound)))
     return attributes
 
 
@@ -137,7 +137,7 @@ def to_xml(component) -> str:
         elif v.start is not None:
             if v.causality == "parameter":
                 attributes["initial"] = "exact"
-            typed["start"] = _format(v.start.item() if hasattr(v.start, "item") else v.start)
+            typed["start"] = xml_value(v.start.item() if hasattr(v.start, "item") else v.start)
         typed.update(typed_attributes(v))
         element = ET.SubElement(model_variables, "ScalarVariable", attributes)
         ET.SubElement(element, v.type, typed)

@@ -28,7 +28,8 @@ COSIM_MAY_IMPORT = ("master.cosim", "components.component", "components.variable
 COSIM_FORBIDDEN_WORDS = ("decoder", "drift", "gamma", "rubber", "brain")
 # components/ never imports master. A component folder imports the core and itself, no other folder;
 # a module directly in components/ (stimulus, fmu_adapter, the core) imports the core only.
-COMPONENT_CORE = ("components.component", "components.variables", "components.model_description", "components.archives")
+COMPONENT_CORE = ("components.component", "components.variables", "components.model_description", "components.archives",
+                  "components.fmu_slave_base")  # the body FMU's slave loads the base from its bundled copy
 COMPONENT_FOLDERS = ("body", "vision", "brain")
 PROJECT = ("master", "components")  # top-level packages whose imports are checked
 

@@ -10,16 +10,14 @@ Example::
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import shutil
-import sys
 import tempfile
 from pathlib import Path
 
 from master.cosim import ConfigError
-from master.export.body import built_beside, check_target
+from master.export.fmu_files import build_with_pythonfmu, built_beside, check_target, staged_script
 
 MODEL_NAME = "RubberHandAgent"  # the FMI model identifier, which names the FMU's library
 MANIFEST = "rhi_agent.json"
@@ -88,8 +86,6 @@ def build_agent_fmu(out, kind: str, config: dict, checkpoint: str) -> Path:
     """
     from importlib import metadata
 
-    from pythonfmu.builder import FmuBuilder
-
     from master.export.agent import Agent
 
     out = check_target(out)
@@ -101,23 +97,11 @@ def build_agent_fmu(out, kind: str, config: dict, checkpoint: str) -> Path:
     manifest = {"decoder": kind, "config": config, "ports": ports(agent), "rhi": version}
     with tempfile.TemporaryDirectory(prefix="rhi_agent_") as staging:
         staging = Path(staging)
-        source = SLAVE.read_bytes()
-        # Named after its content: in one process, FMUs with different slave code never share a module.
-        script = staging / f"rhi_agent_slave_{hashlib.sha1(source).hexdigest()[:10]}.py"
-        script.write_bytes(source)
+        script = staged_script(SLAVE, staging, "rhi_agent_slave")
         (staging / MANIFEST).write_text(json.dumps(manifest, indent=1), encoding="utf-8")
         shutil.copyfile(checkpoint, staging / CHECKPOINT)
-
-        def build(target: Path) -> Path:
-            saved_path = list(sys.path)  # the builder puts the script's folder on sys.path for good
-            try:
-                return Path(FmuBuilder.build_FMU(script, dest=target,
-                                                 project_files=[staging / MANIFEST, staging / CHECKPOINT]))
-            except (ImportError, AttributeError, ValueError) as error:
-                raise ConfigError(f"cannot build the agent FMU: {error}") from None
-            finally:
-                sys.path[:] = saved_path
-
+        files = [staging / MANIFEST, staging / CHECKPOINT]
+        build = lambda target: build_with_pythonfmu(script, target, files, "the agent FMU")
         return built_beside(out, build)
 
 

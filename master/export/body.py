@@ -11,15 +11,12 @@ Example::
 """
 from __future__ import annotations
 
-import hashlib
-import os
 import shutil
-import sys
 import tempfile
 from pathlib import Path
 
 from master.cosim import ConfigError
-from master.outputs.files import check_output_file, umask
+from master.export.fmu_files import build_with_pythonfmu, built_beside, check_target, staged_script
 
 # variant -> (model name, which is also the FMI model identifier; component class as module:Class)
 VARIANTS = {
@@ -38,7 +35,6 @@ def build_fmu(out, variant: str = "native", component: str | None = None, model_
     variant: a name in VARIANTS; ``component`` (``module:Class``) and ``model_name`` override it,
     with ``extra_files`` (Python modules that define that class) bundled next to the slave.
     """
-    from pythonfmu.builder import FmuBuilder
     out = check_target(out)
     if variant not in VARIANTS:
         raise ConfigError(f"--variant {variant!r} is not one of {', '.join(VARIANT_NAMES)}")
@@ -46,36 +42,7 @@ def build_fmu(out, variant: str = "native", component: str | None = None, model_
     component = component or VARIANTS[variant][1]
     if not model_name.isidentifier():
         raise ConfigError(f"model name {model_name!r} must be an identifier (it names the FMU's library)")
-    return built_beside(out, lambda target: _build(FmuBuilder, target, model_name, component, extra_files))
-
-
-def built_beside(out: Path, build) -> Path:
-    """``build(target)`` writes a file at ``target`` (and returns its path), in a folder beside ``out``; the file
-    is then renamed into place: ``out`` is whole, the old one, or absent, whatever happens.
-
-    Parameters
-    ----------
-    out : Path
-        The file to write (checked already: :func:`check_target`).
-    build : callable
-        ``build(target) -> Path``.
-
-    Returns
-    -------
-    Path
-        ``out``.
-    """
-    try:
-        beside = Path(tempfile.mkdtemp(dir=out.parent, prefix=f".{out.name}.", suffix=".partial"))
-    except OSError as error:
-        raise ConfigError(f"cannot write into {out.parent}: {error.strerror or error}") from None
-    try:
-        built = Path(build(beside / out.name))
-        built.chmod(0o666 & ~umask())
-        os.replace(built, out)
-    finally:
-        shutil.rmtree(beside, ignore_errors=True)
-    return out
+    return built_beside(out, lambda target: _build(target, model_name, component, extra_files))
 
 
 def export_body(out, variant: str = "native") -> Path:
@@ -86,30 +53,16 @@ def export_body(out, variant: str = "native") -> Path:
     return build_fmu(out, variant)
 
 
-def check_target(out) -> Path:
-    """FILE.fmu as a Path if an FMU can be written there (checked before anything is built)."""
-    return check_output_file(out, "FMU file", ".fmu")
-
-
-def _build(builder, target: Path, model_name: str, component: str, extra_files) -> Path:
+def _build(target: Path, model_name: str, component: str, extra_files) -> Path:
     with tempfile.TemporaryDirectory(prefix="rhi_export_") as staging:
         staging = Path(staging)
-        # Named after its content: in one process, FMUs with different slave code never share a module.
-        source = (PACKAGE / "body" / "fmu_slave.py").read_bytes()
-        script = staging / f"rhi_fmu_slave_{hashlib.sha1(source).hexdigest()[:10]}.py"
-        script.write_bytes(source)
+        script = staged_script(PACKAGE / "body" / "fmu_slave.py", staging, "rhi_fmu_slave",
+                               loads=[PACKAGE / "fmu_slave_base.py"])
         # Python sources only: no caches, checkpoints or data files in the FMU.
         shutil.copytree(PACKAGE, staging / "components",
                         ignore=lambda folder, names: [n for n in names if not (
                             n.endswith(".py") or (Path(folder) / n).is_dir()) or n == "__pycache__"])
         spec = staging / "rhi_component.txt"
         spec.write_text(f"{model_name} {component}\n")
-        files = [staging / "components", spec, *map(Path, extra_files)]
-        saved_path = list(sys.path)  # the builder puts the script's folder on sys.path for good
-        try:
-            built = builder.build_FMU(script, dest=target, project_files=files)
-        except (ImportError, AttributeError, ValueError) as error:
-            raise ConfigError(f"cannot build the {model_name} FMU from {component}: {error}") from None
-        finally:
-            sys.path[:] = saved_path
-    return Path(built)
+        return build_with_pythonfmu(script, target, [staging / "components", spec, *map(Path, extra_files)],
+                                    f"the {model_name} FMU from {component}")

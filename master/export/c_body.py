@@ -21,7 +21,7 @@ from pathlib import Path
 
 from components.body.variants import KinematicArm
 from master.cosim import ConfigError
-from master.export.body import check_target
+from master.export.fmu_files import check_target
 from master.outputs.files import atomic_write
 
 SOURCE = Path(__file__).resolve().parents[2] / "bodies" / "kinematic_c" / "kinematic_arm.c"

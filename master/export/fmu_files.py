@@ -1,0 +1,77 @@
+"""Writing an FMU file: the target checked first, the file built beside it and renamed into place, and
+pythonfmu's builder run on a slave script (the body's pythonfmu FMUs, the agent FMU, the C body's zip)."""
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+from master.cosim import ConfigError
+from master.outputs.files import check_output_file, umask
+
+
+def check_target(out) -> Path:
+    """FILE.fmu as a Path if an FMU can be written there (checked before anything is built)."""
+    return check_output_file(out, "FMU file", ".fmu")
+
+
+def built_beside(out: Path, build) -> Path:
+    """``build(target)`` writes a file at ``target`` (and returns its path), in a folder beside ``out``; the file
+    is then renamed into place: ``out`` is whole, the old one, or absent, whatever happens.
+
+    Parameters
+    ----------
+    out : Path
+        The file to write (checked already: :func:`check_target`).
+    build : callable
+        ``build(target) -> Path``.
+
+    Returns
+    -------
+    Path
+        ``out``.
+    """
+    try:
+        beside = Path(tempfile.mkdtemp(dir=out.parent, prefix=f".{out.name}.", suffix=".partial"))
+    except OSError as error:
+        raise ConfigError(f"cannot write into {out.parent}: {error.strerror or error}") from None
+    try:
+        built = Path(build(beside / out.name))
+        built.chmod(0o666 & ~umask())
+        os.replace(built, out)
+    finally:
+        shutil.rmtree(beside, ignore_errors=True)
+    return out
+
+
+def staged_script(slave: Path, staging: Path, prefix: str, loads=()) -> Path:
+    """A copy of the slave script ``slave`` in ``staging``, named ``<prefix>_<hash>.py`` after its content and
+    that of the files it ``loads`` when imported: in one process, FMUs whose slave code differs never share
+    a module (a process imports a module of one name once)."""
+    source = slave.read_bytes()
+    digest = hashlib.sha1(source)
+    for path in loads:
+        digest.update(Path(path).read_bytes())
+    script = staging / f"{prefix}_{digest.hexdigest()[:10]}.py"
+    script.write_bytes(source)
+    return script
+
+
+def build_with_pythonfmu(script: Path, target: Path, project_files, what: str) -> Path:
+    """pythonfmu's builder: the FMU of ``script`` with ``project_files`` in its resources, at ``target``.
+
+    A slave the builder cannot load is refused as ``cannot build <what>: <reason>`` (ConfigError);
+    ``sys.path`` is left as it was (the builder puts the script's folder on it for good).
+    """
+    from pythonfmu.builder import FmuBuilder
+
+    saved_path = list(sys.path)
+    try:
+        return Path(FmuBuilder.build_FMU(script, dest=target, project_files=list(project_files)))
+    except (ImportError, AttributeError, ValueError) as error:
+        raise ConfigError(f"cannot build {what}: {error}") from None
+    finally:
+        sys.path[:] = saved_path
