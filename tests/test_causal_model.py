@@ -174,3 +174,19 @@ def test_models_in_the_configuration():
         configuration.load(model_name="nope")
     with pytest.raises(ConfigError, match="unknown config key causal"):
         configuration.load(overrides={"causal.pixel_weight": 1.0})  # causal keys exist only in the causal model
+
+
+def test_a_sweep_file_names_its_model(tmp_path):
+    from master.sweeps import plan as sweeps
+
+    path = tmp_path / "s.toml"
+    path.write_text('[experiment]\ndecoders = ["conv"]\n[sweep]\nmodel = "causal"\n[sweep.grid]\n'
+                    '"causal.switching_time" = [10.0, 40.0]\n')
+    sweep = sweeps.load(path)
+    assert [c["causal"]["switching_time"] for c in sweep.configs] == [10.0, 40.0]
+    assert all(configuration.model_name(c) == "causal" for c in sweep.configs)
+    with pytest.raises(ConfigError, match="unknown config key causal"):  # the paper's model has no causal keys
+        sweeps.load(path, model="paper")
+    path.write_text('[sweep]\nmodel = "other"\n')
+    with pytest.raises(ConfigError, match="sweep.model = 'other' is not one of paper, causal"):
+        sweeps.load(path)
