@@ -27,7 +27,7 @@ SCALARS = {
                "clamp_stiffness", "clamp_damping"],
     Camera: ["resolution", "blur", "ball_radius"],
     RubberArm: ["offset_x", "offset_y"],
-    Stimulus: ["period", "delay_min", "delay_max", "seed", "ball_distance", "visual_time", "tactile_time"],
+    Stimulus: ["period", "delay_min", "delay_max", "seed", "ball_distance", "stop_time", "visual_time", "tactile_time"],
     Brain: ["proprioceptive_variance", "gamma0", "sync_sd", "async_density", "decay_rate", "action_limit",
             "spatial_sd", "action_time_constant", "q_shoulder", "q_elbow", "visual_error", "visual_stiffness",
             "hand_x", "hand_y", "visual_time", "tactile_time", "u_shoulder", "u_elbow", "gamma", "free_energy"],
