@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import stat
 import subprocess
 import sys
@@ -19,6 +20,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
+import torch
 
 from components.archives import LIMITS, ArchiveError, check_archive, extract
 
@@ -245,3 +247,154 @@ def test_a_folder_or_a_device_as_body_is_named_as_such(tmp_path):
 
     assert check_contract(tmp_path) == [f"{tmp_path} is a folder, not an FMU file"]
     assert check_contract("/dev/zero") == ["/dev/zero is not a regular file"]
+
+
+# ======================================================================================================
+# rhi deletes only what it wrote
+# ======================================================================================================
+def sweep_of(tmp_path: Path, name: str, grid: dict):
+    from master.sweeps import plan as sweeps
+    from tests.test_sweep import sweep_file
+
+    return sweeps.load(sweep_file(tmp_path / f"{name}.toml", grid=grid))
+
+
+def prepare(out: Path, sweep, force: bool = False) -> None:
+    from master.sweeps.folder import sweep_folder
+
+    with sweep_folder(out, sweep, force):
+        pass
+
+
+def user_files(out: Path) -> dict:
+    """A user's own files in the places a sweep writes, and another tool's sweep.json."""
+    files = {"sweep.json": '{"study": "optuna", "trials": 3}\n', "figures/loss.png": "png", "trials/0.json": "{}",
+             "summary.csv": "a,b\n1,2\n", "notes.txt": "mine"}
+    for name, text in files.items():
+        (out / name).parent.mkdir(parents=True, exist_ok=True)
+        (out / name).write_text(text)
+    return snapshot(out)
+
+
+@pytest.mark.parametrize("force", [False, True])
+def test_a_sweep_json_of_another_tool_is_never_replaced(tmp_path, force):
+    from master.cosim import ConfigError
+
+    out = tmp_path / "out"
+    before = user_files(out)
+    with pytest.raises(ConfigError, match="holds a sweep.json that rhi sweep did not write"):
+        prepare(out, sweep_of(tmp_path, "s", {"conditions.left": [-0.1, -0.2]}), force)
+    assert snapshot(out) == before
+
+
+@pytest.mark.parametrize("content", ['[1, 2]', '"text"', '{"fingerprint": 3}', "{not json"])
+def test_a_sweep_json_that_is_not_rhi_s_object_is_refused_in_one_line(tmp_path, content):
+    from master.cosim import ConfigError
+
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "sweep.json").write_text(content)
+    with pytest.raises(ConfigError, match="did not write"):
+        prepare(tmp_path / "out", sweep_of(tmp_path, "s", {"conditions.left": [-0.1]}), True)
+
+
+def test_force_removes_only_the_older_sweep_s_own_files(tmp_path):
+    from master.sweeps.runner import execute  # noqa: F401 (the record format is execute's)
+
+    out = tmp_path / "out"
+    first = sweep_of(tmp_path, "first", {"conditions.left": [-0.1, -0.2]})
+    prepare(out, first)
+    ours = out / "trials" / f"{first.trials[0].id}.json"
+    ours.write_text(json.dumps({"id": first.trials[0].id, "point": 0, "parameters": {}, "decoder": "conv",
+                                "condition": "left", "stimulation": "sync", "trial": 0, "seed": 1}))
+    (out / "figures").mkdir()
+    for name in ("figures/conditions.left.png", "index.csv", "summary.csv"):
+        (out / name).write_text("rhi's")
+    mine = {"figures/loss.png": "mine", "trials/notes.json": '{"id": "notes"}', "trials/x.json": "{}"}
+    for name, text in mine.items():
+        (out / name).write_text(text)
+    prepare(out, sweep_of(tmp_path, "second", {"conditions.right": [0.1, 0.2]}), force=True)
+    assert all((out / name).read_text() == text for name, text in mine.items())
+    assert not ours.exists() and not (out / "figures" / "conditions.left.png").exists()
+    assert not (out / "index.csv").exists() and json.loads((out / "sweep.json").read_text())["command"] == "rhi sweep"
+
+
+@pytest.mark.parametrize("link", ["figures", "trials", "summary.csv"])
+def test_a_link_where_a_sweep_writes_is_refused_and_what_it_leads_to_is_untouched(tmp_path, link):
+    from master.cosim import ConfigError
+
+    out, elsewhere = tmp_path / "out", tmp_path / "elsewhere"
+    first = sweep_of(tmp_path, "first", {"conditions.left": [-0.1, -0.2]})
+    prepare(out, first)
+    elsewhere.mkdir()
+    (elsewhere / "conditions.left.png").write_text("not rhi's")
+    if (out / link).exists():
+        (out / link).rmdir()
+    (out / link).symlink_to(elsewhere if link != "summary.csv" else elsewhere / "conditions.left.png")
+    with pytest.raises(ConfigError, match="is a symbolic link"):
+        prepare(out, sweep_of(tmp_path, "second", {"conditions.right": [0.1]}), force=True)
+    assert (elsewhere / "conditions.left.png").read_text() == "not rhi's"
+
+
+def test_experiment_force_never_removes_a_folder_where_an_output_file_belongs(tmp_path):
+    from master.cosim import ConfigError
+    from master.outputs.files import check_output
+
+    out = tmp_path / "out"
+    (out / "trials.csv").mkdir(parents=True)
+    (out / "trials.csv" / "mine.txt").write_text("mine")
+    (out / "run.json").write_text('{"command": "rhi experiment", "figures": []}')
+    with pytest.raises(ConfigError, match=r"not an earlier rhi experiment output \(it holds trials.csv\)"):
+        check_output(out, force=True)
+    assert (out / "trials.csv" / "mine.txt").read_text() == "mine"
+
+
+def tiny_checkpoint(path: Path, **changes) -> Path:
+    """A decoder checkpoint of the tiny preset at 16 px, untrained (weights as built), metadata ``changes``d."""
+    from components.vision import checkpoint
+    from components.vision.networks import build, preset, sizes_dict
+
+    model = build("conv", "tiny", 16)
+    metadata = {"kind": "conv", "preset": "tiny", "sizes": sizes_dict(preset("tiny")), "resolution": 16,
+                "rest_pose": [147.7, -91.2], "half_ranges": [30.0, 30.0], "data_hash": "x", "validation_mse": 0.1}
+    for key, value in changes.items():
+        if key.startswith("sizes."):
+            metadata["sizes"][key[6:]] = value
+        else:
+            metadata[key] = value
+    with open(path, "wb") as file:
+        checkpoint.write(file, model, metadata)
+    return path
+
+
+def test_train_never_replaces_a_file_that_is_not_a_checkpoint(tmp_path):
+    from master.cosim import ConfigError
+    from master.experiment.training import check_target
+
+    (tmp_path / "notes.txt").write_text("mine")
+    (tmp_path / "notes.pt").write_text("mine")
+    with pytest.raises(ConfigError, match="must be a file name ending in .pt"):
+        check_target(tmp_path / "notes.txt")
+    with pytest.raises(ConfigError, match="exists and is not a decoder checkpoint"):
+        check_target(tmp_path / "notes.pt")
+    assert check_target(tiny_checkpoint(tmp_path / "old.pt")) == tmp_path / "old.pt"  # ours: replaced
+    assert (tmp_path / "notes.txt").read_text() == (tmp_path / "notes.pt").read_text() == "mine"
+
+
+# ======================================================================================================
+# Bounds before work
+# ======================================================================================================
+@pytest.mark.parametrize("change, says", [
+    ({"sizes.hidden": 10**8}, "sizes.hidden = 100000000 must be an integer in 1..8192"),
+    ({"sizes.hidden": -5}, "sizes.hidden = -5 must be an integer"),
+    ({"sizes.channels": []}, "sizes.channels = [] must be 1 to 8 integers"),
+    ({"sizes.channels": [16, -8]}, "sizes.channels = [16, -8] must be"),
+    ({"sizes.hidden": 128}, "its weights do not fit a conv decoder, preset 'tiny' at 16 px (its metadata describes"),  # in bounds, but not the stored weights
+])
+def test_a_checkpoint_s_network_sizes_are_bounded_before_anything_is_built(tmp_path, change, says):
+    from components.vision.checkpoint import CheckpointError, load
+
+    path = tiny_checkpoint(tmp_path / "c.pt", **change)
+    with pytest.raises(CheckpointError, match=re.escape(says)):
+        load(path)
+    model, _ = load(tiny_checkpoint(tmp_path / "fair.pt"))  # the unchanged one loads
+    assert model.decoder(torch.zeros(1, 2)).shape == (1, 16, 16)

@@ -30,6 +30,7 @@ from typing import BinaryIO
 
 import torch
 
+from components.archives import ArchiveError, check_archive
 from components.component import ComponentError
 from components.vision.networks import VisualModel, build, sizes_from_dict
 
@@ -67,14 +68,21 @@ def load(path: str | os.PathLike, resolution: int | None = None, rest_pose=None,
     payload = _payload(path)
     metadata = _metadata(path, payload)
     check_matches(path, metadata, resolution, rest_pose, half_ranges)
-    try:
-        model = build(metadata["kind"], metadata["preset"], metadata["resolution"],
-                      sizes=sizes_from_dict(metadata["sizes"]))
-    except (KeyError, TypeError, ValueError) as error:
-        raise CheckpointError(f"{path}: its architecture cannot be built ({error})") from None
     weights = payload["weights"]
     if not isinstance(weights, dict) or not all(isinstance(w, torch.Tensor) for w in weights.values()):
         raise CheckpointError(f"{path}: its weights are not a dictionary of tensors")
+    sizes = _sizes(path, metadata)
+    try:
+        with torch.device("meta"):  # the architecture's shapes, no memory: compared with the stored weights first
+            shapes = build(metadata["kind"], metadata["preset"], metadata["resolution"], sizes=sizes).state_dict()
+    except (KeyError, TypeError, ValueError, ComponentError) as error:
+        raise CheckpointError(f"{path}: its architecture cannot be built ({error})") from None
+    wanted, stored = sum(t.numel() for t in shapes.values()), sum(w.numel() for w in weights.values())
+    if wanted != stored:
+        raise CheckpointError(f"{path}: its weights do not fit a {metadata['kind']} decoder, preset "
+                              f"{metadata['preset']!r} at {metadata['resolution']} px (its metadata describes "
+                              f"{wanted} numbers, it stores {stored})")
+    model = build(metadata["kind"], metadata["preset"], metadata["resolution"], sizes=sizes)
     try:
         model.load_state_dict(weights, strict=True)
     except RuntimeError as error:
@@ -86,6 +94,32 @@ def load(path: str | os.PathLike, resolution: int | None = None, rest_pose=None,
         raise CheckpointError(f"{path}: its weights contain NaN or infinity")
     model.float().eval().requires_grad_(False)
     return model, metadata
+
+
+def read_metadata(path) -> dict:
+    """The metadata of the checkpoint at ``path`` (CheckpointError if it is not one)."""
+    return _metadata(path, _payload(path))
+
+
+# Bounds on the sizes a checkpoint's metadata may ask for, before anything is built: eight times the paper
+# preset's widths (hidden 1024, 128 channels, 4 stages) and a resolution of 1024 px.
+MAX_HIDDEN, MAX_CHANNELS, MAX_STAGES, MAX_RESOLUTION = 8192, 1024, 8, 1024
+
+
+def _sizes(path, metadata: dict):
+    """The network sizes of the metadata, each a positive integer within the bounds above."""
+    sizes, resolution = metadata["sizes"], metadata["resolution"]
+    hidden, channels = sizes.get("hidden"), sizes.get("channels")
+    whole = (lambda v, top: isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= top)
+    if not whole(hidden, MAX_HIDDEN):
+        raise CheckpointError(f"{path}: metadata sizes.hidden = {str(hidden)[:40]} must be an integer in 1..{MAX_HIDDEN}")
+    if not (isinstance(channels, list) and 1 <= len(channels) <= MAX_STAGES
+            and all(whole(c, MAX_CHANNELS) for c in channels)):
+        raise CheckpointError(f"{path}: metadata sizes.channels = {str(channels)[:60]} must be 1 to {MAX_STAGES} "
+                              f"integers in 1..{MAX_CHANNELS}")
+    if not whole(resolution, MAX_RESOLUTION) or not whole(sizes.get("resolution"), MAX_RESOLUTION):
+        raise CheckpointError(f"{path}: metadata resolution must be an integer in 1..{MAX_RESOLUTION}")
+    return sizes_from_dict(sizes)
 
 
 def check_matches(path, metadata: dict, resolution=None, rest_pose=None, half_ranges=None) -> None:
@@ -115,6 +149,11 @@ def _payload(path) -> dict:
         raise CheckpointError(f"{path}: cannot be read ({error.strerror or error})") from None
     if head != ZIP_MAGIC:
         raise CheckpointError(f"{path}: not a decoder checkpoint (not a zip archive as torch.save writes)")
+    try:
+        check_archive(path)
+    except ArchiveError as error:
+        damaged = "not a readable zip archive" in str(error)
+        raise CheckpointError(f"{path}: {'truncated or damaged checkpoint: ' * damaged}{error}") from None
     try:
         with warnings.catch_warnings():  # torch warns about pickle protocols before refusing a file
             warnings.simplefilter("ignore", UserWarning)

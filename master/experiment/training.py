@@ -45,8 +45,16 @@ def train_settings(config: dict) -> training.TrainSettings:
 
 
 def check_target(out) -> Path:
-    """CKPT as a Path if a checkpoint can be written there (checked before any training)."""
-    return check_output_file(out, "checkpoint file")
+    """CKPT (a name ending in .pt) as a Path if a checkpoint can be written there, checked before any
+    training: an existing file is replaced only if it is a decoder checkpoint itself."""
+    out = check_output_file(out, "checkpoint file", ".pt")
+    if out.exists():
+        try:
+            checkpoint.read_metadata(out)
+        except checkpoint.CheckpointError:
+            raise ConfigError(f"--out {out} exists and is not a decoder checkpoint; it is never replaced: move it "
+                              "or choose another name") from None
+    return out
 
 
 def data_path(folder: Path, settings: training.TrainSettings, blur: float = camera.BLUR_SIGMA) -> Path:

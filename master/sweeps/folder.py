@@ -3,7 +3,9 @@
 DIR holds sweep.json (the plan's fingerprint, points and configurations), trials/ID.json (one file
 per finished trial, written atomically as it arrives), index.csv, summary.csv and figures/.
 A DIR holding a different sweep is refused unless ``force``, which keeps only the trials the new
-sweep shares with it.
+sweep shares with it and removes only what the older sweep wrote (its manifest, sweep.json, says what);
+a DIR whose sweep.json rhi did not write, or holding a link where a sweep writes, is refused even with
+``force``.
 """
 from __future__ import annotations
 
@@ -15,6 +17,10 @@ from pathlib import Path
 from master.cosim import ConfigError
 from master.outputs.files import atomic_write, package_versions
 from master.sweeps.plan import Sweep
+
+COMMAND = "rhi sweep"  # sweep.json's "command": the folder is a sweep's output
+OUTPUTS = ("sweep.json", "trials", "figures", "index.csv", "summary.csv")  # what a sweep writes into DIR
+RECORD_KEYS = {"id", "point", "parameters", "decoder", "condition", "stimulation", "trial", "seed"}
 
 
 @contextmanager
@@ -29,6 +35,11 @@ def sweep_folder(out: Path, sweep: Sweep, force: bool):
     if out.is_dir() and not manifest.exists() and any(out.iterdir()):
         raise ConfigError(f"output folder {out} is not empty and holds no sweep (no sweep.json); --force only "
                           "replaces a sweep: choose another --out")
+    if manifest.exists() or manifest.is_symlink():
+        old = read_manifest(manifest)
+        if old is None:
+            raise ConfigError(f"output folder {out} holds a sweep.json that rhi sweep did not write; it is never "
+                              "replaced, with or without --force: choose another --out")
     try:
         out.mkdir(exist_ok=True)
         lock = open(out / ".lock", "w")
@@ -39,15 +50,13 @@ def sweep_folder(out: Path, sweep: Sweep, force: bool):
             fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             raise ConfigError(f"another rhi sweep is writing to {out}") from None
-        try:
-            previous = json.loads(manifest.read_text()).get("fingerprint") if manifest.exists() else None
-        except (OSError, ValueError):
-            previous = "unreadable"
+        old = read_manifest(manifest) if manifest.exists() else None
+        previous = old["fingerprint"] if old else None
         if previous is not None and previous != sweep.fingerprint and not force:
             raise ConfigError(f"output folder {out} holds a different sweep (its file or the defaults changed); "
                               "use another --out, or --force to replace it")
         if previous != sweep.fingerprint:
-            start_over(out, sweep)
+            start_over(out, sweep, old or {})
         for leftover in (out / "trials").glob(".*.tmp"):  # a write cut short by a kill; its trial reruns
             leftover.unlink()
         yield read_records(out, sweep)
@@ -62,25 +71,63 @@ def check_folder(out: Path) -> None:
         raise ConfigError(f"output {out} is the working folder or a folder above it; name a folder for the sweep")
     if out.exists() and not out.is_dir():
         raise ConfigError(f"output {out} exists and is not a folder")
+    for name in ("", *OUTPUTS):  # a link could lead a write or a removal out of DIR
+        if (out / name).is_symlink():
+            raise ConfigError(f"output {out / name} is a symbolic link; a sweep writes only into folders of its own")
+        if name in ("trials", "figures") and (out / name).exists() and not (out / name).is_dir():
+            raise ConfigError(f"output {out / name} exists and is not a folder")
     if not out.absolute().parent.is_dir():
         raise ConfigError(f"cannot write {out}: folder {out.absolute().parent} does not exist")
 
 
-def start_over(out: Path, sweep: Sweep) -> None:
-    """Write the new manifest; drop every file of an older sweep except trials this one shares."""
+def read_manifest(path: Path) -> dict | None:
+    """sweep.json as rhi sweep wrote it (a JSON object with its command, fingerprint, swept keys and trials
+    planned; the command is absent from older ones), else None: a file of another tool's, or damaged."""
+    try:
+        manifest = json.loads(path.read_text(encoding="utf-8")) if not path.is_symlink() else None
+    except (OSError, ValueError, RecursionError):
+        return None
+    if not isinstance(manifest, dict) or manifest.get("command", COMMAND) != COMMAND:
+        return None
+    if not (isinstance(manifest.get("fingerprint"), str) and isinstance(manifest.get("swept_keys"), list)
+            and isinstance(manifest.get("trials_planned"), int)):
+        return None
+    return manifest
+
+
+def is_record(path: Path) -> bool:
+    """Whether ``trials/ID.json`` is a trial record as :func:`master.sweeps.runner.execute` writes it."""
+    if path.is_symlink() or not path.is_file():
+        return False
+    try:
+        record = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError, RecursionError):
+        return False
+    return isinstance(record, dict) and record.get("id") == path.stem and RECORD_KEYS <= record.keys()
+
+
+def start_over(out: Path, sweep: Sweep, old: dict) -> None:
+    """Write the new manifest; drop the files the older sweep of ``old`` (its manifest) wrote, except the
+    trials this one shares: its trial records, its tables and its plots (figures/KEY.png of its swept
+    keys). Nothing else is removed: a file rhi cannot show it wrote stays."""
     (out / "trials").mkdir(exist_ok=True)
     planned = {trial.id for trial in sweep.trials}
     for path in (out / "trials").glob("*.json"):
-        if path.stem not in planned:
+        if path.stem not in planned and is_record(path):
             path.unlink()
-    for name in ("index.csv", "summary.csv"):
-        (out / name).unlink(missing_ok=True)
-    if (out / "figures").is_dir():  # the sweep's plots only; anything else put there stays
-        for plot in (out / "figures").glob("*.png"):
-            plot.unlink()
-        if not any((out / "figures").iterdir()):
-            (out / "figures").rmdir()
-    manifest = {"fingerprint": sweep.fingerprint, "task": sweep.task, "swept_keys": sweep.keys,
+    if old:
+        for name in ("index.csv", "summary.csv"):
+            if (out / name).is_file() and not (out / name).is_symlink():
+                (out / name).unlink()
+        figures = out / "figures"
+        if figures.is_dir() and not figures.is_symlink():
+            for key in old.get("swept_keys", []):
+                plot = figures / f"{key}.png"
+                if isinstance(key, str) and "/" not in key and plot.is_file() and not plot.is_symlink():
+                    plot.unlink()
+            if not any(figures.iterdir()):
+                figures.rmdir()
+    manifest = {"command": COMMAND, "fingerprint": sweep.fingerprint, "task": sweep.task, "swept_keys": sweep.keys,
                 "points": [{"point": n, "parameters": p, "configuration": c}
                            for n, (p, c) in enumerate(zip(sweep.points, sweep.configs))],
                 "trials_planned": len(sweep.trials), "tasks_planned": len(sweep.chunks),
