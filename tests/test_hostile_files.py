@@ -398,3 +398,118 @@ def test_a_checkpoint_s_network_sizes_are_bounded_before_anything_is_built(tmp_p
         load(path)
     model, _ = load(tiny_checkpoint(tmp_path / "fair.pt"))  # the unchanged one loads
     assert model.decoder(torch.zeros(1, 2)).shape == (1, 16, 16)
+
+
+def test_a_listener_that_is_not_a_dask_scheduler_is_refused_within_the_limit_and_leaves_no_folder(tmp_path):
+    import socket
+    import time
+
+    from master.sweeps.runner import CONNECT_TIMEOUT_S
+    from tests.test_sweep import sweep_file
+
+    silent = socket.socket()
+    silent.bind(("127.0.0.1", 0))
+    silent.listen()  # the kernel completes the handshake; nothing ever answers
+    (tmp_path / "work").mkdir()
+    sweep_file(tmp_path / "work" / "s.toml", grid={"conditions.left": [-0.1]})
+    began = time.monotonic()
+    with silent:
+        done = rhi(tmp_path, "sweep", "--config", "s.toml", "--scheduler",
+                   f"tcp://127.0.0.1:{silent.getsockname()[1]}", "--out", "out", timeout=60)
+    refused(done, "cannot reach the Dask scheduler")
+    assert time.monotonic() - began < CONNECT_TIMEOUT_S + 10  # the limit, plus the command's start-up
+    assert not (tmp_path / "work" / "out").exists()
+    done = rhi(tmp_path, "sweep", "--config", "s.toml", "--scheduler", "tls://127.0.0.1:1", "--out", "out")
+    refused(done, "cannot reach the Dask scheduler at tls://127.0.0.1:1")
+
+
+def test_run_system_s_child_dies_with_its_parent(body_fmu, tmp_path):
+    import signal
+    import time
+
+    work = tmp_path / "work"
+    for name in ("work", "tmp", "cache"):
+        (tmp_path / name).mkdir()
+    long_run = ONE_BODY.replace('stopTime="0.05"', 'stopTime="9000"')  # 900,000 steps: minutes
+    write_zip(work / "L.ssp", [("SystemStructure.ssd", long_run), ("resources/body.fmu", body_fmu.read_bytes())])
+    parent = subprocess.Popen([sys.executable, "-m", "master", "run-system", "L.ssp", "--out", "l.csv"], cwd=work,
+                              env={**ENV, "TMPDIR": str(tmp_path / "tmp")}, stderr=subprocess.DEVNULL)
+
+    def children():
+        found = []
+        for entry in Path("/proc").iterdir():
+            try:
+                fields = (entry / "stat").read_text().rpartition(")")[2].split()
+            except (OSError, ValueError):
+                continue
+            if entry.name.isdigit() and int(fields[1]) == parent.pid:
+                found.append(int(entry.name))
+        return found
+
+    deadline = time.monotonic() + 20
+    while not children() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    child = children()
+    assert child, "the master's child process never started"
+    time.sleep(1.0)  # under way in its loop
+    parent.send_signal(signal.SIGKILL)
+    parent.wait()
+    deadline = time.monotonic() + 5
+    while Path(f"/proc/{child[0]}").exists() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    alive = Path(f"/proc/{child[0]}/stat").exists() and (Path(f"/proc/{child[0]}/stat").read_text().rpartition(")")[2]
+                                                          .split()[0] != "Z")
+    if alive:
+        os.kill(child[0], signal.SIGKILL)
+    assert not alive, "the child ran on after its parent was killed"
+
+
+@pytest.mark.parametrize("text, says", [
+    ("[experiment]\ntrials = " + "9" * 400 + "\n", "has 400 digits"),
+    ("[brain]\ngamma0 = " + "9" * 400 + "\n", "has 400 digits"),
+    ('[experiment]\ndecoders = [["conv"]]\n', "must be a list"),
+    ("[experiment]\nseed = " + "[" * 2000 + "]" * 2000 + "\n", "nests tables and arrays over 16 deep"),
+    ("[brain]\ngamma0 = inf\n", "must be a finite number"),
+])
+def test_a_config_that_asks_for_the_unbounded_is_refused_naming_the_limit(tmp_path, text, says):
+    from master.cosim import ConfigError
+    from master.experiment import config
+
+    (tmp_path / "c.toml").write_text(text)
+    with pytest.raises(ConfigError, match=re.escape(says)):
+        config.load(tmp_path / "c.toml")
+
+
+def test_config_files_are_bounded_in_size_and_must_be_regular(tmp_path):
+    from master.cosim import ConfigError
+    from master.experiment import config
+
+    with pytest.raises(ConfigError, match="/dev/zero is not a regular file"):
+        config.load("/dev/zero")
+    (tmp_path / "big.toml").write_text("# " + "x" * config.MAX_CONFIG_BYTES + "\n")
+    with pytest.raises(ConfigError, match=f"over the limit of {config.MAX_CONFIG_BYTES} bytes"):
+        config.load(tmp_path / "big.toml")
+
+
+def test_inf_is_taken_where_the_docs_give_it_a_meaning_and_quoted_dotted_keys_are_dotted_keys(tmp_path):
+    from master.experiment import config
+
+    (tmp_path / "c.toml").write_text('"experiment.trials" = 3\n[brain]\naction_time_constant = inf\n'
+                                     "spatial_sd = inf\n")
+    loaded = config.load(tmp_path / "c.toml")
+    assert loaded["experiment"]["trials"] == 3 and loaded["brain"]["action_time_constant"] == float("inf")
+
+
+def test_a_grid_too_large_to_plan_is_refused_at_once(tmp_path):
+    import time
+
+    from master.cosim import ConfigError
+    from master.sweeps import plan as sweeps
+    from tests.test_sweep import sweep_file
+
+    values = [round(0.001 * i, 3) for i in range(1000)]
+    path = sweep_file(tmp_path / "s.toml", grid={"conditions.left": values, "conditions.right": values})
+    began = time.monotonic()
+    with pytest.raises(ConfigError, match=f"1000000 points, over the limit of {sweeps.MAX_POINTS}"):
+        sweeps.load(path)
+    assert time.monotonic() - began < 5.0  # refused before planning: the plan took about 80 min

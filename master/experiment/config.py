@@ -66,10 +66,37 @@ def with_model(config: dict, name: str) -> dict:
                  {table: values for table, values in shipped.items() if table not in added})
 
 
+MAX_CONFIG_BYTES = 2**20  # a configuration or sweep file; the shipped ones are a few KiB
+MAX_DEPTH = 16  # tables and arrays within each other; the shipped files nest three deep
+INFINITE_KEYS = ("brain.spatial_sd", "brain.action_time_constant")  # inf means the paper's model (docs)
+
+
+def depth(value) -> int:
+    """How deep tables and arrays nest in ``value`` (a scalar: 0), counted without recursion."""
+    deepest, stack = 0, [(value, 0)]
+    while stack:
+        item, level = stack.pop()
+        if isinstance(item, (dict, list)):
+            deepest = max(deepest, level + 1)
+            stack.extend((child, level + 1) for child in (item.values() if isinstance(item, dict) else item))
+    return deepest
+
+
 def read_toml(path: str | Path) -> dict:
+    """The TOML file at ``path``: a regular file of at most MAX_CONFIG_BYTES, nested at most MAX_DEPTH deep."""
     try:
+        if Path(path).exists() and not Path(path).is_dir() and not Path(path).is_file():
+            raise ConfigError(f"config file {path} is not a regular file")
         with open(path, "rb") as file:
-            return tomllib.load(file)
+            data = file.read(MAX_CONFIG_BYTES + 1)
+        if len(data) > MAX_CONFIG_BYTES:
+            raise ConfigError(f"config file {path} is over the limit of {MAX_CONFIG_BYTES} bytes")
+        loaded = tomllib.loads(data.decode("utf-8"))
+        if depth(loaded) > MAX_DEPTH:
+            raise ConfigError(f"config file {path} nests tables and arrays over {MAX_DEPTH} deep")
+        return loaded
+    except RecursionError:
+        raise ConfigError(f"config file {path} nests tables and arrays over {MAX_DEPTH} deep") from None
     except FileNotFoundError:
         raise ConfigError(f"config file {path} does not exist") from None
     except IsADirectoryError:
@@ -100,6 +127,9 @@ def merge(base: dict, overrides: dict, where: str = "") -> dict:
     merged = copy.deepcopy(base)
     for key, value in overrides.items():
         path = f"{where}{key}"
+        if key not in base and "." in key and key.split(".")[0] in base:  # "a.b" = 1: the documented dotted form
+            merged = merge(merged, nest({key: value}), where)
+            continue
         if key not in base:
             if where.rstrip(".") in OPEN_TABLES:  # a new entry: checked against an existing one's keys and types
                 template = next(iter(base.values()), None)
@@ -126,13 +156,23 @@ def check_type(path: str, value, default):
         ok = isinstance(value, bool)
     elif isinstance(default, float):
         ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+        if ok and isinstance(value, int) and abs(value) > 2**63:
+            raise ConfigError(f"config key {path} = {str(value)[:30]}... has {len(str(abs(value)))} digits; it must "
+                              "be a number within about 9.2e18")
         value = float(value) if ok else value
+        if ok and math.isinf(value) and path in INFINITE_KEYS:
+            return value
         if ok and not math.isfinite(value):
             raise ConfigError(f"config key {path} = {value!r} must be a finite number")
     elif isinstance(default, int):
         ok = isinstance(value, int) and not isinstance(value, bool)
+        if ok and abs(value) > 2**63:
+            raise ConfigError(f"config key {path} = {str(value)[:30]}... has {len(str(abs(value)))} digits; it must "
+                              "be an integer within about 9.2e18")
     elif isinstance(default, list):
         ok = isinstance(value, list)
+        if ok and default and all(isinstance(item, str) for item in default):
+            ok = all(isinstance(item, str) for item in value)  # a list of names
     else:
         ok = isinstance(value, type(default))
     if not ok:

@@ -99,7 +99,21 @@ def libcosim_run(request: dict) -> dict:
     return {"time": np.array(times), **{key: np.array(value) for key, value in rows.items()}}
 
 
+def die_with_parent() -> None:
+    """Be killed when the parent (rhi run-system) dies, even by SIGKILL: Linux's PR_SET_PDEATHSIG; a parent
+    gone already (this process adopted) ends it now."""
+    import ctypes
+    import signal
+
+    parent = os.getppid()
+    if sys.platform.startswith("linux"):
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL, 0, 0, 0)  # 1: PR_SET_PDEATHSIG
+    if os.getppid() != parent:
+        os._exit(1)
+
+
 def main(path: str) -> int:
+    die_with_parent()
     with open(path, encoding="utf-8") as file:
         request = json.load(file)
     result = (fmpy_run if request["master"] == "fmpy" else libcosim_run)(request)

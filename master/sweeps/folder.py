@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import fcntl
 import json
+import shutil
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -40,26 +41,37 @@ def sweep_folder(out: Path, sweep: Sweep, force: bool):
         if old is None:
             raise ConfigError(f"output folder {out} holds a sweep.json that rhi sweep did not write; it is never "
                               "replaced, with or without --force: choose another --out")
+    created = not out.exists()
     try:
         out.mkdir(exist_ok=True)
         lock = open(out / ".lock", "w")
     except OSError as error:
         raise ConfigError(f"cannot write {out}: {error.strerror or error}") from None
-    with lock:
-        try:
-            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise ConfigError(f"another rhi sweep is writing to {out}") from None
-        old = read_manifest(manifest) if manifest.exists() else None
-        previous = old["fingerprint"] if old else None
-        if previous is not None and previous != sweep.fingerprint and not force:
-            raise ConfigError(f"output folder {out} holds a different sweep (its file or the defaults changed); "
-                              "use another --out, or --force to replace it")
-        if previous != sweep.fingerprint:
-            start_over(out, sweep, old or {})
-        for leftover in (out / "trials").glob(".*.tmp"):  # a write cut short by a kill; its trial reruns
-            leftover.unlink()
-        yield read_records(out, sweep)
+    try:
+        with lock:
+            yield from _prepared(out, sweep, force, manifest, lock)
+    except ConfigError:  # refused before any trial ran: a DIR this sweep made goes again (all of it is ours)
+        if created and not any((out / "trials").glob("*.json")):
+            shutil.rmtree(out, ignore_errors=True)
+        raise
+
+
+def _prepared(out: Path, sweep: Sweep, force: bool, manifest: Path, lock):
+    """The locked DIR checked and started over if need be; yields its records (see :func:`sweep_folder`)."""
+    try:
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        raise ConfigError(f"another rhi sweep is writing to {out}") from None
+    old = read_manifest(manifest) if manifest.exists() else None
+    previous = old["fingerprint"] if old else None
+    if previous is not None and previous != sweep.fingerprint and not force:
+        raise ConfigError(f"output folder {out} holds a different sweep (its file or the defaults changed); "
+                          "use another --out, or --force to replace it")
+    if previous != sweep.fingerprint:
+        start_over(out, sweep, old or {})
+    for leftover in (out / "trials").glob(".*.tmp"):  # a write cut short by a kill; its trial reruns
+        leftover.unlink()
+    yield read_records(out, sweep)
 
 
 def check_folder(out: Path) -> None:

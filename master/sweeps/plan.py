@@ -37,6 +37,7 @@ from __future__ import annotations
 import hashlib
 import importlib
 import itertools
+import math
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -92,12 +93,21 @@ def flatten(table: dict, prefix: str = "") -> dict:
     return flat
 
 
+# A sweep's points: each is validated and planned before any trial runs (a few ms each), so 10,000 take
+# about a minute; far beyond the shipped sweeps (at most a few dozen points).
+MAX_POINTS = 10_000
+
+
 def grid_points(grid: dict) -> list[dict]:
     """Every combination of the grid's values; file order, the last key varying fastest."""
     flat = flatten(grid)
     for key, values in flat.items():
         if not isinstance(values, list) or not values:
             raise ConfigError(f"sweep.grid.{key} must be a non-empty list of values, got {values!r}")
+    count = math.prod(len(values) for values in flat.values())
+    if count > MAX_POINTS:
+        raise ConfigError(f"sweep.grid has {count} points, over the limit of {MAX_POINTS} (each is checked and "
+                          "planned before the sweep starts); split the sweep")
     return [dict(zip(flat, combination)) for combination in itertools.product(*flat.values())]
 
 

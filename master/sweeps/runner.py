@@ -13,6 +13,7 @@ import importlib
 import json
 import logging
 import os
+import threading
 import socket
 import sys
 import time
@@ -51,11 +52,7 @@ def dask_client(scheduler: str | None, workers: int | None, debug: bool):
     from dask.distributed import Client, LocalCluster
 
     if scheduler:
-        try:
-            client = Client(scheduler, timeout="10s")
-        except (OSError, ValueError, TimeoutError) as error:
-            raise ConfigError(f"cannot reach the Dask scheduler at {scheduler}: {error}") from None
-        with client:
+        with connect(Client, scheduler) as client:
             yield client
         return
     quiet = False if debug else logging.ERROR
@@ -66,6 +63,32 @@ def dask_client(scheduler: str | None, workers: int | None, debug: bool):
                          host="127.0.0.1", dashboard_address=None, silence_logs=quiet,
                          scheduler_kwargs={"dashboard_address": "127.0.0.1:0"}) as cluster, Client(cluster) as client:
         yield client
+
+
+CONNECT_TIMEOUT_S = 15.0  # --scheduler: a scheduler that has not answered by then is refused
+
+
+def connect(client_class, scheduler: str):
+    """A Client on ``scheduler``, or a ConfigError within CONNECT_TIMEOUT_S seconds naming why: refused,
+    not a Dask scheduler (a listener that never answers, an HTTP server), a scheme dask cannot use. The
+    attempt runs in a daemon thread, since dask's own timeout does not cover a peer that stays silent."""
+    outcome = {}
+
+    def attempt():
+        try:
+            outcome["client"] = client_class(scheduler, timeout=f"{CONNECT_TIMEOUT_S - 3:g}s")
+        except BaseException as error:  # noqa: BLE001: reported below, in one line
+            outcome["error"] = error
+
+    thread = threading.Thread(target=attempt, name="rhi-dask-connect", daemon=True)
+    thread.start()
+    thread.join(CONNECT_TIMEOUT_S)
+    if "client" in outcome:
+        return outcome["client"]
+    error = outcome.get("error")
+    reason = (" ".join(f"{type(error).__name__}: {error}".split())[:200] if error is not None
+              else f"no Dask scheduler answered within {CONNECT_TIMEOUT_S:g} s")
+    raise ConfigError(f"cannot reach the Dask scheduler at {scheduler}: {reason}")
 
 
 def check_workers(client, task: str) -> None:
