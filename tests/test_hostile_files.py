@@ -513,3 +513,30 @@ def test_a_grid_too_large_to_plan_is_refused_at_once(tmp_path):
     with pytest.raises(ConfigError, match=f"1000000 points, over the limit of {sweeps.MAX_POINTS}"):
         sweeps.load(path)
     assert time.monotonic() - began < 5.0  # refused before planning: the plan took about 80 min
+
+
+# ======================================================================================================
+# The docs page states the limits the code applies
+# ======================================================================================================
+def test_docs_safety_states_the_code_s_limits():
+    from components.vision import checkpoint
+    from master.experiment import config
+    from master.export import system
+    from master.sweeps import plan, runner
+
+    page = (REPO / "docs" / "safety.md").read_text()
+    table = page.partition("<!-- limits table")[2].split("\n\n")[0]
+    values = [line.split("|")[2].strip().split()[0] for line in table.splitlines() if line.startswith("| ")][1:]
+    assert values == [str(v) for v in (
+        LIMITS.members, LIMITS.member_bytes, LIMITS.total_bytes, f"{LIMITS.ratio:g}", checkpoint.MAX_HIDDEN,
+        checkpoint.MAX_CHANNELS, checkpoint.MAX_STAGES, checkpoint.MAX_RESOLUTION, config.MAX_CONFIG_BYTES,
+        config.MAX_DEPTH, plan.MAX_POINTS, system.MAX_STEPS, f"{runner.CONNECT_TIMEOUT_S:g}")]
+    assert f"over {LIMITS.ratio_floor} bytes" in table and "task" in page and "rhi --version" in page
+    assert all(key in page for key in config.INFINITE_KEYS)
+
+
+def test_rhi_version_prints_the_installed_version(tmp_path):
+    from importlib import metadata
+
+    done = rhi(tmp_path, "--version")
+    assert done.returncode == 0 and done.stdout.strip() == f"rhi {metadata.version('rhi')}"
