@@ -540,3 +540,33 @@ def test_rhi_version_prints_the_installed_version(tmp_path):
 
     done = rhi(tmp_path, "--version")
     assert done.returncode == 0 and done.stdout.strip() == f"rhi {metadata.version('rhi')}"
+
+
+@pytest.mark.parametrize("earlier", [False, True])
+def test_an_output_folder_that_is_a_mount_point_is_written_in_place(tmp_path, monkeypatch, earlier):
+    """A mount point cannot be renamed onto (EBUSY, as the kernel answers): staging goes inside it."""
+    import errno
+
+    from master.outputs import files
+
+    out = tmp_path / "volume"
+    out.mkdir()
+    if earlier:  # an earlier output of ours, replaced with --force
+        (out / "run.json").write_text('{"command": "rhi experiment", "figures": []}')
+        (out / "summary.csv").write_text("old")
+    real_replace, real_ismount = os.replace, os.path.ismount
+
+    def replace(source, target):
+        if Path(target).absolute() == out.absolute():
+            raise OSError(errno.EBUSY, "Device or resource busy", str(target))
+        return real_replace(source, target)
+
+    monkeypatch.setattr(os, "replace", replace)
+    monkeypatch.setattr(os.path, "ismount", lambda path: Path(path).absolute() == out.absolute() or real_ismount(path))
+    with files.output_folder(out, force=earlier) as staging:
+        assert staging.parent == out  # on the volume's own file system
+        (staging / "summary.csv").write_text("new")
+        (staging / "run.json").write_text('{"command": "rhi experiment", "figures": []}')
+    assert sorted(p.name for p in out.iterdir()) == ["run.json", "summary.csv"]
+    assert (out / "summary.csv").read_text() == "new"
+    assert not list(tmp_path.glob(".volume.*"))  # nothing left beside it

@@ -47,7 +47,9 @@ def train_settings(config: dict) -> training.TrainSettings:
 def check_target(out) -> Path:
     """CKPT (a name ending in .pt) as a Path if a checkpoint can be written there, checked before any
     training: an existing file is replaced only if it is a decoder checkpoint itself."""
-    out = check_output_file(out, "checkpoint file", ".pt")
+    out = check_output_file(out, "checkpoint file")
+    if out.suffix != ".pt" or out.name == ".pt":
+        raise ConfigError(f"--out {str(out)!r} must be a file name ending in .pt")
     if out.exists():
         try:
             checkpoint.read_metadata(out)

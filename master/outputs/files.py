@@ -275,7 +275,9 @@ def output_folder(out: str | os.PathLike, force: bool):
 
 
 def _make_staging(out: Path) -> Path:
-    parent = out.absolute().parent
+    """A new staging folder on DIR's own file system: beside DIR, or inside it when DIR is a mount point
+    (a container's volume), which cannot be renamed onto."""
+    parent = out.absolute() if out.is_dir() and os.path.ismount(out) else out.absolute().parent
     try:
         staging = Path(tempfile.mkdtemp(dir=parent, prefix=f".{out.name}.", suffix=".partial"))
         (staging / STAGING_MARK).write_text(f"{os.getpid()}\n")
@@ -294,6 +296,8 @@ def publish(staging: Path, out: str | os.PathLike, replacing: bool | None = None
     """
     out = Path(out)
     (staging / STAGING_MARK).unlink(missing_ok=True)
+    if staging.absolute().parent == out.absolute():
+        return _publish_inside(staging, out, force)
     if replacing is None:
         replacing = out.is_dir() and any(out.iterdir())
     aside = None
@@ -315,6 +319,28 @@ def publish(staging: Path, out: str | os.PathLike, replacing: bool | None = None
                 raise ConfigError(f"output {out} appeared while this run went on; it was left as it is and this "
                                   "run's results were not published") from None
             raise
+    if aside is not None:
+        shutil.rmtree(aside, ignore_errors=True)
+
+
+def _publish_inside(staging: Path, out: Path, force: bool) -> None:
+    """:func:`publish` for a staging folder inside DIR (a mount point): an earlier output of ours there is moved
+    into a folder aside, inside DIR too, then each new entry renamed into DIR, then the old one removed."""
+    aside = None
+    with signals_held():
+        others = [entry for entry in out.iterdir() if entry.name != staging.name]
+        if others:
+            foreign = [name for name in foreign_entries(out) if name != staging.name]
+            if foreign or not force:
+                raise ConfigError(f"output folder {out} was written by something else while this run went on "
+                                  f"(it holds {', '.join(foreign[:5]) or 'another rhi output'}); it was left as it "
+                                  "is and this run's results were not published")
+            aside = Path(tempfile.mkdtemp(dir=out, prefix=f".{out.name}.", suffix=".old"))
+            for entry in others:
+                os.replace(entry, aside / entry.name)
+        for entry in sorted(staging.iterdir()):
+            os.replace(entry, out / entry.name)
+        staging.rmdir()
     if aside is not None:
         shutil.rmtree(aside, ignore_errors=True)
 
