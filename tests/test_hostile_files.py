@@ -570,3 +570,22 @@ def test_an_output_folder_that_is_a_mount_point_is_written_in_place(tmp_path, mo
     assert sorted(p.name for p in out.iterdir()) == ["run.json", "summary.csv"]
     assert (out / "summary.csv").read_text() == "new"
     assert not list(tmp_path.glob(".volume.*"))  # nothing left beside it
+
+
+@pytest.mark.parametrize("attribute, text, says", [
+    ("stopTime", "abc", "stopTime = 'abc' is not a positive finite number"),
+    ("stopTime", "inf", "stopTime = 'inf' is not a positive finite number"),
+    ("baseStepSize", "0", "baseStepSize = '0' is not a positive finite number"),
+    ("baseStepSize", "-0.01", "baseStepSize = '-0.01' is not a positive finite number"),
+    ("stopTime", "1e300", "steps, over the limit of 1000000"),
+])
+def test_a_package_s_default_experiment_is_bounded_before_any_master_runs(body_fmu, tmp_path, attribute, text, says):
+    from master.cosim import ConfigError
+    from master.export.system import run_ssp
+
+    original = {"stopTime": 'stopTime="0.05"', "baseStepSize": 'baseStepSize="0.01"'}[attribute]
+    ssd = ONE_BODY.replace(original, f'{attribute}="{text}"')
+    assert ssd != ONE_BODY
+    package = write_zip(tmp_path / "P.ssp", [("SystemStructure.ssd", ssd), ("resources/body.fmu", body_fmu.read_bytes())])
+    with pytest.raises(ConfigError, match=re.escape(says)):
+        run_ssp(package, "fmpy")
