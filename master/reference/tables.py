@@ -52,6 +52,15 @@ MEANINGS = {
     "x": "the swept quantity: delay_s, distance_cm or time_s",
     "drift_half_time_s_mean": "when the drift first reaches half its final value, mean",
     "drift_half_time_s_sd": "its sample sd", "drift_relative": "mean drift relative to the protocol's reference",
+    "delay_s": "the temporal window's x: the fixed visuo-tactile delay",
+    "drift_half_decay_s_mean": "seconds from the last touch until the drift falls to half its value then, mean",
+    "drift_half_decay_s_sd": "its sample sd",
+    "drift_cm_median": "final drift, median over the cell's trials (participants)",
+    "drift_cm_q25": "its 25th percentile", "drift_cm_q75": "its 75th percentile",
+    "drift_half_time_s_median": "drift_half_time_s, median", "drift_half_time_s_q25": "its 25th percentile",
+    "drift_half_time_s_q75": "its 75th percentile",
+    "drift_half_decay_s_median": "drift_half_decay_s, median", "drift_half_decay_s_q25": "its 25th percentile",
+    "drift_half_decay_s_q75": "its 75th percentile",
 }
 
 
