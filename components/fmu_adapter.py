@@ -8,7 +8,7 @@ exactly like a component written in Python. A batch of B trials is B FMU
 instances; ``do_step`` steps each of them.
 
 Before anything runs, :func:`check_contract` checks the file against a
-contract (by default :data:`BODY_CONTRACT`, DESIGN.md "Body FMU contract") and
+contract (by default :data:`BODY_CONTRACT`, docs/design.md "Body FMU contract") and
 the constructor raises one ComponentError that lists every problem found.
 
 Every call into an FMU runs under a wall-clock limit (``step_timeout``, seconds; None: none) and with

@@ -43,7 +43,10 @@ def test_end_of_trial_measures_by_hand():
     times = np.array([0.0, 0.02, 0.04, 0.06])
     per_step = {"drift_cm": np.array([[0.0, 0.0, 0.0], [-0.5, 0.1, 0.3], [-0.9, 0.3, -0.1], [-1.0, 0.4, 0.0]]),
                 "action_accel_x_m_s2": np.array([[0.0, 0.0, 0.0], [1.0, 2.0, 3.0], [2.0, 2.0, 0.0],
-                                                 [6.0, -1.0, 0.0]])}
+                                                 [6.0, -1.0, 0.0]]),
+                # the last touch: at 0.02 s in trials 0 and 2, none in trial 1
+                "tactile_time_s": np.array([[-np.inf] * 3, [0.02, -np.inf, 0.02], [0.02, -np.inf, 0.02],
+                                            [0.02, -np.inf, 0.02]])}
     final = end_of_trial(times, per_step)
     np.testing.assert_allclose(final["action_accel_mean_x_m_s2"], [3.0, 1.0, 1.0], rtol=1e-15)
     np.testing.assert_array_equal(final["action_accel_x_m_s2"], [6.0, -1.0, 0.0])
@@ -51,6 +54,10 @@ def test_end_of_trial_measures_by_hand():
     half = final["drift_half_time_s"]
     assert half[0] == 0.02 and half[1] == 0.04 and np.isnan(half[2])
     np.testing.assert_array_equal(half_time(times, per_step["drift_cm"][:, :2]), half[:2])
+    # after the touch at 0.02 s: trial 0's drift grows (-0.5 -> -1.0), never halving; trial 1 had no touch;
+    # trial 2's falls from 0.3 to -0.1 (ratio -1/3 <= 1/2) at 0.04 s, 0.02 s after it
+    decay = final["drift_half_decay_s"]
+    assert np.isnan(decay[0]) and np.isnan(decay[1]) and decay[2] == 0.04 - 0.02
 
 
 def test_trials_csv_is_tidy():

@@ -217,7 +217,8 @@ def test_a_cell_without_trials_has_an_empty_row_and_no_bar(tmp_path):
     steps = np.linspace(0, 1, 5)[:, None] * np.array([[1.0, 2.0, 3.0]])
     from master.experiment.measures import end_of_trial
 
-    per_step = {"drift_cm": steps, "force_x_n": steps, "gamma": steps / 3, "action_accel_x_m_s2": steps}
+    per_step = {"drift_cm": steps, "force_x_n": steps, "gamma": steps / 3, "action_accel_x_m_s2": steps,
+                "tactile_time_s": np.full_like(steps, -np.inf)}  # no touch: no half-decay
     times = np.linspace(0, 1, 5)
     final = end_of_trial(times, per_step)
     rows = tables.summary(kept, final, planned=tables.cells(planned))

@@ -1,4 +1,4 @@
-"""What a trial measures (DESIGN.md, Measures), per step and trial, from the recorded outputs."""
+"""What a trial measures (docs/design.md, Measures), per step and trial, from the recorded outputs."""
 from __future__ import annotations
 
 import numpy as np
@@ -9,7 +9,7 @@ def measures(result) -> dict[str, np.ndarray]:
     """Per step and trial (shape steps+1 x B): drift (cm), force (N), the action measure, and the rest.
 
     Drift = x of the perceived hand (forward kinematics of mu) minus x of the real hand, in cm;
-    negative is to the left (DESIGN.md, Measures). The action measure of the paper's Fig. 3 d-f,
+    negative is to the left (docs/design.md, Measures). The action measure of the paper's Fig. 3 d-f,
     ``action_accel_x_m_s2``, is the horizontal hand acceleration J a_dot: eq. 7's a_dot (deg/s^2)
     through the arm Jacobian at the sensed angles (m/deg), in m/s^2; 0 in row 0, before any step.
     Every key ends in its unit (none: dimensionless); docs/configuration.md lists them (from this function).

@@ -52,7 +52,7 @@ MEANINGS = {
     "x": "the swept quantity: delay_s, distance_cm or time_s",
     "drift_half_time_s_mean": "when the drift first reaches half its final value, mean",
     "drift_half_time_s_sd": "its sample sd", "drift_relative": "mean drift relative to the protocol's reference",
-    "delay_s": "the temporal window's x: the fixed visuo-tactile delay",
+    "model": "the model: paper or causal (--model)",
     "drift_half_decay_s_mean": "seconds from the last touch until the drift falls to half its value then, mean",
     "drift_half_decay_s_sd": "its sample sd",
     "drift_cm_median": "final drift, median over the cell's trials (participants)",
@@ -108,7 +108,8 @@ def sweep_columns() -> str:
 
 def phenomenon_columns() -> str:
     from master.phenomena.report import PHENOMENA, table
-    return columns(["x", *table(next(iter(PHENOMENA.values())), []).splitlines()[0].split(",")[1:]])
+    model, _, *rest = table(next(iter(PHENOMENA.values())), []).splitlines()[0].split(",")  # model, x, ...
+    return columns([model, "x", *rest])
 
 
 def commented_keys(name: str) -> list[tuple[str, str, str]]:
