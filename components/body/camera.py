@@ -31,7 +31,6 @@ import math
 
 import numpy as np
 from PIL import Image, ImageDraw
-from scipy.ndimage import gaussian_filter
 
 from components.body.kinematics import FOREARM, REST_POSE, SHOULDER, UPPER_ARM
 from components.component import Component, ComponentError, StepFailure
@@ -101,6 +100,8 @@ def _check_length(name: str, value) -> float:
 def _blur(layer: np.ndarray, resolution: int, blur: float = BLUR_SIGMA) -> np.ndarray:
     """Gaussian blur of ``blur`` metres (sd); zero outside the layer (black beyond the field of view)."""
     sigma = blur / (FIELD_X[1] - FIELD_X[0]) * resolution
+    from scipy.ndimage import gaussian_filter  # here, not at the top: a refused command never pays for scipy
+
     return gaussian_filter(layer, sigma, mode="constant", truncate=3.0).astype(np.float32)
 
 

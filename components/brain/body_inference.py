@@ -12,7 +12,6 @@ gamma = :func:`posterior` (gamma_timing, spatial ratio). All functions are vecto
 from __future__ import annotations
 
 import numpy as np
-from scipy.stats import norm
 
 
 def posterior(prior, likelihood_ratio):
@@ -48,6 +47,8 @@ def timing_likelihood_ratio(perceived_delay, sync_sd, timing_noise_sd, async_den
     (scipy's density); under two causes it is uniform with density ``async_density`` (the paper's p2).
     """
     scale = np.sqrt(np.asarray(sync_sd, float) ** 2 + np.asarray(timing_noise_sd, float) ** 2)
+    from scipy.stats import norm  # here, not at the top: a refused command never pays for scipy.stats
+
     return norm.pdf(perceived_delay, loc=0.0, scale=scale) / async_density
 
 
@@ -68,6 +69,8 @@ def spatial_likelihood_ratio(seen_pose, seen_variance, felt_pose, proprioceptive
     """
     common_sd = np.sqrt(np.asarray(seen_variance, float) + np.asarray(proprioceptive_variance, float)[:, None]
                         + np.asarray(coupling_sd, float) ** 2)
+    from scipy.stats import norm
+
     one = norm.logpdf(seen_pose, loc=felt_pose, scale=common_sd).sum(axis=1)
     two = norm.logpdf(seen_pose, loc=workspace_mean, scale=workspace_sd).sum(axis=1)
     return np.exp(one - two)

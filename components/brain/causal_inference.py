@@ -30,7 +30,6 @@ All functions are vectorised over the batch: arguments are arrays of shape (B,).
 from __future__ import annotations
 
 import numpy as np
-from scipy.stats import norm
 
 
 def synchrony_likelihood(visual_time, tactile_time, sync_sd):
@@ -38,6 +37,8 @@ def synchrony_likelihood(visual_time, tactile_time, sync_sd):
 
     The likelihood under a common cause in paper eq. 8; scipy's density, not a hand-written one.
     """
+    from scipy.stats import norm  # here, not at the top: a refused command never pays for scipy.stats
+
     return norm.pdf(np.asarray(visual_time) - np.asarray(tactile_time), loc=0.0, scale=sync_sd)
 
 
