@@ -79,3 +79,13 @@ class Variable:
     def kind(self) -> str:
         """``Real``, or ``Array[8, 8] float32``: the type as error messages name it."""
         return f"Array{list(self.shape)} {self.element}" if self.type == "Array" else self.type
+
+
+@dataclass(frozen=True)
+class ContractVariable:
+    """A variable an FMU must have: name, causality, FMI type and unit ('' for none)."""
+
+    name: str
+    causality: str
+    type: str
+    unit: str = ""

@@ -17,7 +17,8 @@ from components.body.camera import Camera, render
 from components.body.plant import ArmPlant
 from components.body.rubber_arm import RubberArm
 from components.brain.integrator import Brain
-from components.fmu_adapter import FMUComponent
+from components.body.contract import BODY_CONTRACT
+from components.fmu import FMUComponent
 from components.stimulus import Stimulus
 from components.vision import checkpoint, training
 from components.vision.component import Decoder
@@ -96,7 +97,7 @@ def main():
     print(f"native body: drift {drift_cm(args, ArmPlant()):.12f} cm")
     with tempfile.TemporaryDirectory() as folder:  # the same body, exported as an FMI 2.0 FMU
         fmu = build_fmu(Path(folder) / "Body.fmu", "native")
-        print(f"FMU body:    drift {drift_cm(args, FMUComponent(fmu, name='body')):.12f} cm")
+        print(f"FMU body:    drift {drift_cm(args, FMUComponent(fmu, 'body', BODY_CONTRACT)):.12f} cm")
 
 
 if __name__ == "__main__":

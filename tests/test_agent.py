@@ -16,7 +16,8 @@ from fmpy.fmi2 import FMU2Slave
 from fmpy.validation import validate_fmu
 
 from components.body.plant import ArmPlant
-from components.fmu_adapter import BODY_CONTRACT, extracted, guard_library
+from components.body.contract import BODY_CONTRACT
+from components.fmu import extracted, guard_library
 from master.cosim import System, simulate
 from master.experiment import config as configuration
 from master.experiment import wiring

@@ -10,7 +10,8 @@ import pytest
 from fmpy.validation import validate_fmu
 
 from components.body.variants import KinematicArm
-from components.fmu_adapter import FMUComponent
+from components.body.contract import BODY_CONTRACT
+from components.fmu import FMUComponent
 from master import ConfigError
 from master.export.body import build_fmu
 from master.export.c_body import build_c_fmu
@@ -29,7 +30,7 @@ def test_the_c_fmu_is_valid_and_declares_what_the_python_arm_declares(bodies):
         return {name: (v.causality, v.type, v.unit, v.min, v.max, v.depends_on,
                        None if v.causality == "output" else v.start) for name, v in component.variables.items()}
 
-    assert declarations(FMUComponent(bodies["c"])) == declarations(KinematicArm())
+    assert declarations(FMUComponent(bodies["c"], "body", BODY_CONTRACT)) == declarations(KinematicArm())
 
 
 @pytest.mark.parametrize("held", [False, True])
@@ -47,7 +48,7 @@ def test_through_the_master_per_trial(bodies):
     trials = dict(held=np.array([False, True, True]), u_shoulder=np.array([0.5, 0.5, -1.0]),
                   u_elbow=np.array([0.0, 0.3, 1.0]), batch_size=3,
                   parameters={"body.q0_elbow": [-91.0, -95.0, -80.0], "body.servo_gain": [20.0, 5.0, 40.0]})
-    c, python = run(FMUComponent(bodies["c"]), **trials), run(KinematicArm(), **trials)
+    c, python = run(FMUComponent(bodies["c"], "body", BODY_CONTRACT), **trials), run(KinematicArm(), **trials)
     for name in OUTPUTS:
         np.testing.assert_allclose(c[name], python[name], rtol=0, atol=1e-12)
     assert np.allclose(c["q_elbow"][0], [-91.0, -95.0, -80.0], atol=1e-12)  # the parameters reached the FMU

@@ -87,8 +87,8 @@ def test_the_output_column_tables_are_the_shipped_files_headers():
 
 
 def test_the_body_table_marks_exactly_the_body_contract():
-    from master.reference.tables import body_contract
-    contract = {v.name: v for v in body_contract()}
+    from components.body.contract import BODY_CONTRACT
+    contract = {v.name: v for v in BODY_CONTRACT}
     shown = {row[0].strip("`"): row for row in rows("fmi.md", "body-ports")}
     assert {name for name, row in shown.items() if row[6] == "yes"} == set(contract)
     for name, variable in contract.items():

@@ -19,7 +19,8 @@ from fmpy.validation import validate_fmu
 from components.body.kinematics import REST_POSE, forward, jacobian
 from components.body.plant import ArmPlant
 from components.component import ComponentError
-from components.fmu_adapter import BODY_CONTRACT, FMUComponent, check_contract, extracted, guard_library
+from components.body.contract import BODY_CONTRACT
+from components.fmu import FMUComponent, check_contract, extracted, guard_library
 from components.vision.component import Decoder
 from master import ConfigError, SimulationError, System, simulate
 from master.commands.export_body import run_export
@@ -87,7 +88,7 @@ def test_exported_fmu_is_valid_and_declares_the_contract(fmus):
     for variant in ("native", "kinematic"):
         assert validate_fmu(str(fmus[variant])) == []
         assert check_contract(fmus[variant], BODY_CONTRACT) == []
-    native, adapter = ArmPlant(), FMUComponent(fmus["native"])
+    native, adapter = ArmPlant(), FMUComponent(fmus["native"], "body", BODY_CONTRACT)
     for name, variable in native.variables.items():
         mirrored = adapter.variables[name]
         assert (mirrored.causality, mirrored.type, mirrored.description, mirrored.min, mirrored.max) == \
@@ -119,20 +120,20 @@ def test_adapter_through_the_master_matches_the_native_plant_per_trial(fmus):
     trials = dict(held=np.array([False, True, True]), u_shoulder=np.array([0.5, 0.5, -1.0]),
                   u_elbow=np.array([0.0, 0.3, 1.0]), batch_size=3,
                   parameters={"body.q0_elbow": [-91.0, -95.0, -80.0]})
-    native, adapted = run(ArmPlant(), **trials), run(FMUComponent(fmus["native"]), **trials)
+    native, adapted = run(ArmPlant(), **trials), run(FMUComponent(fmus["native"], "body", BODY_CONTRACT), **trials)
     for name in OUTPUTS:
         np.testing.assert_allclose(adapted[name], native[name], rtol=0, atol=1e-9)
     assert np.allclose(adapted["q_elbow"][0], [-91.0, -95.0, -80.0], atol=1e-12)  # parameters reached the FMUs
 
 
 def test_kinematic_variant_differs_only_where_the_physics_differs(fmus):
-    kinematic_free, native_free = run(FMUComponent(fmus["kinematic"]), False), run(ArmPlant(), False)
+    kinematic_free, native_free = run(FMUComponent(fmus["kinematic"], "body", BODY_CONTRACT), False), run(ArmPlant(), False)
     times = np.arange(31) * 0.02
     np.testing.assert_allclose(kinematic_free["q_shoulder"][:, 0], REST_POSE[0] + 0.5 * times, atol=1e-12)
     lag = kinematic_free["q_shoulder"][-1, 0] - native_free["q_shoulder"][-1, 0]
     assert 0.001 < lag < 0.02  # the servo's lag behind the command (deg), nothing else
     assert np.allclose(kinematic_free["hand_x"], native_free["hand_x"], atol=2e-4)
-    kinematic_held, native_held = run(FMUComponent(fmus["kinematic"]), True), run(ArmPlant(), True)
+    kinematic_held, native_held = run(FMUComponent(fmus["kinematic"], "body", BODY_CONTRACT), True), run(ArmPlant(), True)
     force = np.array([kinematic_held["force_x"][-1, 0], kinematic_held["force_y"][-1, 0]])
     assert np.allclose(force, [native_held["force_x"][-1, 0], native_held["force_y"][-1, 0]], rtol=2e-3)
     assert kinematic_held["hand_x"][-1, 0] == pytest.approx(-0.30, abs=1e-12)
@@ -181,10 +182,10 @@ def test_each_contract_error_is_named(fmus, tmp_path, case):
         path.write_text("this is not an FMU\n")
     else:
         break_fmu(fmus["native"], path, **how)
-    problems = check_contract(path)
+    problems = check_contract(path, BODY_CONTRACT)
     assert len(problems) == 1 and expected in problems[0], problems
     with pytest.raises(ComponentError, match="body: Broken.fmu cannot be used"):
-        FMUComponent(path)
+        FMUComponent(path, "body", BODY_CONTRACT)
 
 
 def test_every_problem_is_reported_at_once(fmus, tmp_path):
@@ -197,7 +198,7 @@ def test_every_problem_is_reported_at_once(fmus, tmp_path):
 
     path = break_fmu(fmus["native"], tmp_path / "Wreck.fmu", drop=("binaries/",), edit=edit_all)
     with pytest.raises(ComponentError) as caught:
-        FMUComponent(path)
+        FMUComponent(path, "body", BODY_CONTRACT)
     message = str(caught.value)
     assert "(7 problems)" in message and "\n" not in message
     for case in cases:
@@ -209,7 +210,7 @@ def test_nan_output_stops_the_run_naming_fmu_time_variable_and_trial(fmus):
     with pytest.raises(SimulationError, match=r"body failed the step at t = 0\.1 s \(error\): FMU 'NanArmPlant' "
                                               r"\(NanArmPlant\.fmu\): output hand_y is nan in trial 1 at t = 0\.12 s"
                        ) as caught:
-        run(FMUComponent(fmus["NanArmPlant"]), True, batch_size=3,
+        run(FMUComponent(fmus["NanArmPlant"], "body", BODY_CONTRACT), True, batch_size=3,
             parameters={"body.q0_shoulder": [147.0, 150.5, 147.5]})
     assert caught.value.trials == (1,)  # only that trial is blamed: the experiment drops it and goes on
 
@@ -218,7 +219,7 @@ def test_a_raising_fmu_stops_the_run_with_its_reason_and_runs_its_own_code(fmus)
     with pytest.raises(SimulationError, match=r"t = 0\.1 s \(discard\): FMU 'RaisingArmPlant' .*fmi2DoStep returned "
                                               r"discard in trial 0 at t = 0\.1 s \(RuntimeError: gear stripped in "
                                               r"(\S+)\)") as caught:
-        run(FMUComponent(fmus["RaisingArmPlant"]), False)
+        run(FMUComponent(fmus["RaisingArmPlant"], "body", BODY_CONTRACT), False)
     # Even in this process, which imported the checkout's plant, the FMU ran the copy it carries.
     plant_file = str(caught.value).rsplit("gear stripped in ", 1)[1].rstrip(")")
     assert plant_file.endswith("resources/components/body/plant.py") and plant_file != sys.modules[
@@ -240,7 +241,7 @@ def test_fmu_runs_without_this_checkout(fmus, tmp_path):
         result = simulate_fmu({str(fmus["native"])!r}, stop_time=0.2, step_size=0.02, output_interval=0.02,
                               start_values={{"u_shoulder": 0.5, "held": False}}, output=["q_shoulder"])
         print(repr(float(result["q_shoulder"][-1])), flush=True)
-        os._exit(0)  # pythonfmu 0.7 may crash at interpreter exit (see components.fmu_adapter)
+        os._exit(0)  # pythonfmu 0.7 may crash at interpreter exit (see components.fmu.library)
         """)
     done = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True,
                           timeout=60, env={k: v for k, v in os.environ.items() if k != "PYTHONPATH"})
@@ -250,7 +251,7 @@ def test_fmu_runs_without_this_checkout(fmus, tmp_path):
 
 def test_export_command(tmp_path, capsys):
     assert run_export(Namespace(variant=None, out=str(tmp_path / "Body.fmu"))) == 0
-    assert "variant native" in capsys.readouterr().out and check_contract(tmp_path / "Body.fmu") == []
+    assert "variant native" in capsys.readouterr().out and check_contract(tmp_path / "Body.fmu", BODY_CONTRACT) == []
     with pytest.raises(ConfigError, match="--variant 'springy' is not one of native, kinematic"):
         run_export(Namespace(variant="springy", out=str(tmp_path / "B.fmu")))
     with pytest.raises(ConfigError, match="--out .*must be a file name ending in .fmu"):
@@ -267,12 +268,12 @@ def test_a_swapped_body_gets_the_body_keys_it_declares_and_the_rest_are_named(fm
 
     config = configuration.merge(tiny_config(steps=20), {"body": {"servo_gain": 10.0}})
     trials = experiment.plan(config)[:2]
-    body = FMUComponent(fmus["kinematic"], name="body")
+    body = FMUComponent(fmus["kinematic"], "body", BODY_CONTRACT)
     system = experiment.build_system(Decoder(tiny_model(), threads=1), config, body)
     assert undeclared(experiment.parameters(trials, config), system) == [
         "body.substeps", "body.upper_arm_mass", "body.forearm_mass", "body.clamp_stiffness", "body.clamp_damping"]
     result = experiment.run_batch(Decoder(tiny_model(), threads=1), trials, config,
-                                  FMUComponent(fmus["kinematic"], name="body"))
+                                  FMUComponent(fmus["kinematic"], "body", BODY_CONTRACT))
     u = np.radians(np.stack([result.values["brain.u_shoulder"][-1], result.values["brain.u_elbow"][-1]], 1))
     force = np.stack([result.values["body.force_x"][-1], result.values["body.force_y"][-1]], 1)
     assert np.abs(u).min() > 0  # the brain acts, so the force below is a real check

@@ -225,9 +225,10 @@ def with_description(fmu: Path, out: Path, edit) -> Path:
 def test_two_contract_ports_sharing_a_value_reference_are_refused(body_fmu, tmp_path):
     from xml.etree import ElementTree as ET
 
-    from components.fmu_adapter import check_contract
+    from components.body.contract import BODY_CONTRACT
+    from components.fmu import check_contract
 
-    assert check_contract(body_fmu) == []
+    assert check_contract(body_fmu, BODY_CONTRACT) == []
     root = ET.fromstring(zipfile.ZipFile(body_fmu).read("modelDescription.xml"))
     reference = {v.get("name"): v.get("valueReference") for v in root.iter("ScalarVariable")}
 
@@ -238,12 +239,12 @@ def test_two_contract_ports_sharing_a_value_reference_are_refused(body_fmu, tmp_
     bad = with_description(body_fmu, tmp_path / "Alias.fmu", alias)
     assert alias(zipfile.ZipFile(body_fmu).read("modelDescription.xml").decode()) != \
         zipfile.ZipFile(body_fmu).read("modelDescription.xml").decode()  # the edit took
-    assert check_contract(bad) == [f"q_elbow has the value reference {reference['q_shoulder']} of q_shoulder: "
+    assert check_contract(bad, BODY_CONTRACT) == [f"q_elbow has the value reference {reference['q_shoulder']} of q_shoulder: "
                                    "the two ports would be one value"]
 
 
 def test_a_folder_or_a_device_as_body_is_named_as_such(tmp_path):
-    from components.fmu_adapter import check_contract
+    from components.fmu import check_contract
 
     assert check_contract(tmp_path) == [f"{tmp_path} is a folder, not an FMU file"]
     assert check_contract("/dev/zero") == ["/dev/zero is not a regular file"]

@@ -27,10 +27,10 @@ COMMANDS_IMPORTERS = ("master/__main__.py", "master/commands/")
 COSIM_MAY_IMPORT = ("master.cosim", "components.component", "components.variables")
 COSIM_FORBIDDEN_WORDS = ("decoder", "drift", "gamma", "rubber", "brain")
 # components/ never imports master. A component folder imports the core and itself, no other folder;
-# a module directly in components/ (stimulus, fmu_adapter, the core) imports the core only.
+# a module directly in components/ (stimulus, the core) imports the core only.
 COMPONENT_CORE = ("components.component", "components.variables", "components.model_description", "components.archives",
                   "components.fmu_slave_base")  # the body FMU's slave loads the base from its bundled copy
-COMPONENT_FOLDERS = ("body", "vision", "brain")
+COMPONENT_FOLDERS = ("body", "vision", "brain", "fmu")
 PROJECT = ("master", "components")  # top-level packages whose imports are checked
 
 
@@ -147,7 +147,7 @@ def test_engine_knows_no_rubber_hand_words():
     ("master/cosim/loop.py", "import master\n", "master/cosim imports nothing"),
     ("master/cosim/loop.py", "from ..outputs import files\n", "master/cosim imports nothing"),
     ("master/cosim/loop.py", "from components.body import plant\n", "from components only"),
-    ("master/cosim/loop.py", "import components.fmu_adapter\n", "from components only"),
+    ("master/cosim/loop.py", "import components.fmu\n", "from components only"),
     ("master/outputs/files.py", "from master.experiment.measures import measures\n", "a layer above it"),
     ("master/experiment/wiring.py", "from master.export import body\n", "a layer above it"),
     ("master/sweeps/plan.py", "import master.bench.suite\n", "a layer beside it"),
@@ -159,8 +159,8 @@ def test_engine_knows_no_rubber_hand_words():
     ("components/stimulus.py", "from master.cosim import System\n", "never import master"),
     ("components/body/camera.py", "from components.vision.component import Decoder\n", "only the core"),
     ("components/brain/integrator.py", "from components import stimulus\n", "only the core"),
-    ("components/fmu_adapter.py", "from components.body.plant import ArmPlant\n", "only the core"),
-    ("components/vision/fast.py", "from .. import fmu_adapter\n", "only the core"),
+    ("components/fmu/adapter.py", "from components.body.plant import ArmPlant\n", "only the core"),
+    ("components/vision/fast.py", "from ..fmu import adapter\n", "only the core"),
 ])
 def test_the_checker_catches_each_kind_of_violation(relative, source, expected):
     found = violations(relative, source)

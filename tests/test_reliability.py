@@ -252,12 +252,13 @@ def test_a_decoder_whose_whole_batch_failed_costs_only_its_trials(monkeypatch):
 
 # -- 6. a hung FMU and Ctrl-C during an FMU call ------------------------------------------------------
 def run_fmu(path, timeout, batch_size=4):
-    from components.fmu_adapter import FMUComponent
+    from components.body.contract import BODY_CONTRACT
+    from components.fmu import FMUComponent
     from master import System, simulate
     from tests.toys import Constant
 
     system = System([Constant("shoulder", unit="deg/s"), Constant("elbow", unit="deg/s"),
-                     FMUComponent(path, step_timeout=timeout)],
+                     FMUComponent(path, "body", BODY_CONTRACT, step_timeout=timeout)],
                     [("shoulder.y", "body.u_shoulder"), ("elbow.y", "body.u_elbow")])
     return simulate(system, 0.3, 0.02, batch_size=batch_size, record=["body.q_shoulder"],
                     parameters={"shoulder.value": 0.5, "elbow.value": 0.0, "body.held": True})
@@ -378,11 +379,12 @@ def test_the_decoder_cache_must_be_a_folder(tmp_path, monkeypatch):
 
 def test_an_fmu_whose_binary_does_not_load_is_refused_when_opened(resources):
     from components.component import ComponentError
-    from components.fmu_adapter import FMUComponent
+    from components.body.contract import BODY_CONTRACT
+    from components.fmu import FMUComponent
 
     with pytest.raises(ComponentError, match=r"Unloadable\.fmu cannot be used: its binary binaries/linux64/ArmBody"
                                              r"\.so does not load on this machine \(.*invalid ELF header"):
-        FMUComponent(resources.fmus["unloadable"])
+        FMUComponent(resources.fmus["unloadable"], "body", BODY_CONTRACT)
 
 
 def test_train_checks_its_output_before_training(tmp_path):

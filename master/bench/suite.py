@@ -457,7 +457,8 @@ def master_overhead(steps: int, step_size: float = 0.02) -> dict:
 
     from fmpy import read_model_description, simulate_fmu
 
-    from components.fmu_adapter import FMUComponent, extracted, guard_library
+    from components.body.contract import BODY_CONTRACT
+    from components.fmu import FMUComponent, extracted, guard_library
     from master.cosim import simulate
     from master.export.body import build_fmu
     from master.cosim import System
@@ -472,7 +473,7 @@ def master_overhead(steps: int, step_size: float = 0.02) -> dict:
                      step_finished=lambda *_: stamp() or True)
 
     def under_master(stamp):
-        timings.append(simulate(System([FMUComponent(path)], []), steps * step_size, step_size,
+        timings.append(simulate(System([FMUComponent(path, "body", BODY_CONTRACT)], []), steps * step_size, step_size,
                                 record=[f"body.{o}" for o in OUTPUTS], progress=lambda *_: stamp()).timings)
 
     def per_step(run):

@@ -138,20 +138,20 @@ def main(argv: list[str] | None = None) -> int:
     # does not), and inherited by the processes a command starts.
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     args = build_parser().parse_args(argv)
-    from components import fmu_adapter
+    from components.fmu import watchdog
 
     main_thread = threading.current_thread() is threading.main_thread()
     handlers = {number: signal.getsignal(number) for number in (signal.SIGINT, signal.SIGTERM)} if main_thread else {}
-    previous_stuck = fmu_adapter.on_stuck
+    previous_stuck = watchdog.on_stuck
     for number in handlers:
         signal.signal(number, _interrupted)
-    fmu_adapter.on_stuck = _stuck_handler(args.command)
+    watchdog.on_stuck = _stuck_handler(args.command)
     status = None
     try:
         status = _run(args)
         return status
     finally:
-        fmu_adapter.on_stuck = previous_stuck
+        watchdog.on_stuck = previous_stuck
         if status not in (130, 143):  # interrupted: a second Ctrl-C must not cut the exit's clean-up short
             for number, handler in handlers.items():
                 signal.signal(number, signal.SIG_DFL if handler is None else handler)

@@ -125,11 +125,12 @@ def body_factory(path, config: dict | None = None):
     """
     if path is None:
         return None, None
-    from components.fmu_adapter import FMUComponent
+    from components.body.contract import BODY_CONTRACT
+    from components.fmu import FMUComponent
 
     limit = (config or {}).get("fmu", {}).get("step_timeout_s") or None
-    probe = FMUComponent(path, name="body", step_timeout=limit)
-    return (lambda: FMUComponent(path, name="body", step_timeout=limit)), set(probe.variables)
+    probe = FMUComponent(path, "body", BODY_CONTRACT, step_timeout=limit)
+    return (lambda: FMUComponent(path, "body", BODY_CONTRACT, step_timeout=limit)), set(probe.variables)
 
 
 def trial_outcome(config: dict, decoder: str, condition: str, stimulation: str, index: int,

@@ -6,7 +6,7 @@ them, or the trial asked for) and the connectors to record. The result, ``time``
 ``component.variable`` arrays of one row per step, goes to the request's ``out`` (.npz). A failure is
 one line on stderr and exit status 1. The process ends with ``os._exit``: the masters' and
 pythonfmu's libraries are left to the operating system, not to exit-time destructors (pythonfmu 0.7's
-can abort the process, see components/fmu_adapter.py).
+can abort the process, see components/fmu/library.py).
 """
 from __future__ import annotations
 

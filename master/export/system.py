@@ -285,7 +285,7 @@ def read_ssp(path) -> Package:
         variable that does not exist or of the wrong causality or type, a parameter its FMU lacks.
     """
     from components.archives import ArchiveError, check_archive
-    from components.fmu_adapter import check_contract
+    from components.fmu import check_contract
 
     path, name = os.fspath(path), os.path.basename(os.fspath(path))
     if not os.path.isfile(path):
@@ -556,7 +556,8 @@ def export_system(out, config: dict, kind: str | None = None, variant: str = "na
     Path
         ``out``.
     """
-    from components.fmu_adapter import BODY_CONTRACT, check_contract
+    from components.body.contract import BODY_CONTRACT
+    from components.fmu import check_contract
     from master.export.agent_fmu import export_agent
     from master.export.body import VARIANT_NAMES, export_body
 

@@ -12,6 +12,8 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from components.body.contract import BODY_CONTRACT
+
 # What every output column means (the names say their units; none: dimensionless).
 MEANINGS = {
     "decoder": "visual decoder: conv or vae",
@@ -184,18 +186,10 @@ def agent_ports() -> str:
     return markdown(PORTS, port_rows(agent.variables.values()))
 
 
-def body_contract():
-    try:
-        from components.body.contract import BODY_CONTRACT
-    except ImportError:
-        from components.fmu_adapter import BODY_CONTRACT
-    return BODY_CONTRACT
-
-
 def body_ports() -> str:
     """The pymunk plant's ports, with whether the body contract requires each."""
     from components.body.plant import ArmPlant
-    required = {v.name for v in body_contract()}
+    required = {v.name for v in BODY_CONTRACT}
     variables = list(ArmPlant().variables.values())
     return markdown(PORTS[:-1] + ["required", "meaning"],
                     [row[:-1] + ["yes" if v.name in required else "", row[-1]]

@@ -1,0 +1,11 @@
+"""Any FMI 2.0 co-simulation FMU as a native component, on top of fmpy.
+
+Modules: :mod:`contract` (a file checked against a contract before it loads), :mod:`library` (unzipped
+once, its library held), :mod:`watchdog` (time limits and signals during calls), :mod:`adapter`
+(:class:`FMUComponent`).
+"""
+from components.fmu.adapter import FMUComponent
+from components.fmu.contract import check_contract
+from components.fmu.library import extracted, guard_library
+
+__all__ = ["FMUComponent", "check_contract", "extracted", "guard_library"]
