@@ -16,7 +16,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 # The modules whose shared set-up takes longest run first, so that under pytest-xdist (`make test`: two
 # workers, a module to a worker) neither worker is left with a long module at the end.
-FIRST = ("test_reliability.py", "test_c_body.py", "test_sweep.py", "test_agent.py", "test_bench.py")
+FIRST = ("test_cli_catalogue.py", "test_c_body.py", "test_sweep.py", "test_agent.py", "test_bench.py")
 
 
 def pytest_collection_modifyitems(items):

@@ -1,126 +1,33 @@
-"""Reliability (issue 15): no data loss, no traceback, no silent wrong answer.
+"""Reliability in-process: no data loss, no traceback, no silent wrong answer.
 
-Part 1 reproduces each of the issue's ten defect groups in-process, where that is the fastest honest
-check. Part 2 is the catalogue: bad inputs and faults run through the real command line in
-subprocesses (cwd a fresh folder, RHI_CACHE a fresh folder), each asserting its exit status, one line
-on stderr for a refusal (or the partial results of a run that failed in part), no "Traceback"
-anywhere, and the file system unchanged outside the output (a snapshot of the case's folder before and
-after). No case trains the default decoders: tiny checkpoints are trained once for the module.
+Each defect group (the output folder, concurrent runs, checkpoints, configuration, bodies, time limits and
+signals, exports, the machine's faults) reproduced in-process, where that is the fastest honest check; the
+same faults through the real command line are tests/test_cli_catalogue.py.
 """
 from __future__ import annotations
 
 import errno
-import hashlib
-import json
 import math
 import os
-import shutil
 import signal
-import subprocess
-import sys
 import time
 import zipfile
-from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
-from pathlib import Path
 from types import SimpleNamespace
-from typing import Callable
 
 import numpy as np
 import pytest
 
 from master.cosim import ConfigError
 
-REPO = Path(__file__).resolve().parents[1]
-ENV = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
-
-FAULTY_PLANTS = '''
-import itertools, os, signal, time
-import numpy as np
-from components.body.plant import ArmPlant
-
-_made = itertools.count()  # instances made in this process, across FMU instances of one FMU
-
-
-class _Third(ArmPlant):
-    """The third instance made in a process misbehaves from t = 0.1 s on (the first batch's trial 2)."""
-    def instantiate(self, batch_size=1):
-        super().instantiate(batch_size)
-        self.number = next(_made)
-
-    def faulty(self, t):
-        return self.number == 2 and t >= 0.1 - 1e-9
-
-
-class NanThirdArmPlant(_Third):
-    def step(self, t, h):
-        super().step(t, h)
-        if self.faulty(t):
-            self.values["hand_y"] = np.full(self.batch_size, np.nan)
-
-
-class HangingArmPlant(_Third):
-    """Blocks in its step (an hour), after touching $RHI_TEST_HANG_MARKER."""
-    def step(self, t, h):
-        if self.faulty(t):
-            marker = os.environ.get("RHI_TEST_HANG_MARKER")
-            if marker:
-                open(marker, "w").close()
-            time.sleep(3600)
-        super().step(t, h)
-
-
-class DeafArmPlant(_Third):
-    """Blocks in its step with every signal blocked, as native code that never returns would."""
-    def step(self, t, h):
-        if self.faulty(t):
-            signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGALRM, signal.SIGINT, signal.SIGTERM})
-            time.sleep(3600)
-        super().step(t, h)
-'''
-
-
-# -- shared resources: tiny checkpoints and FMUs, made once ---------------------------------------------
-@dataclass
-class Resources:
-    folder: Path
-    conv: str          # a tiny conv decoder at 32 px (what --quick renders)
-    vae: str           # a tiny VAE at 32 px
-    fmus: dict         # name -> path: native, NanThirdArmPlant, HangingArmPlant, DeafArmPlant, unloadable
+from tests.faults import Resources, make_resources
 
 
 @pytest.fixture(scope="module")
 def resources(tmp_path_factory) -> Resources:
-    from components.vision.training import TrainSettings
-    from master.experiment.training import train_decoder
-    from master.export.body import build_fmu
-
-    folder = tmp_path_factory.mktemp("resources")
-    settings = TrainSettings(preset="tiny", samples=40, epochs=1, batch_size=20, resolution=32, quality_poses=0,
-                             threads=1)
-    checkpoints = {}
-    for kind in ("conv", "vae"):
-        checkpoints[kind] = str(folder / f"tiny-{kind}.pt")
-        train_decoder(kind, checkpoints[kind], settings, progress=False)
-    plants = folder / "rhi_test_faulty_plants.py"
-    plants.write_text(FAULTY_PLANTS)
-    fmus = {"native": str(build_fmu(folder / "native.fmu", "native"))}
-    for name in ("NanThirdArmPlant", "HangingArmPlant", "DeafArmPlant"):
-        fmus[name] = str(build_fmu(folder / f"{name}.fmu", component=f"rhi_test_faulty_plants:{name}",
-                                   model_name=name, extra_files=[plants]))
-    fmus["HangingArmPlant-b"] = str(shutil.copy(fmus["HangingArmPlant"], folder / "HangingArmPlant-b.fmu"))
-    fmus["unloadable"] = str(folder / "Unloadable.fmu")
-    with zipfile.ZipFile(fmus["native"]) as old, zipfile.ZipFile(fmus["unloadable"], "w") as new:
-        for item in old.infolist():
-            new.writestr(item, b"not a shared library\n" * 400 if item.filename.endswith(".so") else old.read(item))
-    return Resources(folder, checkpoints["conv"], checkpoints["vae"], fmus)
+    return make_resources(tmp_path_factory.mktemp("resources"))
 
 
-# ======================================================================================================
-# Part 1: each defect group of the issue, reproduced in-process
-# ======================================================================================================
-
-# -- 1. data loss: --out . / "" / .. / a foreign folder with --force ----------------------------------
+# -- data loss: --out . / "" / .. / a foreign folder with --force ----------------------------------
 @pytest.mark.parametrize("out", [".", "", "..", "./", "work/..", "/"])
 def test_the_working_folder_and_those_above_it_are_refused_even_with_force(tmp_path, monkeypatch, out):
     from master.outputs import files
@@ -157,7 +64,7 @@ def test_force_replaces_only_rhi_s_own_output(tmp_path):
     assert sorted(os.listdir(ours)) == ["summary.csv"] and sorted(os.listdir(tmp_path)) == ["foreign", "ours"]
 
 
-# -- 2. a concurrent run: the lock, and publish's re-check ----------------------------------------------
+# -- a concurrent run: the lock, and publish's re-check ----------------------------------------------
 def test_a_second_run_into_the_same_folder_is_refused_while_the_first_holds_it(tmp_path):
     from master.outputs import files
 
@@ -183,7 +90,7 @@ def test_publish_leaves_alone_what_appeared_meanwhile(tmp_path):
     assert (out / "summary.csv").read_text() == "first\n" and sorted(os.listdir(tmp_path)) == ["race"]
 
 
-# -- 3. a checkpoint of the wrong kind ---------------------------------------------------------------------
+# -- a checkpoint of the wrong kind ---------------------------------------------------------------------
 def test_a_vae_checkpoint_in_the_conv_slot_is_refused_before_any_work(resources):
     from components.vision.checkpoint import CheckpointError
     from master.experiment import config as configuration
@@ -197,7 +104,7 @@ def test_a_vae_checkpoint_in_the_conv_slot_is_refused_before_any_work(resources)
         decoder_component("conv", resources.vae, config)
 
 
-# -- 4. duplicates in the protocol's lists ---------------------------------------------------------------
+# -- duplicates in the protocol's lists ---------------------------------------------------------------
 @pytest.mark.parametrize("key, value", [("decoders", ["conv", "conv"]), ("conditions", ["left", "left"]),
                                         ("stimulations", ["sync", "async", "sync"])])
 def test_a_list_naming_an_entry_twice_is_refused_naming_the_key(key, value):
@@ -207,7 +114,7 @@ def test_a_list_naming_an_entry_twice_is_refused_naming_the_key(key, value):
         configuration.load(overrides={f"experiment.{key}": value})
 
 
-# -- 5. a cell whose every trial failed ----------------------------------------------------------------
+# -- a cell whose every trial failed ----------------------------------------------------------------
 def test_a_cell_without_trials_has_an_empty_row_and_no_bar(tmp_path):
     from master.experiment import Trial
     from master.outputs import figures, tables
@@ -250,7 +157,7 @@ def test_a_decoder_whose_whole_batch_failed_costs_only_its_trials(monkeypatch):
     assert all("out of memory" in error for error in failures.values())
 
 
-# -- 6. a hung FMU and Ctrl-C during an FMU call ------------------------------------------------------
+# -- a hung FMU and Ctrl-C during an FMU call ------------------------------------------------------
 def run_fmu(path, timeout, batch_size=4):
     from components.body.contract import BODY_CONTRACT
     from components.fmu import FMUComponent
@@ -305,7 +212,7 @@ def test_ctrl_c_during_an_fmu_call_is_an_interrupt_not_a_failed_trial(resources,
         run_fmu(resources.fmus["HangingArmPlant-b"], 60.0, batch_size=3)  # a copy: its own count of instances
 
 
-# -- 7. export-body, atomically ----------------------------------------------------------------------------
+# -- export-body, atomically ----------------------------------------------------------------------------
 def test_export_builds_beside_the_target_and_renames(tmp_path, monkeypatch):
     from master.export.body import build_fmu
 
@@ -340,7 +247,7 @@ def test_unwritable_export_targets_are_refused_before_building(tmp_path, monkeyp
     assert sorted(os.listdir(tmp_path)) == ["afile.txt", "existing.fmu"] and not os.listdir(tmp_path / "existing.fmu")
 
 
-# -- 8. inputs that used to end in a traceback ----------------------------------------------------------
+# -- inputs that used to end in a traceback ----------------------------------------------------------
 def test_config_files_that_are_not_utf8_or_not_numbers_are_named(tmp_path):
     from master.experiment import config as configuration
 
@@ -397,7 +304,7 @@ def test_train_checks_its_output_before_training(tmp_path):
     assert check_target(tmp_path / "conv.pt") == tmp_path / "conv.pt" and os.listdir(tmp_path) == []
 
 
-# -- 9. messages -----------------------------------------------------------------------------------------
+# -- messages -----------------------------------------------------------------------------------------
 @pytest.mark.parametrize("key, value, says", [
     ("experiment.decoders", [], r"experiment\.decoders is empty"),
     ("experiment.conditions", [], r"experiment\.conditions is empty"),
@@ -454,7 +361,7 @@ def test_stale_staging_of_ours_is_cleaned_and_nothing_else(tmp_path):
     assert (theirs / "keep.txt").read_text() == "mine"
 
 
-# -- 10. late validation ----------------------------------------------------------------------------------
+# -- late validation ----------------------------------------------------------------------------------
 @pytest.mark.parametrize("key, value, says", [
     ("experiment.resolution", 12, r"\[train\]: .*resolution = 12 does not fit"),
     ("train.preset", "huge", r"\[train\]: train setting preset = 'huge' is unknown"),
@@ -490,431 +397,3 @@ def test_a_bad_checkpoint_is_found_before_the_other_decoder_is_trained(tmp_path,
     with pytest.raises(CheckpointError, match="not a decoder checkpoint"):
         run_into("out", config)
     assert sorted(os.listdir(tmp_path)) == ["vae.pt"]  # no cache made, no conv trained, no staging
-
-
-# ======================================================================================================
-# Part 2: the catalogue, through the real command line
-# ======================================================================================================
-CONV_ONLY = '[experiment]\ndecoders = ["conv"]\n'
-TIMEOUT_1S = CONV_ONLY + "[fmu]\nstep_timeout_s = 1.0\n"
-SWEEP_HEAD = ('[experiment]\ndecoders = ["conv"]\nconditions = ["left"]\nstimulations = ["sync"]\n'
-              '[sweep]\ntrials = 1\nworkers = 1\ntask = "tests.sweep_tasks:fake_outcome"\n')
-FULL_DISK_RUN = """
-import errno, os, sys
-os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})  # one core: the files are written here, where the patch is
-import master.experiment.publish as publish
-written = publish.atomic_write
-def atomic_write(path, data):  # the disk fills up while the results are written
-    if str(path).endswith("trials.csv"):
-        raise OSError(errno.ENOSPC, "No space left on device", str(path))
-    return written(path, data)
-publish.atomic_write = atomic_write
-from master.commands.cli import main
-sys.exit(main(sys.argv[1:]))
-"""
-FULL_DISK_EXPORT = """
-import errno, sys, zipfile
-write = zipfile.ZipFile.write
-def full(self, *args, **kwargs):  # the disk fills up after a few files of the FMU
-    if len(self.namelist()) > 3:
-        raise OSError(errno.ENOSPC, "No space left on device", self.filename)
-    return write(self, *args, **kwargs)
-zipfile.ZipFile.write = full
-from master.commands.cli import main
-sys.exit(main(sys.argv[1:]))
-"""
-
-
-@dataclass
-class Case:
-    """One bad input or fault. ``args`` (after ``rhi``) may name the module's resources: {conv}, {vae},
-    {fmu:NAME}. The case runs in a fresh folder ``work`` (inside a folder that is snapshot), with a fresh
-    RHI_CACHE."""
-
-    name: str
-    args: list[str]
-    status: int                 # 2 refused; 1 failed in part (partial results) or the machine's fault; 130, 143
-    says: str                   # in stderr's last line (the only line for status 2)
-    out: str | None = None      # the one path under work that may change (None: nothing may)
-    files: dict = field(default_factory=dict)  # made in work first: name -> text, bytes or None (a folder)
-    stdout: str = "pipe"        # "pipe", "closed" (a pipe nobody reads) or "full" (/dev/full)
-    interrupt: int | None = None  # sent when the hanging FMU blocks
-    python: str | None = None   # run ``python -c`` this (a fault injected) instead of ``python -m master``
-    cache_is_file: bool = False
-    check: Callable | None = None  # more: check(work, result)
-
-
-def experiment(*args, config="conv_only.toml", ckpt=True, steps="20"):
-    """`rhi experiment --quick` with the tiny conv decoder, conv only, a few steps."""
-    return (["experiment", "--quick", "--config", config] + (["--conv-checkpoint", "{conv}"] if ckpt else [])
-            + (["--steps", steps] if steps else []) + list(args))
-
-
-def toml(text):
-    return {"conv_only.toml": CONV_ONLY, "c.toml": text}
-
-
-def summary_rows(work, out="out"):
-    import csv
-    with open(work / out / "summary.csv") as file:
-        return list(csv.DictReader(file))
-
-
-def partial_results(work, result):
-    rows = summary_rows(work)
-    assert [(r["condition"], r["stimulation"], r["n_trials"]) for r in rows] == [
-        ("left", "sync", "1"), ("left", "async", "1"), ("center", "sync", "0"), ("center", "async", "1"),
-        ("right", "sync", "1"), ("right", "async", "1")]
-    assert rows[2]["drift_cm_mean"] == "" and rows[0]["drift_cm_mean"] != ""
-    run = json.loads((work / "out" / "run.json").read_text())
-    assert [(t["condition"], t["stimulation"]) for t in run["failed_trials"]] == [("center", "sync")]
-    assert (work / "out" / "figures" / "a_drift_final.png").is_file()
-    assert "conv/center/sync trial 0" in result.stderr
-
-
-def whole_results(work, result):
-    assert len(summary_rows(work)) == 6 and (work / "out" / "run.json").is_file()
-
-
-CASES = [
-    # -- 1. the output folder: never anything but our own output --------------------------------------
-    Case("out_dot_force", experiment("--out", ".", "--force"), 2, "is the working folder",
-         files={"conv_only.toml": CONV_ONLY, "thesis.tex": "precious"}),
-    Case("out_empty_force", experiment("--out", "", "--force"), 2, "--out is empty",
-         files={"conv_only.toml": CONV_ONLY, "thesis.tex": "precious"}),
-    Case("out_dotdot_force", experiment("--out", "..", "--force"), 2, "is the working folder or a folder above it",
-         files={"conv_only.toml": CONV_ONLY}),
-    Case("out_cwd_by_another_name", experiment("--out", "../work", "--force"), 2, "is the working folder",
-         files={"conv_only.toml": CONV_ONLY}),
-    Case("out_foreign_force", experiment("--out", "results", "--force"), 2,
-         "is not an earlier rhi experiment output (it holds notes.txt)",
-         files={"conv_only.toml": CONV_ONLY, "results/notes.txt": "mine"}),
-    Case("out_foreign_run_json_force", experiment("--out", "results", "--force"), 2,
-         "is not an earlier rhi experiment output",
-         files={"conv_only.toml": CONV_ONLY, "results/run.json": '{"command": "my tool"}'}),
-    Case("out_not_empty", experiment("--out", "results"), 2, "exists and is not empty (use --force",
-         files={"conv_only.toml": CONV_ONLY, "results/x.txt": "x"}),
-    Case("out_is_a_file", experiment("--out", "results", "--force"), 2, "exists and is not a folder",
-         files={"conv_only.toml": CONV_ONLY, "results": "a file"}),
-    Case("out_under_proc", experiment("--out", "/proc/rhi-run"), 2, "cannot write into /proc",
-         files={"conv_only.toml": CONV_ONLY}),
-    Case("out_parent_missing", experiment("--out", "no/such/run"), 2, "does not exist",
-         files={"conv_only.toml": CONV_ONLY}),
-    # -- 3, 9, 10. checkpoints: kind, folder, resolution, found before any training ---------------------
-    Case("vae_as_conv_checkpoint", ["experiment", "--quick", "--config", "conv_only.toml", "--conv-checkpoint", "{vae}",
-                                    "--out", "out"], 2, "a vae decoder, given as the conv decoder",
-         files={"conv_only.toml": CONV_ONLY}),
-    Case("checkpoint_is_a_folder", experiment("--out", "out", ckpt=False) + ["--conv-checkpoint", "ckpts"], 2,
-         "ckpts is a folder, not a checkpoint file", files={"conv_only.toml": CONV_ONLY, "ckpts": None}),
-    Case("checkpoint_missing", experiment("--out", "out", ckpt=False) + ["--conv-checkpoint", "none.pt"], 2,
-         "none.pt does not exist", files={"conv_only.toml": CONV_ONLY}),
-    Case("checkpoint_other_resolution", experiment("--resolution", "64", "--out", "out"), 2,
-         "trained at resolution 32 px but the camera renders 64 px", files={"conv_only.toml": CONV_ONLY}),
-    Case("bad_vae_found_before_conv_is_trained", ["experiment", "--quick", "--vae-checkpoint", "vae.pt", "--out", "out"],
-         2, "vae.pt: not a decoder checkpoint", files={"vae.pt": "not a checkpoint"}),
-    Case("cache_is_a_file", experiment("--out", "out", ckpt=False), 2, "(RHI_CACHE) is not a folder",
-         files={"conv_only.toml": CONV_ONLY}, cache_is_file=True),
-    # -- 4, 8, 9, 10. configuration ----------------------------------------------------------------------
-    Case("config_not_utf8", experiment("--out", "out", config="c.toml"), 2, "is not UTF-8 text",
-         files={"c.toml": b"\xff\xfe[experiment]\n"}),
-    Case("config_is_a_folder", experiment("--out", "out", config="c.toml"), 2, "is a folder, not a TOML file",
-         files={"c.toml": None}),
-    Case("config_unknown_key", experiment("--out", "out", config="c.toml"), 2, "did you mean brain.gamma0?",
-         files={"c.toml": "[brain]\ngama0 = 0.1\n"}),
-    Case("resolution_100000", experiment("--resolution", "100000", "--out", "out"), 2,
-         "experiment.resolution must be at most 1024 pixels, got 100000 (it would need about",
-         files={"conv_only.toml": CONV_ONLY}),
-    Case("steps_beyond_memory", experiment("--out", "out", steps="1000000000"), 2, "more than this machine's",
-         files={"conv_only.toml": CONV_ONLY}),
-    Case("duplicate_decoders", experiment("--out", "out", config="c.toml"), 2, "experiment.decoders lists conv more",
-         files=toml('[experiment]\ndecoders = ["conv", "conv"]\n')),
-    Case("duplicate_conditions", experiment("--out", "out", config="c.toml"), 2,
-         "experiment.conditions lists left more", files=toml('[experiment]\nconditions = ["left", "left"]\n')),
-    Case("empty_decoders", experiment("--out", "out", config="c.toml"), 2, "experiment.decoders is empty",
-         files=toml("[experiment]\ndecoders = []\n")),
-    Case("empty_conditions", experiment("--out", "out", config="c.toml"), 2, "experiment.conditions is empty",
-         files=toml("[experiment]\nconditions = []\n")),
-    Case("condition_not_a_number", experiment("--out", "out", config="c.toml"), 2,
-         "config key conditions.far = 'very' must be a float",
-         files=toml('[experiment]\nconditions = ["far"]\n[conditions]\nfar = "very"\n')),
-    Case("visual_variance_nan", experiment("--out", "out", config="c.toml"), 2,
-         "decoder.visual_variance = nan must be a finite number", files=toml("[decoder]\nvisual_variance = nan\n")),
-    Case("scheme_unknown", experiment("--out", "out", config="c.toml"), 2, "experiment.scheme = 'jakobi' is not one of",
-         files=toml('[experiment]\nscheme = "jakobi"\n')),
-    Case("substeps_zero", experiment("--out", "out", config="c.toml"), 2, "body.substeps = 0 is outside its range",
-         files=toml("[body]\nsubsteps = 0\n")),
-    Case("period_zero", experiment("--out", "out", config="c.toml"), 2, "stimulus.period = 0.0 is outside its range",
-         files=toml("[stimulus]\nperiod = 0.0\n")),
-    Case("preset_unknown", experiment("--out", "out", config="c.toml", ckpt=False), 2,
-         "train setting preset = 'huge' is unknown", files=toml('[train]\npreset = "huge"\n')),
-    Case("resolution_misfits_preset", experiment("--resolution", "12", "--out", "out", ckpt=False), 2,
-         "resolution = 12 does not fit", files={"conv_only.toml": CONV_ONLY}),
-    Case("step_timeout_negative", experiment("--out", "out", config="c.toml"), 2, "fmu.step_timeout_s must be >= 0",
-         files=toml("[fmu]\nstep_timeout_s = -1.0\n")),
-    # -- 8. bodies -------------------------------------------------------------------------------------
-    Case("fmu_not_a_zip", experiment("--body", "Body.fmu", "--out", "out"), 2, "Body.fmu cannot be used",
-         files={"conv_only.toml": CONV_ONLY, "Body.fmu": "not a zip"}),
-    Case("fmu_binary_does_not_load", experiment("--body", "{fmu:unloadable}", "--out", "out"), 2,
-         "does not load on this machine", files={"conv_only.toml": CONV_ONLY}),
-    # -- 9. usage errors in one line ------------------------------------------------------------------
-    Case("usage_missing_out", ["experiment", "--quick"], 2, "the following arguments are required: --out"),
-    Case("usage_not_a_number", ["experiment", "--trials", "many", "--out", "o"], 2, "invalid int value: 'many'"),
-    Case("usage_unknown_command", ["fly"], 2, "invalid choice: 'fly'"),
-    # -- 8, 9. rhi train ---------------------------------------------------------------------------------
-    Case("train_unknown_table", ["train", "--decoder", "conv", "--config", "c.toml", "--out", "c.pt"], 2,
-         "unknown config key trian (did you mean train?)", files={"c.toml": "[trian]\nepochs = 1\n"}),
-    Case("train_config_not_utf8", ["train", "--decoder", "conv", "--config", "c.toml", "--out", "c.pt"], 2,
-         "is not UTF-8 text", files={"c.toml": b"[train]\nepochs = \xe9\n"}),
-    Case("train_out_is_a_folder", ["train", "--decoder", "conv", "--out", "ckpts"], 2, "ckpts is a folder",
-         files={"ckpts": None}),
-    Case("train_out_under_proc", ["train", "--decoder", "conv", "--out", "/proc/conv.pt"], 2, "cannot write into /proc"),
-    # -- 7. rhi export-body ------------------------------------------------------------------------------
-    Case("export_under_proc", ["export-body", "--out", "/proc/v.fmu"], 2, "cannot write into /proc"),
-    Case("export_under_a_file", ["export-body", "--out", "afile.txt/v.fmu"], 2, "is not a folder",
-         files={"afile.txt": "x"}),
-    Case("export_onto_a_folder", ["export-body", "--out", "existing.fmu"], 2, "existing.fmu is a folder",
-         files={"existing.fmu": None}),
-    Case("export_unknown_variant", ["export-body", "--variant", "springy", "--out", "v.fmu"], 2,
-         "--variant 'springy' is not one of native, kinematic"),
-    Case("export_not_fmu", ["export-body", "--out", "v.zip"], 2, "must be a file name ending in .fmu"),
-    # -- 1, 8, 9. rhi sweep ------------------------------------------------------------------------------
-    Case("sweep_out_under_proc", ["sweep", "--config", "s.toml", "--out", "/proc/x"], 2, "cannot write /proc/x",
-         files={"s.toml": SWEEP_HEAD}),
-    Case("sweep_out_dot_force", ["sweep", "--config", "s.toml", "--out", ".", "--force"], 2, "is the working folder",
-         files={"s.toml": SWEEP_HEAD, "thesis.tex": "precious"}),
-    Case("sweep_foreign_force", ["sweep", "--config", "s.toml", "--out", "results", "--force"], 2,
-         "holds no sweep", files={"s.toml": SWEEP_HEAD, "results/figures/mine.png": "mine"}),
-    Case("sweep_scheme_of_a_point", ["sweep", "--config", "s.toml", "--out", "sw"], 2,
-         "sweep point 1 (experiment.scheme=\"jakobi\")",
-         files={"s.toml": SWEEP_HEAD + '[sweep.grid]\n"experiment.scheme" = ["gauss-seidel", "jakobi"]\n'}),
-    Case("sweep_condition_not_a_number", ["sweep", "--config", "s.toml", "--out", "sw"], 2,
-         "conditions.far = 'very' must be a float", files={"s.toml": '[conditions]\nfar = "very"\n' + SWEEP_HEAD}),
-    Case("sweep_not_utf8", ["sweep", "--config", "s.toml", "--out", "sw"], 2, "is not UTF-8 text",
-         files={"s.toml": b"\xff[sweep]\n"}),
-    # -- rhi bench ---------------------------------------------------------------------------------------
-    Case("bench_checkpoint_is_a_folder", ["bench", "--quick", "--checkpoint", "ckpts"], 2, "is a folder",
-         files={"ckpts": None}),
-    # -- 5, 6. faults in the body: the rest is written, exit 1 -------------------------------------------
-    Case("fmu_nan_in_the_only_trial_of_a_cell", experiment("--body", "{fmu:NanThirdArmPlant}", "--out", "out"), 1,
-         "trial failed and left out: conv/center/sync trial 0", out="out", files={"conv_only.toml": CONV_ONLY},
-         check=partial_results),
-    Case("fmu_step_over_its_time_limit", experiment("--body", "{fmu:HangingArmPlant}", "--out", "out", config="c.toml"),
-         1, "did not return within its time limit of 1 s in trial 2 at t = 0.1 s", out="out",
-         files={"c.toml": TIMEOUT_1S}, check=partial_results),
-    Case("fmu_stuck_in_native_code", experiment("--body", "{fmu:DeafArmPlant}", "--out", "out", config="c.toml"), 1,
-         "cannot be stopped (it runs native code that does not return); ending the process",
-         files={"c.toml": TIMEOUT_1S}),
-    # -- 6, 9. signals: status 130 / 143, nothing half-written -------------------------------------------
-    Case("ctrl_c_in_an_fmu_step", experiment("--body", "{fmu:HangingArmPlant}", "--out", "out"), 130,
-         "interrupted by Ctrl-C; nothing half-written is left", files={"conv_only.toml": CONV_ONLY},
-         interrupt=signal.SIGINT),
-    Case("sigterm_in_an_fmu_step", experiment("--body", "{fmu:HangingArmPlant}", "--out", "out"), 143,
-         "interrupted by SIGTERM; nothing half-written is left", files={"conv_only.toml": CONV_ONLY},
-         interrupt=signal.SIGTERM),
-    # -- 7, 8. the machine's faults: a full disk, a closed or full stdout ---------------------------------
-    Case("disk_full_while_writing_results", experiment("--out", "out"), 1, "trials.csv: No space left on device",
-         files={"conv_only.toml": CONV_ONLY}, python=FULL_DISK_RUN),
-    Case("disk_full_while_exporting", ["export-body", "--out", "Body.fmu"], 1, "No space left on device",
-         files={"Body.fmu": b"the old FMU"}, python=FULL_DISK_EXPORT),
-    Case("stdout_closed", experiment("--out", "out"), 1, "cannot write to standard output", out="out",
-         files={"conv_only.toml": CONV_ONLY}, stdout="closed", check=whole_results),
-    Case("stdout_full", experiment("--out", "out"), 1, "cannot write to standard output", out="out",
-         files={"conv_only.toml": CONV_ONLY}, stdout="full", check=whole_results),
-]
-
-
-@dataclass
-class Result:
-    status: int
-    stdout: str
-    stderr: str
-    before: dict   # snapshot of the case's folder before the run
-    after: dict    # and after
-    cache: list    # what RHI_CACHE holds after the run
-    work: Path     # the case's working folder
-    seconds: float = 0.0
-
-
-def snapshot(folder: Path) -> dict:
-    """Every entry under ``folder``, hidden ones too: relative path -> (kind, size, content hash)."""
-    found = {}
-    for path in sorted(folder.rglob("*")):
-        relative = str(path.relative_to(folder))
-        if path.is_symlink():
-            found[relative] = ("link", os.readlink(path))
-        elif path.is_dir():
-            found[relative] = ("folder",)
-        else:
-            found[relative] = ("file", path.stat().st_size, hashlib.sha256(path.read_bytes()).hexdigest())
-    return found
-
-
-def expand(argument: str, resources: Resources) -> str:
-    names = {"{conv}": resources.conv, "{vae}": resources.vae,
-             **{f"{{fmu:{name}}}": path for name, path in resources.fmus.items()}}
-    return names.get(argument, argument)
-
-
-def run_case(case: Case, resources: Resources, root: Path) -> Result:
-    folder, cache, marker = root / case.name, root / f"{case.name}.cache", root / f"{case.name}.hanging"
-    work = folder / "work"
-    work.mkdir(parents=True)
-    for name, content in case.files.items():
-        path = work / name
-        path.parent.mkdir(parents=True, exist_ok=True)
-        if content is None:
-            path.mkdir()
-        elif isinstance(content, bytes):
-            path.write_bytes(content)
-        else:
-            path.write_text(content)
-    if case.cache_is_file:
-        cache.write_text("a file where the cache should be")
-    before = snapshot(folder)
-    env = {**ENV, "RHI_CACHE": str(cache), "RHI_TEST_HANG_MARKER": str(marker)}
-    command = [sys.executable] + (["-c", case.python] if case.python else ["-m", "master"])
-    command += [expand(argument, resources) for argument in case.args]
-    reader, stdout = None, subprocess.PIPE
-    if case.stdout == "closed":
-        reader, writer = os.pipe()
-        os.close(reader)
-        stdout = writer
-    elif case.stdout == "full":
-        stdout = open("/dev/full", "w")
-    began = time.monotonic()
-    process = subprocess.Popen(command, cwd=work, env=env, stdout=stdout, stderr=subprocess.PIPE, text=True)
-    if case.stdout == "closed":
-        os.close(stdout)
-    elif case.stdout == "full":
-        stdout.close()
-    if case.interrupt is not None:
-        deadline = time.monotonic() + 180
-        while not marker.exists() and process.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.05)
-        time.sleep(0.3)
-        process.send_signal(case.interrupt)
-    try:
-        out, err = process.communicate(timeout=300)
-    except subprocess.TimeoutExpired:
-        process.kill()
-        out, err = process.communicate()
-    cached = sorted(p.name for p in cache.iterdir()) if cache.is_dir() else []
-    return Result(process.returncode, out or "", err or "", before, snapshot(folder), cached, work,
-                  time.monotonic() - began)
-
-
-@pytest.fixture(scope="module")
-def catalogue(resources, tmp_path_factory) -> dict[str, Result]:
-    """Every case of CASES, two at a time (one per core)."""
-    root = tmp_path_factory.mktemp("catalogue")
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        futures = {case.name: pool.submit(run_case, case, resources, root) for case in CASES}
-    return {name: future.result() for name, future in futures.items()}
-
-
-def last_line(text: str) -> str:
-    lines = [line for line in text.replace("\r", "\n").splitlines() if line.strip()]
-    return lines[-1] if lines else ""
-
-
-@pytest.mark.parametrize("case", CASES, ids=[case.name for case in CASES])
-def test_catalogue(catalogue, case):
-    result = catalogue[case.name]
-    shown = f"status {result.status}, stderr: {result.stderr[-1500:]!r}"
-    assert result.status == case.status, shown
-    assert "Traceback" not in result.stderr + result.stdout, shown
-    if case.status == 2:
-        lines = result.stderr.strip().splitlines()
-        assert len(lines) == 1 and lines[0].startswith("rhi") and ": error: " in lines[0], shown
-    assert case.says in last_line(result.stderr), shown
-    work = "work/" + (case.out or "\0")
-    changed = {path for path in set(result.before) | set(result.after)
-               if result.before.get(path) != result.after.get(path)}
-    outside = sorted(path for path in changed if path != work.rstrip("/") and not path.startswith(work + "/"))
-    assert not outside, f"changed outside the output: {outside}"
-    if case.status != 0:  # nothing trained: a run that fails stops before training or uses the tiny checkpoints
-        assert not [name for name in result.cache if name.endswith((".pt", ".npz"))], result.cache
-    if case.check is not None:
-        case.check(result.work, result)
-
-
-# -- cases in several steps ------------------------------------------------------------------------------
-def start(resources, work, *args, marker=None):
-    env = {**ENV, "RHI_CACHE": str(work.parent / "cache")}
-    if marker is not None:
-        env["RHI_TEST_HANG_MARKER"] = str(marker)
-    return subprocess.Popen([sys.executable, "-m", "master", *[expand(a, resources) for a in args]], cwd=work,
-                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-
-
-def wait_for(marker: Path, process) -> None:
-    deadline = time.monotonic() + 180
-    while not marker.exists():
-        assert process.poll() is None and time.monotonic() < deadline, process.communicate()[1][-2000:]
-        time.sleep(0.05)
-    time.sleep(0.3)
-
-
-def test_catalogue_a_second_run_is_refused_while_the_first_writes(resources, tmp_path):
-    """Issue case 2: two runs into one DIR used to both print 'wrote' and the second replaced the first."""
-    work, marker = tmp_path / "work", tmp_path / "hanging"
-    work.mkdir()
-    (work / "conv_only.toml").write_text(CONV_ONLY)
-    first = start(resources, work, *experiment("--body", "{fmu:HangingArmPlant}", "--out", "race"), marker=marker)
-    try:
-        wait_for(marker, first)
-        second = start(resources, work, *experiment("--out", "race"))
-        _, err = second.communicate(timeout=300)
-        assert second.returncode == 2 and len(err.strip().splitlines()) == 1, err
-        assert "another rhi run is writing race" in err and "Traceback" not in err
-    finally:
-        first.send_signal(signal.SIGINT)
-        _, err = first.communicate(timeout=300)
-    assert first.returncode == 130 and "Traceback" not in err, err
-    assert sorted(os.listdir(work)) == ["conv_only.toml"]
-
-
-def test_catalogue_a_killed_run_s_staging_is_cleaned_by_the_next(resources, tmp_path):
-    """SIGKILL leaves the staging folder and the lock file; the next run into DIR removes ours, not others'."""
-    work, marker = tmp_path / "work", tmp_path / "hanging"
-    work.mkdir()
-    (work / "conv_only.toml").write_text(CONV_ONLY)
-    theirs = work / ".out.zzzzzzzz.partial"  # the same pattern, not ours: it stays
-    theirs.mkdir()
-    (theirs / "keep.txt").write_text("mine")
-    killed = start(resources, work, *experiment("--body", "{fmu:HangingArmPlant}", "--out", "out"), marker=marker)
-    wait_for(marker, killed)
-    killed.kill()
-    killed.communicate(timeout=60)
-    left = sorted(os.listdir(work))
-    assert ".out.lock" in left and len([n for n in left if n.endswith(".partial")]) == 2, left
-    again = start(resources, work, *experiment("--out", "out"))
-    _, err = again.communicate(timeout=300)
-    assert again.returncode == 0 and "Traceback" not in err, err[-2000:]
-    assert sorted(os.listdir(work)) == [".out.zzzzzzzz.partial", "conv_only.toml", "out"]
-    assert (theirs / "keep.txt").read_text() == "mine"
-
-
-def test_catalogue_force_replaces_our_output_whole_and_nothing_else(resources, tmp_path):
-    work = tmp_path / "work"
-    work.mkdir()
-    (work / "conv_only.toml").write_text(CONV_ONLY)
-    first = start(resources, work, *experiment("--out", "out"))
-    assert first.communicate(timeout=300) and first.returncode == 0
-    old = (work / "out" / "summary.csv").read_bytes()
-    second = start(resources, work, *experiment("--out", "out", "--force", "--trials", "2"))
-    _, err = second.communicate(timeout=300)
-    assert second.returncode == 0 and "Traceback" not in err, err[-2000:]
-    assert (work / "out" / "summary.csv").read_bytes() != old
-    assert sorted(os.listdir(work)) == ["conv_only.toml", "out"]  # no .old or .partial left
-    (work / "out" / "notes.txt").write_text("mine")
-    third = start(resources, work, *experiment("--out", "out", "--force"))
-    _, err = third.communicate(timeout=300)
-    assert third.returncode == 2 and "it holds notes.txt" in err and len(err.strip().splitlines()) == 1, err
-    assert (work / "out" / "notes.txt").read_text() == "mine"
-
-
-def test_catalogue_size():
-    """How many bad inputs and faults the catalogue runs through the command line: at least 60."""
-    assert len(CASES) + 3 >= 60
-
