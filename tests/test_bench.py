@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from master.bench import suite as bench
+from master.bench.settings import QUICK
 from master.bench.report import table
 from master.commands.bench import run_bench
 from master.commands.cli import build_parser
@@ -35,7 +36,7 @@ ISSUE_TARGETS = {"exact_batched_peak_fraction_paper": (">=", 0.5), "fast_protoco
 
 @pytest.fixture(scope="module")
 def report():
-    return bench.run_suite(dataclasses.replace(bench.QUICK, threads=1))
+    return bench.run_suite(dataclasses.replace(QUICK, threads=1))
 
 
 def test_tiny_decoder_flops_match_a_hand_count(report):

@@ -22,7 +22,8 @@ from components.vision.component import DEVICES, Decoder, GenerativeModel, resol
 from components.vision.fast import LinearisedDecoder
 from components.vision.networks import build
 from components.vision.training import LATER_FIELDS, TrainSettings, checkpoint_metadata, train
-from master.bench import suite as bench
+from master.bench import protocol as bench_protocol
+from master.bench.settings import QUICK
 from master.bench import training as training_bench
 from master.commands import experiment as experiment_command
 from master.commands.cli import build_parser, main
@@ -285,19 +286,19 @@ def test_rhi_experiment_with_the_paper_preset_runs_end_to_end_at_32_px(paper_cac
 
 # -- the bench ------------------------------------------------------------------------------------------
 def test_the_bench_runs_the_protocol_with_trained_decoders_when_they_are_cached(quick_cache, monkeypatch, tmp_path):
-    settings = dataclasses.replace(bench.QUICK, protocol_trained="quick", threads=1)
+    settings = dataclasses.replace(QUICK, protocol_trained="quick", threads=1)
     monkeypatch.setenv("RHI_CACHE", str(tmp_path))  # nothing cached: the untrained decoder
-    assert bench.trained_protocol(settings) is None
+    assert bench_protocol.trained_protocol(settings) is None
     monkeypatch.setenv("RHI_CACHE", str(quick_cache))
-    config, paths = bench.trained_protocol(settings)
+    config, paths = bench_protocol.trained_protocol(settings)
     assert set(paths) == {"conv", "vae"} and all(Path(p).parent == quick_cache for p in paths.values())
-    row = bench._protocol(settings)
+    row = bench_protocol.protocol_run(settings)
     trials = len(config["experiment"]["decoders"]) * 3 * 2 * config["experiment"]["trials"]
     assert row["trained"] is True and row["checkpoints"] == paths and "trained: conv" in row["weights"]
     assert (row["trials"], row["steps"]) == (trials, settings.protocol_steps)
     assert math.isclose(row["agent_steps_per_s"], trials * settings.protocol_steps / row["seconds"])
     assert row["stepping_agent_steps_per_s"] >= row["agent_steps_per_s"]
-    untrained = bench._protocol(dataclasses.replace(settings, protocol_trained=""))
+    untrained = bench_protocol.protocol_run(dataclasses.replace(settings, protocol_trained=""))
     assert untrained["trained"] is False and untrained["weights"].startswith("untrained")
 
 

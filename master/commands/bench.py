@@ -7,7 +7,8 @@ import sys
 from dataclasses import replace
 
 from master.bench.report import table
-from master.bench.suite import QUICK, BenchSettings, run_suite
+from master.bench.settings import QUICK, BenchSettings
+from master.bench.suite import run_suite
 from master.cosim import ConfigError
 
 
