@@ -43,14 +43,14 @@ def coupling_sd(peripersonal_sd: float) -> np.ndarray:
     return np.sqrt(np.diag(inverse @ inverse.T)) * peripersonal_sd
 
 
-def components(decoder, config: dict, brain_parameters: dict, body):
-    """The causal system's components and connections around ``decoder`` (its kind picks the pose encoder)."""
+def components(decoder, config: dict, paper_connections: list, body):
+    """The causal system's components around ``decoder`` (its kind picks the pose encoder), and its connections:
+    ``paper_connections`` (the paper's system's) less the ground-truth links, plus the pose encoder's."""
     from components.body.camera import Camera
     from components.body.plant import ArmPlant
     from components.body.rubber_arm import RubberArm
     from components.stimulus import Stimulus
     from master.experiment.pose_encoders import encoder_path
-    from master.experiment.wiring import CONNECTIONS
 
     kind = decoder.model.metadata.get("kind", "conv")
     resolution = config["experiment"]["resolution"]
@@ -58,7 +58,7 @@ def components(decoder, config: dict, brain_parameters: dict, body):
                           threads=getattr(decoder, "threads", None))
     parts = [RubberArm(), Stimulus(), Camera(resolution=resolution), decoder, encoder, CausalBrain(),
              body if body is not None else ArmPlant()]
-    links = [(a, b) for a, b in CONNECTIONS if not (b.startswith("brain.") and a in GROUND_TRUTH_LINKS)]
+    links = [(a, b) for a, b in paper_connections if not (b.startswith("brain.") and a in GROUND_TRUTH_LINKS)]
     return parts, links + EXTRA_CONNECTIONS
 
 

@@ -115,7 +115,7 @@ def build_system(decoder, config: dict, body=None) -> System:
     """The rubber-hand system around a decoder component; ``body`` defaults to the native pymunk plant."""
     if config.get("model", {}).get("name", "paper") == "causal":  # the pose encoder and the causal brain
         from master.experiment import causal
-        return System(*causal.components(decoder, config, {}, body))
+        return System(*causal.components(decoder, config, CONNECTIONS, body))
     resolution = config["experiment"]["resolution"]
     components = [RubberArm(), Stimulus(), Camera(resolution=resolution), decoder, Brain(),
                   body if body is not None else ArmPlant()]
