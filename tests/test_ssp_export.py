@@ -1,4 +1,4 @@
-"""The experiment as an SSP 1.0 package (master/export/system.py), run unchanged by FMPy's and libcosim's masters.
+"""The experiment as an SSP 1.0 package (master/export/system.py, ssp_package.py, ssp_check.py), run unchanged by FMPy's and libcosim's masters.
 
 Truth: the native master's run of the same trial (``wiring.run_batch``, same seed, decoder and body); the
 SSP 1.0 schema FMPy ships; the protocol's trials and seeds. Bad packages through the real CLI.
@@ -21,8 +21,9 @@ from master.experiment.measures import measures
 from master.experiment.protocol import make_trial, plan
 from master.export.agent import agent_connections, join_seed
 from master.export.body import build_fmu
-from master.export.system import (BODY_PARAMETERS, SSD, TRIALS, build_ssp, final_drift_cm, read_ssp, run_ssp,
-                                  trial_name, trial_parameters)
+from master.export.ssp_check import read_ssp, trial_parameters
+from master.export.ssp_package import BODY_PARAMETERS, SSD, TRIALS, build_ssp, trial_name
+from master.export.system import final_drift_cm, run_ssp
 from tests.test_agent import agent_fmu, quick  # noqa: F401 (fixtures)
 
 LIBCOSIM = importlib.util.find_spec("libcosimpy") is not None

@@ -1,0 +1,209 @@
+"""An SSP 1.0 package of the experiment: its layout, its parameter sets, and :func:`build_ssp`.
+
+The package::
+
+    SystemStructure.ssd            the system: components agent and body, their connectors and connections
+                                   (wiring.CONNECTIONS between body and brain), the step size and stop time
+    resources/agent.fmu            the agent FMU (agent_fmu.py)
+    resources/body.fmu             the body FMU (body.py / c_body.py, or the user's)
+    resources/body.ssv             the body's parameters (the experiment's [body] keys it declares)
+    resources/trials/<decoder>_<condition>_<stimulation>_<index>.ssv
+                                   the agent's parameters for each trial of the protocol, its seed included
+
+One parameter file per trial, not per condition: each trial has its own seed (protocol.trial_seed),
+so a set per condition could not reproduce the experiment's trials; and libcosim applies only the
+first parameter set bound to each component, so the SSD binds exactly one trial (the first of the
+protocol, or the one asked for) and the others lie beside it for a tool to bind instead.
+"""
+from __future__ import annotations
+
+import zipfile
+from pathlib import Path
+from xml.etree import ElementTree as ET
+
+import numpy as np
+
+from master.cosim import ConfigError
+from master.experiment import wiring
+from master.experiment.protocol import Trial, plan
+from master.export.agent import SEED, SEED_HIGH, SEED_LOW, agent_connections, exposed, split_seed
+from master.outputs.files import atomic_write, check_output_file
+
+NS = {"ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
+      "ssc": "http://ssp-standard.org/SSP1/SystemStructureCommon",
+      "ssv": "http://ssp-standard.org/SSP1/SystemStructureParameterValues",
+      "osp": "https://opensimulationplatform.com/SSP/OSPAnnotations"}
+SSD = "SystemStructure.ssd"
+AGENT, BODY = "agent", "body"
+SOURCES = {AGENT: "resources/agent.fmu", BODY: "resources/body.fmu"}
+BODY_PARAMETERS = "resources/body.ssv"
+TRIALS = "resources/trials"
+FMU_TYPE = "application/x-fmu-sharedlibrary"
+MASTERS = ("fmpy", "libcosim")
+# run-system's communication steps: 2.8 h of the experiment's 0.01 s steps, its recorded connectors (about 20
+# float64 each) 160 MB; far beyond the protocol's runs, far below what would exhaust memory or run for days.
+MAX_STEPS = 1_000_000
+
+for _prefix, _uri in NS.items():
+    ET.register_namespace(_prefix, _uri)
+
+
+def qualified(tag: str) -> str:
+    prefix, _, name = tag.partition(":")
+    return f"{{{NS[prefix]}}}{name}"
+
+
+def trial_name(trial: Trial) -> str:
+    """``conv_left_sync_0``: a trial's parameter file, without folder and suffix."""
+    return f"{trial.decoder}_{trial.condition}_{trial.stimulation}_{trial.index}"
+
+
+def format_value(kind: str, value) -> str:
+    if kind == "Boolean":
+        return "true" if bool(np.asarray(value).item()) else "false"
+    if kind == "Integer":
+        return str(int(np.asarray(value).item()))
+    value = float(np.asarray(value).item())
+    return {float("inf"): "INF", float("-inf"): "-INF"}.get(value, "NaN" if value != value else repr(value))
+
+
+def parse_value(kind: str, text: str):
+    if kind == "Boolean":
+        return text in ("true", "1")
+    return int(text) if kind == "Integer" else float(text)
+
+
+def parameter_set(name: str, values: dict[str, tuple[str, object]], starts: dict | None = None) -> bytes:
+    """An SSV file: ``values`` is ``{parameter: (FMI type, value)}``, names relative to the component.
+
+    A value that is not finite (``brain.spatial_sd = inf``, the paper's model) is left out: libcosim reads
+    numbers with C++ streams, which do not take XML Schema's ``INF``, and refuses the whole package. It
+    must then equal the FMU's own start value (``starts``: ``{parameter: start}``), which the FMU keeps.
+    """
+    root = ET.Element(qualified("ssv:ParameterSet"), {"version": "1.0", "name": name})
+    parameters = ET.SubElement(root, qualified("ssv:Parameters"))
+    for parameter, (kind, value) in values.items():
+        if kind == "Real" and not np.isfinite(float(np.asarray(value).item())):
+            start = (starts or {}).get(parameter)
+            if start is None or float(start) != float(np.asarray(value).item()):
+                raise ConfigError(f"{name}: {parameter} = {float(np.asarray(value).item())} cannot be written for "
+                                  f"libcosim and differs from the FMU's start value {start}")
+            continue
+        element = ET.SubElement(parameters, qualified("ssv:Parameter"), {"name": parameter})
+        ET.SubElement(element, qualified(f"ssv:{kind}"), {"value": format_value(kind, value)})
+    ET.indent(root)
+    return b'<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="utf-8") + b"\n"
+
+
+def agent_parameters(trial: Trial, config: dict, declared: dict) -> dict:
+    """The agent FMU's parameters for ``trial``: ``{name: (type, value)}`` from ``wiring.parameters``
+    (the experiment's own values), the seed split into two Integers."""
+    given = wiring.parameters([trial], config)
+    values = {}
+    for path, value in given.items():
+        name = path.partition(".")[2]
+        if path == SEED:
+            low, high = split_seed(int(value[0]))
+            values[SEED_LOW], values[SEED_HIGH] = ("Integer", low), ("Integer", high)
+        elif exposed(path) and declared.get(name, ("",))[0] == "parameter":
+            values[name] = (declared[name][1], np.asarray(value).reshape(-1)[0])
+    return values
+
+
+def body_parameters(trial: Trial, config: dict, declared: dict) -> dict:
+    """The body FMU's parameters: the experiment's ``body.*`` values that the body declares (as run_batch)."""
+    return {path.partition(".")[2]: (declared[path.partition(".")[2]][1], np.asarray(value).reshape(-1)[0])
+            for path, value in wiring.parameters([trial], config).items()
+            if path.startswith(BODY + ".") and path.partition(".")[2] in declared}
+
+
+def declared_variables(fmu: str) -> dict[str, tuple[str, str]]:
+    """``{name: (causality, FMI type)}`` of an FMU's scalar variables."""
+    from fmpy import read_model_description
+    return {v.name: (v.causality, v.type) for v in read_model_description(fmu, validate=False).modelVariables}
+
+
+def start_values(fmu: str) -> dict[str, float]:
+    """``{name: start}`` of an FMU's Real variables that have a start value."""
+    from fmpy import read_model_description
+    return {v.name: float(v.start) for v in read_model_description(fmu, validate=False).modelVariables
+            if v.type == "Real" and v.start is not None}
+
+
+def system_description(agent: dict, body: dict, bound: str, step_size: float, stop_time: float, name: str) -> bytes:
+    """SystemStructure.ssd: the agent and body components (every input and output a connector), their
+    connections (:func:`~master.export.agent.agent_connections`), the bound parameter files and the
+    default experiment (libcosim's fixed-step algorithm annotation carries the step size)."""
+    root = ET.Element(qualified("ssd:SystemStructureDescription"), {"version": "1.0", "name": name, "generationTool": "rhi"})
+    system = ET.SubElement(root, qualified("ssd:System"), {"name": name, "description": "the rubber-hand agent and a body"})
+    elements = ET.SubElement(system, qualified("ssd:Elements"))
+    for component, declared, parameters in ((AGENT, agent, f"{TRIALS}/{bound}.ssv"), (BODY, body, BODY_PARAMETERS)):
+        element = ET.SubElement(elements, qualified("ssd:Component"),
+                                {"name": component, "type": FMU_TYPE, "source": SOURCES[component]})
+        connectors = ET.SubElement(element, qualified("ssd:Connectors"))
+        for variable, (causality, kind) in declared.items():
+            if causality in ("input", "output"):
+                connector = ET.SubElement(connectors, qualified("ssd:Connector"), {"name": variable, "kind": causality})
+                ET.SubElement(connector, qualified(f"ssc:{kind}"))
+        bindings = ET.SubElement(element, qualified("ssd:ParameterBindings"))
+        ET.SubElement(bindings, qualified("ssd:ParameterBinding"), {"type": "application/x-ssp-parameter-set",
+                                                             "source": parameters})
+    connections = ET.SubElement(system, qualified("ssd:Connections"))
+    for source, target in agent_connections(AGENT, BODY):
+        (start, start_connector), (end, end_connector) = source.split("."), target.split(".")
+        ET.SubElement(connections, qualified("ssd:Connection"), {"startElement": start, "startConnector": start_connector,
+                                                         "endElement": end, "endConnector": end_connector})
+    experiment = ET.SubElement(root, qualified("ssd:DefaultExperiment"), {"startTime": "0.0", "stopTime": repr(stop_time)})
+    annotation = ET.SubElement(ET.SubElement(experiment, qualified("ssd:Annotations")), qualified("ssc:Annotation"),
+                               {"type": "com.opensimulationplatform"})
+    ET.SubElement(ET.SubElement(annotation, qualified("osp:Algorithm")), qualified("osp:FixedStepAlgorithm"),
+                  {"baseStepSize": repr(step_size)})
+    ET.indent(root)
+    return b'<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="utf-8") + b"\n"
+
+
+def build_ssp(out, agent_fmu: str, body_fmu: str, config: dict, kind: str, bound: Trial | None = None) -> Path:
+    """Write the SSP package at ``out`` (a path ending in .ssp), whole or not at all.
+
+    Parameters
+    ----------
+    out : path
+        The package to write.
+    agent_fmu, body_fmu : str
+        The FMUs (agent_fmu.build_agent_fmu; a body meeting the body contract).
+    config : dict
+        The configuration: the protocol (one parameter file per trial of decoder ``kind``), the step
+        size and number of steps.
+    kind : str
+        The decoder the agent FMU carries.
+    bound : Trial, optional
+        The trial the SSD binds (default: the protocol's first of ``kind``).
+
+    Returns
+    -------
+    Path
+        ``out``.
+    """
+    out = check_output_file(out, "SSP file", ".ssp")
+    trials = [t for t in plan(config) if t.decoder == kind]
+    bound = bound or trials[0]
+    if bound not in trials:
+        trials.append(bound)
+    agent, body, agent_starts = declared_variables(agent_fmu), declared_variables(body_fmu), start_values(agent_fmu)
+    experiment = config["experiment"]
+    ssd = system_description(agent, body, trial_name(bound), experiment["step_size"],
+                             experiment["steps"] * experiment["step_size"], "RubberHandIllusion")
+
+    def write(file):
+        with zipfile.ZipFile(file, "w", zipfile.ZIP_DEFLATED) as archive:
+            archive.writestr(SSD, ssd)
+            archive.write(agent_fmu, SOURCES[AGENT])
+            archive.write(body_fmu, SOURCES[BODY])
+            archive.writestr(BODY_PARAMETERS, parameter_set("body", body_parameters(bound, config, body),
+                                                            start_values(body_fmu)))
+            for trial in trials:
+                archive.writestr(f"{TRIALS}/{trial_name(trial)}.ssv", parameter_set(
+                    trial_name(trial), agent_parameters(trial, config, agent), agent_starts))
+
+    atomic_write(out, write)
+    return out
