@@ -18,7 +18,8 @@ TEST_WORKERS ?= 2
 test: $(STAMP)
 	$(VENV)/bin/python -m pytest -q --durations=20 -n $(TEST_WORKERS) --dist loadfile
 
-# The numeric tests again under the AVX2 and the baseline kernels: other CPUs' rounding (tests/kernels.py).
+# The numeric tests again under the next kernels below this CPU's (AVX-512 -> AVX2 -> baseline): another CPU's
+# rounding (tests/kernels.py; python -m tests.kernels --all: every set below).
 test-kernels: $(STAMP)
 	$(VENV)/bin/python -m tests.kernels
 

@@ -1,6 +1,9 @@
 """Run the numeric tests again under the kernels of other x86-64 CPUs, on this one.
 
-    python -m tests.kernels [pytest arguments]    # `make test-kernels`, which .ci/run runs after `make test`
+    python -m tests.kernels [--all] [pytest arguments]   # `make test-kernels`, which .ci/run runs after `make test`
+
+By default under one set, the next below this CPU's own (AVX-512 -> AVX2, AVX2 -> baseline): the other CPU kind
+this project's machines are; ``--all`` under every set below this CPU's own.
 
 torch, oneDNN and numpy each pick their vector kernels at run time, and each can be told to take a lesser
 set: torch by ATEN_CPU_CAPABILITY, oneDNN (torch's convolutions) by DNNL_MAX_CPU_ISA, MKL (its matrix
@@ -40,9 +43,21 @@ def environment(tier: str) -> dict[str, str]:
     return {**os.environ, **settings}
 
 
+def tiers_below_this_cpu() -> list[str]:
+    """The tiers of :data:`TIERS` below the kernels torch picks on this CPU, highest first."""
+    import torch
+
+    native = torch.backends.cpu.get_cpu_capability().lower()  # "avx512", "avx2" or "default"
+    order = ["avx512", "avx2", "default"]
+    return [tier for tier in order[order.index(native) + 1:] if tier in TIERS] if native in order else list(TIERS)
+
+
 def main(arguments: list[str]) -> int:
+    every = "--all" in arguments
+    arguments = [argument for argument in arguments if argument != "--all"]
+    below = tiers_below_this_cpu()
     status = 0
-    for tier in TIERS:
+    for tier in below if every else below[:1]:
         print(f"== the numeric tests under the {tier} kernels", flush=True)
         done = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-n", "2", "--dist",
                                "loadfile", *NUMERIC, *arguments],
