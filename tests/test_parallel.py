@@ -68,3 +68,14 @@ def test_one_process_runs_the_jobs_here():
 
     with parallel.Workers(1) as workers:
         assert workers.map(pid, [(), ()]) == [os.getpid()] * 2 and workers._pool is None
+
+
+def test_light_jobs_start_no_workers_but_use_those_started():
+    import os
+
+    with parallel.Workers(2) as workers:
+        assert workers.map(pid, [(), ()], start=False) == [os.getpid()] * 2 and workers._pool is None
+        started = set(workers.map(pid, [(), ()]))
+        light = workers.map(pid, [(), ()], start=False)
+        assert os.getpid() not in light and set(light) <= set(workers._pool._pool[i].pid for i in range(2))
+        assert os.getpid() not in started

@@ -66,9 +66,10 @@ class Workers:
         self.processes = max(1, processes or usable_cores())
         self._pool = None
 
-    def map(self, function, jobs: list[tuple]) -> list:
+    def map(self, function, jobs: list[tuple], start: bool = True) -> list:
         """``[function(*job) for job in jobs]``, up to ``processes`` at a time; here, in turn, when only one
-        would run at a time.
+        would run at a time, or when ``start`` is false and no earlier round started the workers (for light
+        jobs, such as a run's files: starting a worker, which imports torch, costs more than they do).
 
         Parameters
         ----------
@@ -84,7 +85,7 @@ class Workers:
             Each job's result, in the order of ``jobs``. A job's exception is raised here (and the
             workers are terminated).
         """
-        if process_count(len(jobs), self.processes) <= 1:
+        if process_count(len(jobs), self.processes) <= 1 or (not start and self._pool is None):
             import torch
 
             threads = torch.get_num_threads()

@@ -50,11 +50,11 @@ def run_into(out, config: dict, body: str | None = None, force: bool = False, pr
         shown = next((i for i, t in enumerate(trials) if (t.condition, t.stimulation) == ("left", "sync")), 0)
         name = f"trial_{trials[shown].decoder}_{trials[shown].condition}_{trials[shown].stimulation}.gif"
         animated = {key: per_step[key][:, shown] for key in ANIMATED}
-        workers.map(call, [  # the files, side by side, the longest first
+        workers.map(call, [  # the files, side by side on the workers the run started (else here), the longest first
             (write_trials, staging / "trials.csv", trials, times, per_step),
             (write_jacobians, staging / "figures" / "h_jacobians.png", checkpoints, config),
             (write_animation, staging / "figures" / name, trials[shown], animated, config["experiment"]["resolution"]),
-            *figures.panel_jobs(staging / "figures", trials, times, per_step, final, None)])
+            *figures.panel_jobs(staging / "figures", trials, times, per_step, final, None)], start=False)
         provenance = {
             "schema_version": tables.SCHEMA_VERSION,
             "command": "rhi experiment", "model": config.get("model", {}).get("name", "paper"),
