@@ -117,6 +117,11 @@ def build_parser() -> argparse.ArgumentParser:
     phenomenon.set_defaults(
         run=lambda args: __import__("master.commands.phenomenon", fromlist=["_"]).run_phenomenon(args))
 
+    fit = commands.add_parser("fit", help="fit the model to participants' data by simulation-based inference, "
+                                          "calibrated on held-out simulations")
+    __import__("master.commands.fit", fromlist=["_"]).add_arguments(fit)
+    fit.set_defaults(run=lambda args: __import__("master.commands.fit", fromlist=["_"]).run_fit(args))
+
     bench = commands.add_parser("bench", help="measure speed")
     bench.add_argument("--json", action="store_true", help="print the results as JSON (for machines)")
     bench.add_argument("--quick", action="store_true", help="tiny settings: a smoke test in seconds")
@@ -173,7 +178,7 @@ def _run(args) -> int:
     except KeyboardInterrupt as interrupt:
         name = "SIGTERM" if isinstance(interrupt, Terminated) else "Ctrl-C"
         _fail(args.command, f"interrupted by {name}; nothing half-written is left"
-                            f"{' (run the same command again to resume the sweep)' if args.command == 'sweep' else ''}",
+                            f"{' (run the same command again to resume the ' + args.command + ')' if args.command in ('sweep', 'fit') else ''}",
               0, "")
         return 143 if isinstance(interrupt, Terminated) else 130
     except MemoryError:

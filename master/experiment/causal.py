@@ -34,6 +34,7 @@ PARAMETER_SOURCES = {
     "brain.workspace_sd": "derived: the training ranges' half widths / sqrt(3), the sd of the uniform over them",
     "brain.participant_seed": "per trial: the trial's seed (its own stream, body_inference.participants)",
 }
+DERIVED_FROM = "causal.peripersonal_sd"  # the key brain.coupling_sd is derived from
 
 
 def coupling_sd(peripersonal_sd: float) -> np.ndarray:
@@ -67,12 +68,14 @@ def parameters(trials, config: dict, paper_given: dict) -> dict:
     declared = set(CausalBrain().variables)
     given = {path: value for path, value in paper_given.items()
              if not path.startswith("brain.") or path.partition(".")[2] in declared}
-    causal = config["causal"]
+    from master.experiment.wiring import per_trial
+
     for path, source in PARAMETER_SOURCES.items():
         if not source.startswith(("derived", "per trial")):
-            table, key = source.split(".")
-            given[path] = config[table][key]
-    given["brain.coupling_sd"] = coupling_sd(causal["peripersonal_sd"])
+            given[path] = per_trial(trials, config, source)
+    spread = per_trial(trials, config, DERIVED_FROM)
+    given["brain.coupling_sd"] = (np.stack([coupling_sd(value) for value in spread]) if np.ndim(spread)
+                                  else coupling_sd(spread))
     given["brain.workspace_mean"] = np.array(kinematics.REST_POSE, dtype=float)
     given["brain.workspace_sd"] = np.array(training_data.HALF_RANGES, dtype=float) / np.sqrt(3.0)
     given["brain.participant_seed"] = np.array([t.seed for t in trials], dtype=np.int64)

@@ -22,6 +22,9 @@ class Trial:
     offset_x: float
     delay_min: float
     delay_max: float
+    # ((key, value), ...): this trial's own values of parameter keys (wiring.batchable_keys), in a lockstep
+    # batch that runs several configurations at once (a sweep's chunk of several points); () = the config's
+    overrides: tuple = ()
 
 
 def trial_seed(master_seed: int, condition: str, stimulation: str, index: int) -> int:
@@ -30,12 +33,18 @@ def trial_seed(master_seed: int, condition: str, stimulation: str, index: int) -
     return int.from_bytes(digest[:8], "little") >> 1
 
 
-def make_trial(config: dict, decoder: str, condition: str, stimulation: str, index: int) -> Trial:
-    """The trial of this cell and repetition under ``config``: its seed, rubber-hand offset and delay law."""
+def make_trial(config: dict, decoder: str, condition: str, stimulation: str, index: int,
+               overrides: tuple = ()) -> Trial:
+    """The trial of this cell and repetition under ``config``: its seed, rubber-hand offset and delay law.
+
+    overrides: ``((key, value), ...)``, the trial's own values of parameter keys in a batch of several
+    configurations (:func:`master.experiment.wiring.parameters` gives them to the components per trial).
+    """
     delays = config["stimulations"][stimulation]
     return Trial(decoder, condition, stimulation, index,
                  trial_seed(config["experiment"]["seed"], condition, stimulation, index),
-                 float(config["conditions"][condition]), float(delays["delay_min"]), float(delays["delay_max"]))
+                 float(config["conditions"][condition]), float(delays["delay_min"]), float(delays["delay_max"]),
+                 tuple(overrides))
 
 
 def plan(config: dict) -> list[Trial]:

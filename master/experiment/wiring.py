@@ -135,9 +135,38 @@ def parameters(trials: list[Trial], config: dict) -> dict:
         elif path in DERIVED:
             given[path] = DERIVED[path]()
         else:
-            table, key = config_key(source).split(".")
-            given[path] = config[table][key]
+            given[path] = per_trial(trials, config, config_key(source))
     return given
+
+
+def per_trial(trials: list[Trial], config: dict, key: str):
+    """The value of configuration ``key`` for the components: the configuration's, or, when some trial carries
+    its own (``Trial.overrides``, a batch of several configurations), one value per trial, shape (B,)."""
+    table, name = key.split(".")
+    value = config[table][name]
+    if not any(t.overrides for t in trials):
+        return value
+    values = [dict(t.overrides).get(key, value) for t in trials]
+    return value if all(v == value for v in values) else np.array(values, dtype=float)
+
+
+def batchable_keys(config: dict) -> set[str]:
+    """The configuration keys that may differ between the trials of one lockstep batch: the float keys that
+    set a component parameter as they are (PARAMETER_SOURCES, and the causal model's), each applied per trial.
+    Everything else (structure, sizes, checkpoints, the decoder's constructor settings) is the batch's own."""
+    from master.experiment import causal
+
+    sources = [s for p, s in PARAMETER_SOURCES.items() if p not in CONSTRUCTED]
+    if config.get("model", {}).get("name", "paper") == "causal":
+        sources += [*causal.PARAMETER_SOURCES.values(), causal.DERIVED_FROM]
+    keys = set()
+    for source in sources:
+        key = config_key(source)
+        if key is not None:
+            table, name = key.split(".")
+            if isinstance(config.get(table, {}).get(name), float):
+                keys.add(key)
+    return keys
 
 
 def undeclared(given: dict, system: System) -> list[str]:

@@ -169,37 +169,68 @@ def describe(point: dict) -> str:
     return ", ".join(f"{key}={json.dumps(value)}" for key, value in point.items()) or "no parameters"
 
 
-def chunk_cells(configs: list[dict], batch: int | None) -> list[list[tuple[int, experiment.Trial]]]:
-    """Per chunk: its (point, protocol trial) pairs. Per point and decoder, the protocol's trials in its
-    order, split into the fewest near-equal consecutive chunks of at most ``batch`` (None: one chunk);
-    the larger chunks first. Depends on the configurations and ``batch`` alone."""
+def chunk_cells(configs: list[dict], batch: int | None,
+                points_per_batch: int = 1) -> list[list[tuple[int, experiment.Trial]]]:
+    """Per chunk: its (point, protocol trial) pairs. Per group of ``points_per_batch`` consecutive points (1:
+    each point alone) and decoder, the protocol's trials in its order, split into the fewest near-equal
+    consecutive chunks of at most ``batch`` (None: one chunk); the larger chunks first. Depends on the
+    configurations, ``batch`` and ``points_per_batch`` alone."""
     chunks = []
-    for number, config in enumerate(configs):
-        trials = experiment.plan(config)
-        for decoder in config["experiment"]["decoders"]:
-            mine = [t for t in trials if t.decoder == decoder]
+    for first in range(0, len(configs), points_per_batch):
+        group = range(first, min(first + points_per_batch, len(configs)))
+        trials = [(number, t) for number in group for t in experiment.plan(configs[number])]
+        for decoder in configs[first]["experiment"]["decoders"]:
+            mine = [(number, t) for number, t in trials if t.decoder == decoder]
             count = -(-len(mine) // batch) if batch else 1
             size, extra = divmod(len(mine), count)
             start = 0
             for part in range(count):
                 end = start + size + (part < extra)
-                chunks.append([(number, t) for t in mine[start:end]])
+                chunks.append(mine[start:end])
                 start = end
     return chunks
 
 
-def plan(configs: list[dict], task: str, batch: int | None = None) -> tuple[list[TrialSpec], list[list[int]]]:
+def check_batchable(configs: list[dict], points_per_batch: int) -> None:
+    """ConfigError unless the points of each group of ``points_per_batch`` differ only where a lockstep batch
+    lets its trials differ: the batchable parameter keys (:func:`master.experiment.wiring.batchable_keys`),
+    the master seed, the conditions' offsets and the stimulations' delays (each trial's own)."""
+    from master.experiment.wiring import batchable_keys
+
+    def shared(config: dict) -> str:
+        kept = {table: dict(values) if isinstance(values, dict) else values for table, values in config.items()
+                if table not in ("conditions", "stimulations")}
+        kept["experiment"].pop("seed")
+        for key in batchable_keys(config):
+            table, name = key.split(".")
+            kept[table].pop(name, None)
+        return canonical_hash(kept)
+
+    for first in range(0, len(configs), points_per_batch):
+        reference = shared(configs[first])
+        for number in range(first + 1, min(first + points_per_batch, len(configs))):
+            if shared(configs[number]) != reference:
+                raise ConfigError(f"sweep points {first} and {number} share a lockstep batch but differ in more than "
+                                  "the per-trial parameters (batchable keys, experiment.seed, conditions, "
+                                  "stimulations)")
+
+
+def plan(configs: list[dict], task: str, batch: int | None = None,
+         points_per_batch: int = 1) -> tuple[list[TrialSpec], list[list[int]]]:
     """Every trial of the sweep, in order (point, decoder, condition, stimulation, index), and its chunks.
 
     The default task runs a chunk of trials in one lockstep batch (:func:`chunk_cells`), and a trial's
-    id names its chunk's members too; any other task runs each trial alone, a chunk of one.
+    id names its chunk's members too (with ``points_per_batch`` > 1 each member's configuration as well);
+    any other task runs each trial alone, a chunk of one.
     """
     batched = task == DEFAULT_TASK
-    chunks = chunk_cells(configs, batch) if batched else [[(n, t)] for n, c in enumerate(configs)
-                                                          for t in experiment.plan(c)]
+    chunks = chunk_cells(configs, batch, points_per_batch) if batched else [
+        [(n, t)] for n, c in enumerate(configs) for t in experiment.plan(c)]
     trials, positions = [], []
     for chunk in chunks:
         members = [[t.condition, t.stimulation, t.index] for _, t in chunk]
+        if points_per_batch > 1:
+            members = [[canonical_hash(configs[n])[:20], *member] for member, (n, _) in zip(members, chunk)]
         positions.append(list(range(len(trials), len(trials) + len(chunk))))
         for number, t in chunk:
             identity = {"task": task, "config": configs[number], "decoder": t.decoder, "condition": t.condition,
@@ -231,6 +262,17 @@ def load(path: str | Path, model: str | None = None, trials: int | None = None) 
         base["experiment"]["trials"] = settings["trials"]
     points = (grid_points(settings["grid"]) if "grid" in settings
               else listed_points(settings["points"]) if "points" in settings else [{}])
+    return build(base, points, task, settings.get("batch"), settings.get("workers"))
+
+
+def build(base: dict, points: list[dict], task: str = DEFAULT_TASK, batch: int | None = None,
+          workers: int | None = None, points_per_batch: int = 1) -> Sweep:
+    """The sweep of ``points`` (dotted key -> value each) over the checked configuration ``base``: every point's
+    configuration validated, the trials planned and chunked.
+
+    points_per_batch: with the default task, this many consecutive points share each lockstep batch (1: a
+    point's trials alone); their configurations may differ only per trial (:func:`check_batchable`).
+    """
     configs = [point_config(base, point, number) for number, point in enumerate(points)]
     seen: dict[str, int] = {}
     for number, config in enumerate(configs):
@@ -238,10 +280,15 @@ def load(path: str | Path, model: str | None = None, trials: int | None = None) 
         if other != number:
             raise ConfigError(f"sweep points {other} and {number} are the same configuration")
     batched = task == DEFAULT_TASK
-    trials, chunks = plan(configs, task, settings.get("batch"))
+    if points_per_batch > 1 and batched:
+        check_batchable(configs, points_per_batch)
+    else:
+        points_per_batch = 1
+    trials, chunks = plan(configs, task, batch, points_per_batch)
     keys = list(dict.fromkeys(key for point in points for key in point))
     planned = {"task": task, "configs": configs, "points": points}
     if batched:
-        planned.update(batching=BATCHING, batch=settings.get("batch"))
-    return Sweep(task, points, keys, configs, settings.get("workers"), trials, canonical_hash(planned), chunks,
-                 batched)
+        planned.update(batching=BATCHING, batch=batch)
+        if points_per_batch > 1:
+            planned.update(points_per_batch=points_per_batch)
+    return Sweep(task, points, keys, configs, workers, trials, canonical_hash(planned), chunks, batched)

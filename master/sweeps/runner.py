@@ -167,20 +167,27 @@ def run_trial(task, config: dict, trial: TrialSpec) -> dict:
     return record
 
 
-def run_chunk(config: dict, trials: list[TrialSpec]) -> list[dict]:
-    """Runs on a worker: the chunk's trials (one point, one decoder) in one lockstep batch, each failure
-    isolated to its trial (:func:`master.experiment.runner.batch_outcomes`); one result per trial, in
-    order. Never raises. ``elapsed_s`` is the whole chunk's time, the worker's one-time imports excluded (as
-    the experiment's batches count theirs)."""
+def run_chunk(config: dict, trials: list[TrialSpec], configs: list[dict] | None = None) -> list[dict]:
+    """Runs on a worker: the chunk's trials (one point, or with ``configs`` each trial's point's configuration,
+    one decoder) in one lockstep batch, each failure isolated to its trial
+    (:func:`master.experiment.runner.batch_outcomes`); one result per trial, in order. Never raises.
+    ``elapsed_s`` is the whole chunk's time, the worker's one-time imports excluded (as the experiment's
+    batches count theirs)."""
     from master.experiment import make_trial
     from master.experiment.runner import batch_outcomes
+    from master.experiment.wiring import batchable_keys
 
     importlib.import_module("master.experiment.decoders")  # torch: once per worker, before the clock starts
 
     steady_malloc()
     started, began = time.time(), time.perf_counter()
     try:
-        protocol = [make_trial(config, t.decoder, t.condition, t.stimulation, t.index) for t in trials]
+        own = [()] * len(trials)
+        if configs is not None:  # several points in one batch: each trial carries its point's parameter values
+            keys = sorted(batchable_keys(config))
+            own = [tuple((key, mine[key.split(".")[0]][key.split(".")[1]]) for key in keys) for mine in configs]
+        protocol = [make_trial(mine, t.decoder, t.condition, t.stimulation, t.index, overrides)
+                    for t, mine, overrides in zip(trials, configs or [config] * len(trials), own)]
         results = batch_outcomes(config, trials[0].decoder, protocol)
     except Exception as error:  # noqa: BLE001: batch_outcomes isolates failures; this is the last resort
         results = [failed_record(type(error).__name__, str(error), traceback.format_exc())] * len(trials)
@@ -227,7 +234,9 @@ def execute(sweep: Sweep, task, client, out: Path, done: set[str], on_record=Non
             continue
         config = sweep.configs[members[0].point]
         if sweep.batched:
-            future = client.submit(run_chunk, config, members, pure=False, key=f"rhi-chunk-{members[0].id}-{token}")
+            several = None if len({t.point for t in members}) == 1 else [sweep.configs[t.point] for t in members]
+            future = client.submit(run_chunk, config, members, several, pure=False,
+                                   key=f"rhi-chunk-{members[0].id}-{token}")
         else:
             future = client.submit(run_trial, task, config, members[0], pure=False,
                                    key=f"rhi-trial-{members[0].id}-{token}")

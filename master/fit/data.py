@@ -1,0 +1,193 @@
+"""The data a fit explains: FILE.csv, one row per participant x observation, read and checked.
+
+Columns (docs/fit.md):
+
+- ``participant``: any label;
+- the design, one column of each pair: ``condition`` (a name of the configuration's ``[conditions]``) or
+  ``offset_m`` (the rubber hand's lateral offset from the real hand, m); ``stimulation`` (a name of
+  ``[stimulations]``) or ``delay_s`` (one fixed visuo-tactile delay after every touch, s); optionally
+  ``time_s``, the trial's length (s), the same on every row;
+- the observed measures: ``drift_cm`` and optionally ``force_n`` (a trial outcome's final values).
+
+A participant's summary statistics are the mean of each measure over its rows in each design cell; every
+participant must have every cell of the design. Any problem is a ConfigError naming the file, the line and
+the column.
+"""
+from __future__ import annotations
+
+import csv
+import difflib
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from master.cosim import ConfigError
+
+MEASURES = ("drift_cm", "force_n")  # observed measures a fit can explain: trial outcomes of the same name
+DESIGN = ("condition", "offset_m", "stimulation", "delay_s", "time_s")
+COLUMNS = ("participant", *DESIGN, *MEASURES)
+NUMERIC = ("offset_m", "delay_s", "time_s", *MEASURES)
+MAX_DATA_BYTES = 64 * 2**20  # a data file; a study's table is a few KiB
+
+
+@dataclass(frozen=True)
+class Data:
+    """A checked data file: the design's cells and each participant's summary statistics."""
+
+    path: str
+    participants: list[str]                     # in the file's order of first appearance
+    cells: list[tuple[str, str]]                # (condition, stimulation) names, sorted
+    conditions: dict[str, float]                # offset_m columns' conditions: name -> offset (m); named: {}
+    stimulations: dict[str, float]              # delay_s columns' stimulations: name -> fixed delay (s)
+    measures: list[str]                         # observed measures, in MEASURES order
+    observed: np.ndarray                        # (participants, cells x measures): cell means, cell-major
+    counts: np.ndarray                          # (participants, cells): rows averaged per cell
+    time_s: float | None                        # the trials' length, when the file gives it
+
+    def statistic_names(self) -> list[str]:
+        """One name per column of ``observed``: ``drift_cm[left/sync]``."""
+        return [f"{measure}[{condition}/{stimulation}]" for condition, stimulation in self.cells
+                for measure in self.measures]
+
+
+def offset_name(offset: float) -> str:
+    """The condition a lateral offset defines: ``offset_-0.15_m``."""
+    return f"offset_{offset:+.6g}_m"
+
+
+def delay_name(delay: float) -> str:
+    """The stimulation a fixed delay defines: ``delay_0.3_s``."""
+    return f"delay_{delay:.6g}_s"
+
+
+def read_data(path: str | Path) -> Data:
+    """Read and check FILE.csv (module notes); a ConfigError names the first problem, with its line."""
+    rows, header = read_rows(path)
+    name = Path(path).name
+    for column in header:
+        if column not in COLUMNS:
+            close = difflib.get_close_matches(column, COLUMNS, n=1)
+            raise ConfigError(f"{name}: unknown column {column!r}{f' (did you mean {close[0]!r}?)' if close else ''}; "
+                              f"known: {', '.join(COLUMNS)}")
+    if len(set(header)) != len(header):
+        raise ConfigError(f"{name}: a column appears twice in the header")
+    if "participant" not in header:
+        raise ConfigError(f"{name}: no participant column")
+    for pair in (("condition", "offset_m"), ("stimulation", "delay_s")):
+        given = [c for c in pair if c in header]
+        if len(given) != 1:
+            raise ConfigError(f"{name}: give exactly one of the columns {pair[0]} and {pair[1]}, got "
+                              f"{', '.join(given) or 'neither'}")
+    measures = [m for m in MEASURES if m in header]
+    if "drift_cm" not in measures:
+        raise ConfigError(f"{name}: no drift_cm column (the observed drift, cm)")
+    if not rows:
+        raise ConfigError(f"{name}: no data rows")
+    values = []
+    for line, row in rows:
+        if len(row) != len(header):
+            raise ConfigError(f"{name} line {line}: {len(row)} values for {len(header)} columns")
+        record = {}
+        for column, text in zip(header, row):
+            text = text.strip()
+            if not text:
+                raise ConfigError(f"{name} line {line}: empty value in column {column}")
+            if column in NUMERIC:
+                try:
+                    number = float(text)
+                except ValueError:
+                    raise ConfigError(f"{name} line {line}: column {column} = {text[:40]!r} is not a number") from None
+                if not math.isfinite(number):
+                    raise ConfigError(f"{name} line {line}: column {column} = {text[:40]!r} is not a finite number")
+                if column in ("delay_s", "time_s") and not (number >= 0 if column == "delay_s" else number > 0):
+                    raise ConfigError(f"{name} line {line}: column {column} = {text} must be "
+                                      f"{'>= 0' if column == 'delay_s' else 'positive'}")
+                record[column] = number
+            else:
+                record[column] = text
+        values.append((line, record))
+    return summarise(str(path), values, measures)
+
+
+def read_rows(path: str | Path) -> tuple[list[tuple[int, list[str]]], list[str]]:
+    """The header and the (line, values) of each non-blank row; a ConfigError for an unreadable file."""
+    name = Path(path).name
+    try:
+        if Path(path).is_dir():
+            raise ConfigError(f"data file {path} is a folder, not a CSV file")
+        with open(path, "rb") as file:
+            raw = file.read(MAX_DATA_BYTES + 1)
+    except FileNotFoundError:
+        raise ConfigError(f"data file {path} does not exist") from None
+    except OSError as error:
+        raise ConfigError(f"data file {path} cannot be read: {error.strerror or error}") from None
+    if len(raw) > MAX_DATA_BYTES:
+        raise ConfigError(f"data file {path} is over the limit of {MAX_DATA_BYTES} bytes")
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as error:
+        raise ConfigError(f"data file {path} is not UTF-8 text (byte at position {error.start})") from None
+    try:
+        parsed = list(csv.reader(text.splitlines()))
+    except csv.Error as error:
+        raise ConfigError(f"{name}: not a CSV file ({error})") from None
+    numbered = [(line, row) for line, row in enumerate(parsed, start=1) if any(cell.strip() for cell in row)]
+    if not numbered:
+        raise ConfigError(f"{name}: empty (no header)")
+    (_, header), *rows = numbered
+    return rows, [column.strip() for column in header]
+
+
+def summarise(path: str, values: list[tuple[int, dict]], measures: list[str]) -> Data:
+    """Cell means per participant; a ConfigError for a participant lacking a cell or two trial lengths."""
+    name = Path(path).name
+    conditions, stimulations, cell_of = {}, {}, []
+    for _, record in values:
+        if "offset_m" in record:
+            condition = offset_name(record["offset_m"])
+            conditions[condition] = record["offset_m"]
+        else:
+            condition = record["condition"]
+        if "delay_s" in record:
+            stimulation = delay_name(record["delay_s"])
+            stimulations[stimulation] = record["delay_s"]
+        else:
+            stimulation = record["stimulation"]
+        cell_of.append((condition, stimulation))
+    lengths = sorted({record["time_s"] for _, record in values if "time_s" in record})
+    if len(lengths) > 1:
+        raise ConfigError(f"{name}: column time_s has {len(lengths)} values ({', '.join(f'{t:g}' for t in lengths[:4])}"
+                          f"{', ...' if len(lengths) > 4 else ''}); a fit simulates one trial length")
+    participants = list(dict.fromkeys(record["participant"] for _, record in values))
+    cells = sorted(set(cell_of))
+    sums = np.zeros((len(participants), len(cells), len(measures)))
+    counts = np.zeros((len(participants), len(cells)), dtype=int)
+    where = {p: n for n, p in enumerate(participants)}
+    column = {c: n for n, c in enumerate(cells)}
+    for (_, record), cell in zip(values, cell_of):
+        row, position = where[record["participant"]], column[cell]
+        sums[row, position] += [record[m] for m in measures]
+        counts[row, position] += 1
+    for row, participant in enumerate(participants):
+        missing = [f"{c}/{s}" for (c, s), count in zip(cells, counts[row]) if count == 0]
+        if missing:
+            raise ConfigError(f"{name}: participant {participant} has no row for the design cell {missing[0]}"
+                              f"{f' (and {len(missing) - 1} more)' if len(missing) > 1 else ''}; every participant "
+                              "needs every cell")
+    observed = (sums / counts[:, :, None]).reshape(len(participants), -1)
+    return Data(path, participants, cells, conditions, stimulations, measures, observed, counts,
+                lengths[0] if lengths else None)
+
+
+def check_against(data: Data, config: dict) -> None:
+    """The named conditions and stimulations must exist in the fit's configuration."""
+    name = Path(data.path).name
+    for condition, stimulation in data.cells:
+        if condition not in data.conditions and condition not in config["conditions"]:
+            raise ConfigError(f"{name}: condition {condition!r} is not defined in [conditions] "
+                              f"({', '.join(config['conditions'])}); give offset_m instead, or define it in the fit file")
+        if stimulation not in data.stimulations and stimulation not in config["stimulations"]:
+            raise ConfigError(f"{name}: stimulation {stimulation!r} is not defined in [stimulations] "
+                              f"({', '.join(config['stimulations'])}); give delay_s instead, or define it in the fit file")

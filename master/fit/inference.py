@@ -1,0 +1,155 @@
+"""Neural posterior estimation with the ``sbi`` package: the prior in the inference space, training one
+amortised estimator on the simulated participants, saving and loading it, sampling a participant's posterior.
+
+The estimator is a conditional normalising flow (``fit.estimator``: a masked autoregressive flow by default,
+Papamakarios, Pavlakou & Murray 2017, as ``sbi`` builds it), trained by maximum likelihood on (parameters,
+summary statistics) pairs drawn from the prior and the simulator (NPE: Papamakarios & Murray 2016; Greenberg,
+Nonnenmacher & Macke 2019). Trained once, it gives the posterior of any participant of the same design in one
+pass of the flow (amortisation). Same seed, same threads, same data: the same weights and the same samples.
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from master.fit.plan import Parameter
+
+
+def torch_prior(parameters: list[Parameter]):
+    """The prior in the inference space as a torch distribution over (parameters,) vectors (sbi's
+    MultipleIndependent of one-dimensional uniforms, normals and truncated normals)."""
+    import torch
+    from sbi.utils import MultipleIndependent
+
+    parts = []
+    for parameter in parameters:
+        low, high = (float(parameter.to_inference(bound)) for bound in (parameter.low, parameter.high))
+        if parameter.prior == "normal":
+            if math.isfinite(low) or math.isfinite(high):
+                parts.append(TruncatedNormal(parameter.mean, parameter.sd, low, high))
+            else:
+                parts.append(torch.distributions.Normal(torch.tensor([parameter.mean]), torch.tensor([parameter.sd])))
+        else:
+            parts.append(torch.distributions.Uniform(torch.tensor([low]), torch.tensor([high])))
+    return MultipleIndependent(parts, validate_args=False)
+
+
+def truncated_normal_class():
+    import torch
+    from torch.distributions import constraints
+
+    class _TruncatedNormal(torch.distributions.Distribution):
+        """A normal of ``mean`` and ``sd`` restricted to [low, high], one-dimensional (shape (1,))."""
+
+        arg_constraints: dict = {}
+        has_rsample = False
+
+        def __init__(self, mean, sd, low, high):
+            self.mean_, self.sd_ = torch.tensor([float(mean)]), torch.tensor([float(sd)])
+            self.low, self.high = torch.tensor([float(low)]), torch.tensor([float(high)])
+            normal = torch.distributions.Normal(self.mean_, self.sd_)
+            self.normal = normal
+            self.cdf_low, self.cdf_high = normal.cdf(self.low), normal.cdf(self.high)
+            super().__init__(batch_shape=torch.Size([1]), validate_args=False)
+
+        @property
+        def support(self):
+            return constraints.interval(self.low, self.high)
+
+        def sample(self, sample_shape=torch.Size()):
+            uniform = torch.rand(torch.Size(sample_shape) + self.batch_shape)
+            probability = self.cdf_low + uniform * (self.cdf_high - self.cdf_low)
+            return torch.clamp(self.mean_ + self.sd_ * torch.special.ndtri(probability), self.low, self.high)
+
+        def log_prob(self, value):
+            inside = (value >= self.low) & (value <= self.high)
+            density = self.normal.log_prob(value) - torch.log(self.cdf_high - self.cdf_low)
+            return torch.where(inside, density, torch.full_like(density, -math.inf))
+
+    return _TruncatedNormal
+
+
+def TruncatedNormal(mean, sd, low, high):  # noqa: N802: a distribution's constructor
+    return truncated_normal_class()(mean, sd, low, high)
+
+
+def builder(settings: dict):
+    """sbi's density-estimator builder for ``fit.estimator``'s settings."""
+    from sbi.neural_nets import posterior_nn
+
+    return posterior_nn(model=settings["density"], hidden_features=settings["hidden_features"],
+                        num_transforms=settings["transforms"])
+
+
+def train(parameters: list[Parameter], theta: np.ndarray, x: np.ndarray, settings: dict, seed: int) -> tuple:
+    """Train the estimator on (theta, x) (rows: simulated participants; theta in the inference space).
+
+    Returns (the trained estimator, a summary: epochs, best validation loss, seconds)."""
+    import torch
+    from sbi.inference import NPE
+
+    torch.set_num_threads(settings["threads"])
+    torch.manual_seed(seed)
+    began = time.perf_counter()
+    inference = NPE(prior=torch_prior(parameters), density_estimator=builder(settings), show_progress_bars=False,
+                    tracker=NoTracker())
+    inference.append_simulations(torch.as_tensor(theta, dtype=torch.float32), torch.as_tensor(x, dtype=torch.float32))
+    estimator = inference.train(training_batch_size=settings["batch_size"], learning_rate=settings["learning_rate"],
+                                max_num_epochs=settings["max_epochs"], show_train_summary=False)
+    summary = inference.summary
+    return estimator, {"epochs": int(summary["epochs_trained"][-1]),
+                       "best_validation_loss": float(summary["best_validation_loss"][-1]),
+                       "seconds": round(time.perf_counter() - began, 3), "training_participants": int(len(theta))}
+
+
+class NoTracker:
+    """sbi's training log kept nowhere (its default writes TensorBoard files under the working folder)."""
+
+    log_dir = None
+
+    def log_metric(self, name, value, step=None):
+        pass
+
+    def log_metrics(self, metrics, step=None):
+        pass
+
+    def log_params(self, params):
+        pass
+
+    def add_figure(self, name, figure, step=None):
+        pass
+
+    def flush(self):
+        pass
+
+
+def rebuild(parameters: list[Parameter], theta: np.ndarray, x: np.ndarray, settings: dict, state: dict, seed: int):
+    """The estimator of ``state`` (its saved weights): built on the same training set (which fixes the
+    z-scoring and the shapes), then the weights loaded."""
+    import torch
+
+    torch.set_num_threads(settings["threads"])
+    torch.manual_seed(seed)
+    estimator = builder(settings)(torch.as_tensor(theta, dtype=torch.float32), torch.as_tensor(x, dtype=torch.float32))
+    estimator.load_state_dict(state)
+    return estimator.eval()
+
+
+def posterior(parameters: list[Parameter], estimator):
+    from sbi.inference.posteriors import DirectPosterior
+
+    return DirectPosterior(posterior_estimator=estimator, prior=torch_prior(parameters))
+
+
+def sample(posterior_, x: np.ndarray, count: int, seed: int) -> np.ndarray:
+    """(count, parameters) samples of the posterior given one participant's statistics ``x``, in the inference
+    space; the same seed, the same samples."""
+    import torch
+
+    torch.manual_seed(seed)
+    with torch.no_grad():
+        samples = posterior_.sample((count,), x=torch.as_tensor(np.asarray(x)[None], dtype=torch.float32),
+                                    show_progress_bars=False)
+    return samples.double().numpy()

@@ -1,0 +1,265 @@
+"""FIT.toml: which parameters to fit, their priors, the simulations and the estimator; the prior sampled.
+
+A fit file is an ordinary configuration file (any tables of ``master/defaults.toml``, fixed for every
+simulation) plus a ``[fit]`` table (docs/fit.md)::
+
+    [fit]
+    simulations = 1000                 # prior draws to train on (simulated participants)
+    calibration = 100                  # held-out draws for the calibration (SBC, coverage, recovery)
+    seed = 0
+    [fit.parameters."decoder.visual_variance"]
+    prior = "log-uniform"              # uniform, log-uniform or normal (mean, sd; low, high bound it)
+    low = 5.0
+    high = 80.0
+
+The estimator works in an *inference space*: the logarithm of a log-uniform parameter, the parameter
+itself otherwise, where every prior is a uniform or a (truncated) normal.
+"""
+from __future__ import annotations
+
+import hashlib
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from master.cosim import ConfigError
+from master.experiment import config as configuration
+from master.experiment.wiring import PARAMETER_SOURCES, batchable_keys, config_key
+from master.fit.data import MEASURES, Data, check_against
+
+PRIORS = ("uniform", "log-uniform", "normal")
+FIT_KEYS = ("model", "quick", "simulations", "calibration", "seed", "trials_per_cell", "participants_per_batch",
+            "workers", "measures", "posterior_samples", "calibration_samples", "predictive_draws",
+            "predictive_participants", "noise", "estimator", "parameters")
+ESTIMATOR_DEFAULTS = {"density": "maf", "hidden_features": 32, "transforms": 3, "batch_size": 64,
+                      "max_epochs": 500, "learning_rate": 5e-4, "threads": 2}
+DENSITIES = ("maf", "nsf", "mdn")
+WHOLE = {"simulations": 1000, "calibration": 100, "seed": 0, "trials_per_cell": 1, "participants_per_batch": 10,
+         "posterior_samples": 1000, "calibration_samples": 99, "predictive_draws": 10, "predictive_participants": 8}
+MAX_SIMULATIONS = 100_000
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """One fitted parameter: its configuration key and its prior."""
+
+    key: str                    # the configuration key, e.g. decoder.visual_variance
+    prior: str                  # one of PRIORS
+    low: float = -math.inf      # bounds, in the parameter's own units
+    high: float = math.inf
+    mean: float = 0.0           # normal only
+    sd: float = 1.0
+
+    @property
+    def log(self) -> bool:
+        """Whether the inference space is the parameter's logarithm."""
+        return self.prior == "log-uniform"
+
+    def to_inference(self, values):
+        return np.log(values) if self.log else np.asarray(values, dtype=float)
+
+    def from_inference(self, values):
+        return np.exp(values) if self.log else np.asarray(values, dtype=float)
+
+    def describe(self) -> dict:
+        text = {"key": self.key, "prior": self.prior}
+        if self.prior == "normal":
+            text.update(mean=self.mean, sd=self.sd)
+        for bound in ("low", "high"):
+            if math.isfinite(getattr(self, bound)):
+                text[bound] = getattr(self, bound)
+        return text
+
+
+@dataclass(frozen=True)
+class FitPlan:
+    parameters: list[Parameter]
+    base: dict                           # the configuration every simulation starts from (design included)
+    settings: dict                       # [fit]'s whole numbers, model, quick, workers
+    measures: list[str]                  # the summary statistics' measures, per design cell
+    noise: dict[str, float]              # measure -> sd of the observation noise added to a simulated cell mean
+    estimator: dict = field(default_factory=dict)
+
+
+def parameter_key(written: str, config: dict) -> str:
+    """The configuration key a fit file names, as a key (``brain.sync_sd``) or a component parameter
+    (``brain.timing_noise_sd`` -> ``causal.timing_noise_sd``); ConfigError unless a fit can vary it."""
+    from master.experiment import causal
+
+    key = written
+    sources = {**PARAMETER_SOURCES, **(causal.PARAMETER_SOURCES if "causal" in config else {})}
+    if written in sources and config_key(sources[written]):
+        key = config_key(sources[written])
+    allowed = sorted(batchable_keys(config))
+    if key not in allowed:
+        table, _, name = key.partition(".")
+        if table in config and isinstance(config[table], dict) and name in config[table]:
+            raise ConfigError(f"fit.parameters.{written}: not a parameter a fit can vary (a float that sets a "
+                              f"component parameter per trial: {', '.join(allowed)})")
+        raise configuration.unknown_key(f"fit.parameters.{written}", [k.partition(".")[2] for k in allowed
+                                                                        if k.startswith(table + ".")] or allowed)
+    return key
+
+
+def read_parameter(written: str, spec, config: dict) -> Parameter:
+    where = f"fit.parameters.{written}"
+    if not isinstance(spec, dict):
+        raise ConfigError(f"{where} must be a table with a prior (uniform, log-uniform or normal)")
+    key = parameter_key(written, config)
+    allowed = {"uniform": {"prior", "low", "high"}, "log-uniform": {"prior", "low", "high"},
+               "normal": {"prior", "mean", "sd", "low", "high"}}
+    prior = spec.get("prior")
+    if prior not in PRIORS:
+        raise ConfigError(f"{where}.prior = {prior!r} is not one of {', '.join(PRIORS)}")
+    for name, value in spec.items():
+        if name not in allowed[prior]:
+            raise configuration.unknown_key(f"{where}.{name}", sorted(allowed[prior]), "fit")
+        if name != "prior" and (not isinstance(value, (int, float)) or isinstance(value, bool)
+                                or not math.isfinite(value)):
+            raise ConfigError(f"{where}.{name} = {value!r} must be a finite number")
+    needed = {"low", "high"} if prior != "normal" else {"mean", "sd"}
+    missing = sorted(needed - set(spec))
+    if missing:
+        raise ConfigError(f"{where}: a {prior} prior needs {' and '.join(missing)}")
+    parameter = Parameter(key, prior, float(spec.get("low", -math.inf)), float(spec.get("high", math.inf)),
+                          float(spec.get("mean", 0.0)), float(spec.get("sd", 1.0)))
+    if not parameter.low < parameter.high:
+        raise ConfigError(f"{where}: low must be below high, got {parameter.low} and {parameter.high}")
+    if prior == "log-uniform" and parameter.low <= 0:
+        raise ConfigError(f"{where}: a log-uniform prior needs low > 0, got {parameter.low}")
+    if prior == "normal" and parameter.sd <= 0:
+        raise ConfigError(f"{where}.sd must be positive, got {parameter.sd}")
+    for bound in (parameter.low, parameter.high):  # the prior's support must be a valid configuration
+        if math.isfinite(bound):
+            table, name = key.split(".")
+            try:
+                configuration.validate(configuration.merge(config, {table: {name: bound}}))
+            except ConfigError as error:
+                raise ConfigError(f"{where}: the bound {bound:g} is not a valid value ({error})") from None
+    return parameter
+
+
+def read_plan(path: str, data: Data, model: str | None = None) -> FitPlan:
+    """Read and check FIT.toml against the data's design; the base configuration of every simulation."""
+    fixed = configuration.read_toml(path)
+    settings = fixed.pop("fit", None)
+    if not isinstance(settings, dict):
+        raise ConfigError(f"fit file {path} has no [fit] table (it says which parameters to fit)")
+    for key in settings:
+        if key not in FIT_KEYS:
+            raise configuration.unknown_key(f"fit.{key}", FIT_KEYS, "fit")
+    model = model or settings.get("model", "paper")
+    if model not in configuration.MODELS:
+        raise ConfigError(f"fit.model = {model!r} is not one of {', '.join(configuration.MODELS)}")
+    quick = settings.get("quick", False)
+    if not isinstance(quick, bool):
+        raise ConfigError(f"fit.quick must be true or false, got {quick!r}")
+    whole = {}
+    for key, default in WHOLE.items():
+        value = settings.get(key, default)
+        lowest = 0 if key in ("seed", "calibration", "predictive_draws", "predictive_participants") else 1
+        if not isinstance(value, int) or isinstance(value, bool) or value < lowest or value > MAX_SIMULATIONS * 10:
+            raise ConfigError(f"fit.{key} must be a whole number of at least {lowest}, got {value!r}")
+        whole[key] = value
+    if whole["simulations"] + whole["calibration"] > MAX_SIMULATIONS:
+        raise ConfigError(f"fit.simulations + fit.calibration is over the limit of {MAX_SIMULATIONS}")
+    if whole["simulations"] < 10:
+        raise ConfigError(f"fit.simulations must be at least 10 to train an estimator, got {whole['simulations']}")
+    workers = settings.get("workers")
+    if workers is not None and (not isinstance(workers, int) or isinstance(workers, bool) or workers < 1):
+        raise ConfigError(f"fit.workers must be a whole number of at least 1, got {workers!r}")
+    base = configuration.merge(configuration.load(quick=quick, model_name=model), fixed)
+    if "decoders" not in fixed.get("experiment", {}):
+        base["experiment"]["decoders"] = ["conv"]
+    if len(base["experiment"]["decoders"]) != 1:
+        raise ConfigError("experiment.decoders: a fit simulates one decoder; name one")
+    base = with_design(base, data, whole["trials_per_cell"])
+    parameters = settings.get("parameters")
+    if not isinstance(parameters, dict) or not parameters:
+        raise ConfigError("fit.parameters: name at least one parameter to fit, each a table with its prior")
+    fitted = [read_parameter(written, spec, base) for written, spec in parameter_tables(parameters)]
+    if len({p.key for p in fitted}) != len(fitted):
+        raise ConfigError("fit.parameters names one parameter twice")
+    measures = settings.get("measures", data.measures)
+    if not isinstance(measures, list) or not measures or any(m not in data.measures for m in measures):
+        raise ConfigError(f"fit.measures = {measures!r} must list measures of the data file ({', '.join(data.measures)})")
+    measures = [m for m in MEASURES if m in measures]
+    noise = settings.get("noise", {})
+    if not isinstance(noise, dict):
+        raise ConfigError("fit.noise must be a table: measure = sd of the observation noise")
+    for key, value in noise.items():
+        if key not in MEASURES:
+            raise configuration.unknown_key(f"fit.noise.{key}", MEASURES, "fit")
+        if not isinstance(value, (int, float)) or isinstance(value, bool) or not (math.isfinite(value) and value >= 0):
+            raise ConfigError(f"fit.noise.{key} = {value!r} must be a number >= 0")
+    estimator = settings.get("estimator", {})
+    if not isinstance(estimator, dict):
+        raise ConfigError("fit.estimator must be a table")
+    for key, value in estimator.items():
+        if key not in ESTIMATOR_DEFAULTS:
+            raise configuration.unknown_key(f"fit.estimator.{key}", ESTIMATOR_DEFAULTS, "fit")
+        default = ESTIMATOR_DEFAULTS[key]
+        if isinstance(default, str):
+            if value not in DENSITIES:
+                raise ConfigError(f"fit.estimator.density = {value!r} is not one of {', '.join(DENSITIES)}")
+        elif (not isinstance(value, (int, float)) or isinstance(value, bool) or not value > 0
+              or (isinstance(default, int) and not isinstance(value, int))):
+            raise ConfigError(f"fit.estimator.{key} = {value!r} must be a positive "
+                              f"{'whole number' if isinstance(default, int) else 'number'}")
+    return FitPlan(fitted, base, {**whole, "model": model, "quick": quick, "workers": workers}, measures,
+                   {m: float(noise.get(m, 0.0)) for m in measures}, {**ESTIMATOR_DEFAULTS, **estimator})
+
+
+def with_design(config: dict, data: Data, trials: int) -> dict:
+    """``config`` running exactly the data's design: its conditions and stimulations, one trial length."""
+    config = configuration.merge(config, {
+        "conditions": dict(data.conditions),
+        "stimulations": {name: {"delay_min": delay, "delay_max": delay} for name, delay in data.stimulations.items()}})
+    check_against(data, config)
+    config["experiment"]["conditions"] = sorted({c for c, _ in data.cells})
+    config["experiment"]["stimulations"] = sorted({s for _, s in data.cells})
+    config["experiment"]["trials"] = trials
+    if data.time_s is not None:
+        steps = round(data.time_s / config["experiment"]["step_size"])
+        if steps < 1 or abs(steps * config["experiment"]["step_size"] - data.time_s) > 1e-9 * max(1.0, data.time_s):
+            raise ConfigError(f"{data.path}: time_s = {data.time_s:g} s is not a whole number of steps of "
+                              f"{config['experiment']['step_size']:g} s")
+        config["experiment"]["steps"] = steps
+    configuration.validate(config)
+    return config
+
+
+def draw_prior(parameters: list[Parameter], count: int, seed: int) -> np.ndarray:
+    """``count`` draws of the prior, (count, parameters), in the inference space; the same seed, the same draws."""
+    from scipy import stats
+
+    rng = np.random.default_rng([seed, 0])
+    columns = []
+    for parameter in parameters:
+        low, high = parameter.to_inference(parameter.low), parameter.to_inference(parameter.high)
+        if parameter.prior == "normal":
+            a, b = (low - parameter.mean) / parameter.sd, (high - parameter.mean) / parameter.sd
+            columns.append(stats.truncnorm.rvs(a, b, loc=parameter.mean, scale=parameter.sd, size=count,
+                                               random_state=rng))
+        else:
+            columns.append(rng.uniform(low, high, size=count))
+    return np.stack(columns, axis=1)
+
+
+def simulation_seed(seed: int, number: int, stream: str = "train") -> int:
+    """The master seed (experiment.seed) of simulated participant ``number``: its own tactile delays."""
+    digest = hashlib.sha256(f"rhi fit/{seed}/{stream}/{number}".encode()).digest()
+    return int.from_bytes(digest[:8], "little") >> 1
+
+
+def parameter_tables(table: dict, prefix: str = "") -> list[tuple[str, object]]:
+    """``fit.parameters`` as (dotted key, prior table) pairs, quoted (``"brain.sync_sd"``) or nested keys alike:
+    a table with a ``prior`` is a prior."""
+    found = []
+    for key, value in table.items():
+        if isinstance(value, dict) and "prior" not in value:
+            found += parameter_tables(value, f"{prefix}{key}.")
+        else:
+            found.append((f"{prefix}{key}", value))
+    return found

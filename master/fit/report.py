@@ -1,0 +1,165 @@
+"""A fit's tables and figures: posterior samples, estimates, calibration, recovery, posterior predictive checks.
+
+Every number is written with :func:`master.outputs.tables.number` (fixed formatting: the same numbers, the same
+bytes); every file whole or absent (atomic writes).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from master.fit.calibration import LEVELS, central_interval, rank_histogram  # noqa: E402
+from master.fit.plan import Parameter  # noqa: E402
+from master.outputs.figures import METADATA  # noqa: E402
+from master.outputs.files import atomic_write  # noqa: E402
+from master.outputs.tables import csv_text, number  # noqa: E402
+
+# column -> meaning, for docs/fit.md (each file's columns)
+POSTERIOR_COLUMNS = {"participant": "the participant's label in the data file", "sample": "the sample's index",
+                     "KEY": "one column per fitted parameter (its configuration key): the sample's value, in the "
+                            "key's own unit"}
+ESTIMATE_COLUMNS = {"participant": "the participant's label", "parameter": "the fitted parameter's key",
+                    "median": "posterior median, in the key's unit", "q05": "5th percentile (the 90 % interval's "
+                    "low end)", "q95": "95th percentile", "q25": "25th percentile", "q75": "75th percentile"}
+CALIBRATION_COLUMNS = {
+    "parameter": "the fitted parameter's key", "held_out": "held-out simulated participants",
+    "correlation": "Pearson's r of the true values and the posterior medians (in the inference space: the "
+                   "logarithm of a log-uniform parameter)",
+    "sd_ratio": "mean posterior sd / the prior's sd over the held-out participants (near 1: not identified)",
+    "coverage_50": "share of true values inside the central 50 % interval",
+    "coverage_90": "share of true values inside the central 90 % interval",
+    "sbc_bins": "bins of the SBC rank histogram", "sbc_chisquare": "chi-square statistic of the histogram against "
+    "the uniform", "sbc_chisquare_p": "its p-value (scipy.stats.chisquare)",
+    "sbc_ks": "Kolmogorov-Smirnov statistic of the scaled ranks against U(0, 1)",
+    "sbc_ks_p": "its p-value (scipy.stats.kstest)"}
+
+
+def natural(parameters: list[Parameter], inference: np.ndarray) -> np.ndarray:
+    """Samples (..., parameters) from the inference space to the parameters' own units."""
+    return np.stack([p.from_inference(inference[..., d]) for d, p in enumerate(parameters)], axis=-1)
+
+
+def posterior_csv(parameters: list[Parameter], participants: list[str], samples: np.ndarray) -> str:
+    """samples: (participants, L, parameters) in the parameters' units."""
+    rows = [[participant, index, *(number(v) for v in sample)] for participant, block in zip(participants, samples)
+            for index, sample in enumerate(block)]
+    return csv_text(["participant", "sample", *(p.key for p in parameters)], rows)
+
+
+def estimates_csv(parameters: list[Parameter], participants: list[str], samples: np.ndarray) -> str:
+    rows = []
+    for participant, block in zip(participants, samples):
+        for d, parameter in enumerate(parameters):
+            q = np.quantile(block[:, d], (0.5, 0.05, 0.95, 0.25, 0.75))
+            rows.append([participant, parameter.key, *(number(v) for v in q)])
+    return csv_text(list(ESTIMATE_COLUMNS), rows)
+
+
+def calibration_csv(parameters: list[Parameter], result: dict) -> str:
+    u, r = result["uniformity"], result["recovery"]
+    rows = [[p.key, result["participants"], number(r["correlation"][d]), number(r["sd_ratio"][d]),
+             number(result["coverage"][0.5][d]), number(result["coverage"][0.9][d]), u["bins"],
+             number(u["chisquare"][d]), number(u["chisquare_p"][d]), number(u["ks"][d]), number(u["ks_p"][d])]
+            for d, p in enumerate(parameters)]
+    return csv_text(list(CALIBRATION_COLUMNS), rows)
+
+
+def recovery_csv(parameters: list[Parameter], truths: np.ndarray, samples: np.ndarray, ranks: np.ndarray) -> str:
+    """One row per held-out participant: true value, posterior median and 90 % interval, rank, per parameter
+    (parameters' units)."""
+    low, high = central_interval(samples, 0.9, axis=1)
+    median = np.median(samples, axis=1)
+    header = ["held_out", *(f"{p.key}{suffix}" for p in parameters
+                            for suffix in ("_true", "_median", "_q05", "_q95", "_rank"))]
+    rows = [[n, *(x for d in range(len(parameters)) for x in (number(truths[n, d]), number(median[n, d]),
+                                                              number(low[n, d]), number(high[n, d]), ranks[n, d]))]
+            for n in range(len(truths))]
+    return csv_text(header, rows)
+
+
+def calibration_figure(parameters: list[Parameter], result: dict, truths: np.ndarray, path: Path) -> None:
+    """Per parameter: the SBC rank histogram with the uniform's 99 % band, and true value against median."""
+    count, samples = result["participants"], result["samples"]
+    bins = result["uniformity"]["bins"]
+    counts = rank_histogram(result["ranks"], samples, bins)
+    fig, axes = plt.subplots(2, len(parameters), figsize=(3.6 * len(parameters), 6.4), squeeze=False)
+    from scipy import stats
+
+    expected = count / bins
+    band = stats.binom.interval(0.99, count, 1 / bins)
+    for d, parameter in enumerate(parameters):
+        axis = axes[0, d]
+        axis.bar(np.arange(bins), counts[:, d], width=0.9, color="tab:blue")
+        axis.axhspan(*band, color="gray", alpha=0.2, label="uniform, 99 %")
+        axis.axhline(expected, color="k", lw=0.8)
+        axis.set_title(f"{parameter.key}\nSBC p = {result['uniformity']['chisquare_p'][d]:.2f} (chi-square)",
+                       fontsize=8)
+        axis.set_xlabel(f"rank bin ({samples + 1} ranks in {bins} bins)", fontsize=8)
+        axis = axes[1, d]
+        medians = result["recovery"]["medians"][:, d]
+        axis.plot(truths[:, d], medians, "o", ms=3)
+        ends = [min(truths[:, d].min(), medians.min()), max(truths[:, d].max(), medians.max())]
+        axis.plot(ends, ends, "k-", lw=0.8)
+        axis.set_xlabel(f"true{' (log)' if parameter.log else ''}", fontsize=8)
+        axis.set_ylabel("posterior median", fontsize=8)
+        axis.set_title(f"r = {result['recovery']['correlation'][d]:.3f}, 90 % coverage "
+                       f"{result['coverage'][0.9][d]:.2f}", fontsize=8)
+    axes[0, 0].legend(fontsize=7)
+    fig.suptitle(f"rhi fit: calibration on {count} held-out simulated participants", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100, metadata=METADATA)
+    plt.close(fig)
+
+
+def predictive_figure(names: list[str], participants: list[str], observed: np.ndarray, predicted: np.ndarray,
+                      path: Path) -> None:
+    """Per participant (a panel each): the observed statistics and the posterior predictive's median and 90 %
+    interval. observed: (participants, statistics); predicted: (participants, draws, statistics)."""
+    count = len(participants)
+    columns = min(4, count)
+    rows = -(-count // columns)
+    fig, axes = plt.subplots(rows, columns, figsize=(4.2 * columns, 3.2 * rows), squeeze=False)
+    positions = np.arange(len(names))
+    for n, (participant, axis) in enumerate(zip(participants, axes.flat)):
+        draws = predicted[n][np.all(np.isfinite(predicted[n]), axis=1)]
+        if len(draws):
+            low, high = central_interval(draws, 0.9, axis=0)
+            axis.fill_between(positions, low, high, color="tab:blue", alpha=0.25, step="mid",
+                              label="posterior predictive, 90 %")
+            axis.plot(positions, np.median(draws, axis=0), "_", color="tab:blue", ms=14, mew=2, label="its median")
+        axis.plot(positions, observed[n], "o", color="k", ms=4, label="data")
+        axis.set_xticks(positions, names, rotation=60, ha="right", fontsize=6)
+        axis.axhline(0, color="k", lw=0.5)
+        axis.set_title(f"participant {participant} ({len(draws)} draws)", fontsize=8)
+        axis.grid(alpha=0.3)
+    for axis in list(axes.flat)[count:]:
+        axis.axis("off")
+    axes[0, 0].legend(fontsize=6)
+    fig.suptitle("rhi fit: posterior predictive check (each statistic in its measure's unit)", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100, metadata=METADATA)
+    plt.close(fig)
+
+
+def predictive_csv(names: list[str], participants: list[str], observed: np.ndarray, predicted: np.ndarray) -> str:
+    rows = []
+    for n, participant in enumerate(participants):
+        draws = predicted[n][np.all(np.isfinite(predicted[n]), axis=1)]
+        for s, name in enumerate(names):
+            q = np.quantile(draws[:, s], (0.5, 0.05, 0.95)) if len(draws) else [np.nan] * 3
+            rows.append([participant, name, number(observed[n, s]), len(draws), *(number(v) for v in q)])
+    return csv_text(["participant", "statistic", "observed", "draws", "predicted_median", "predicted_q05",
+                     "predicted_q95"], rows)
+
+
+def write_table(path: Path, text: str) -> None:
+    atomic_write(path, text)
+
+
+__all__ = ["LEVELS", "natural", "posterior_csv", "estimates_csv", "calibration_csv", "recovery_csv",
+           "calibration_figure", "predictive_figure", "predictive_csv"]

@@ -1,0 +1,258 @@
+"""`rhi fit`: the data and the fit file checked, the simulated participants run (resumably), the estimator
+trained, every participant's posterior, the calibration on held-out simulations, the posterior predictive
+check, and run.json.
+
+DIR holds (docs/fit.md): fit.json (what the fit is: its fingerprint), simulations/ (a sweep folder: the prior's
+simulated participants, a record per trial), estimator.pt, posterior.csv, estimates.csv, calibration.csv,
+recovery.csv, held_out.csv, predictive/ (a sweep folder) and predictive.csv, figures/, run.json. A killed fit
+run again reruns only the missing trials and gives the same bytes (same seed, same CPU). The data may change
+between runs of the same fit (same design): the simulations and the estimator are reused, the posteriors
+computed anew (one trained estimator serves every participant of the design).
+"""
+from __future__ import annotations
+
+import json
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+
+from master.cosim import ConfigError
+from master.fit import report
+from master.fit.calibration import calibrate
+from master.fit.data import Data, read_data
+from master.fit.plan import FitPlan, draw_prior, read_plan, simulation_seed
+from master.fit.simulate import Pool, participants_sweep, simulate, statistics, with_noise
+from master.outputs.files import atomic_write, package_versions
+from master.sweeps.plan import canonical_hash
+
+COMMAND = "rhi fit"
+OUTPUTS = ("fit.json", "simulations", "estimator.pt", "posterior.csv", "estimates.csv", "calibration.csv",
+           "recovery.csv", "held_out.csv", "predictive", "predictive.csv", "figures", "run.json", ".lock")
+
+
+def fingerprint(plan: FitPlan, sweep_fingerprint: str) -> str:
+    """What decides the simulations and the estimator: the design, the priors, the settings (not the data's
+    observed values, so that new participants of the same design reuse them)."""
+    return canonical_hash({"simulations": sweep_fingerprint, "parameters": [p.describe() for p in plan.parameters],
+                           "settings": {k: v for k, v in plan.settings.items() if k != "workers"},
+                           "measures": plan.measures, "noise": plan.noise, "estimator": plan.estimator})
+
+
+def prepare_folder(out: Path, identity: str) -> None:
+    """DIR new, empty, or an earlier run of this same fit; ConfigError otherwise (before anything is written)."""
+    from master.sweeps.folder import check_folder
+
+    check_folder(out)
+    manifest = out / "fit.json"
+    if out.is_dir() and any(out.iterdir()):
+        try:
+            old = json.loads(manifest.read_text(encoding="utf-8")) if not manifest.is_symlink() else None
+        except (OSError, ValueError):
+            old = None
+        if not isinstance(old, dict) or old.get("command") != COMMAND:
+            raise ConfigError(f"output folder {out} is not empty and holds no fit (no fit.json): choose another --out")
+        if old.get("fingerprint") != identity:
+            raise ConfigError(f"output folder {out} holds a different fit (its design, priors or settings differ): "
+                              "choose another --out")
+        for name in OUTPUTS:
+            if (out / name).is_symlink():
+                raise ConfigError(f"output {out / name} is a symbolic link; a fit writes only into folders of its own")
+    try:
+        out.mkdir(exist_ok=True)
+        (out / "figures").mkdir(exist_ok=True)
+    except OSError as error:
+        raise ConfigError(f"cannot write {out}: {error.strerror or error}") from None
+    atomic_write(manifest, json.dumps({"command": COMMAND, "fingerprint": identity}, indent=1) + "\n")
+
+
+def fit(data_path: str, config_path: str, out: Path, model: str | None = None, scheduler: str | None = None,
+        debug: bool = False, log=print) -> dict:
+    """The whole fit (module notes); returns run.json's content."""
+    began = time.perf_counter()
+    data = read_data(data_path)
+    plan = read_plan(config_path, data, model)
+    settings = plan.settings
+    total = settings["simulations"] + settings["calibration"]
+    drawn = draw_prior(plan.parameters, total, settings["seed"])
+    sweep = participants_sweep(plan, drawn, "prior")
+    identity = fingerprint(plan, sweep.fingerprint)
+    created = not out.exists()
+    prepare_folder(out, identity)
+    try:
+        with Pool(scheduler, settings["workers"], debug) as pool:
+            return _fit(data, plan, drawn, sweep, out, pool, log, began, identity)
+    except ConfigError:  # refused before any simulation ran (a worker, a decoder): a DIR this fit made goes again
+        if created and not any((out / "simulations" / "trials").glob("*.json")):
+            shutil.rmtree(out, ignore_errors=True)
+        raise
+
+
+def _fit(data: Data, plan: FitPlan, drawn: np.ndarray, sweep, out: Path, pool, log, began, identity: str) -> dict:
+    from master.fit import inference
+
+    settings = plan.settings
+    started = time.perf_counter()
+    records, ran_now = simulate(sweep, out / "simulations", pool, "rhi fit: simulations")
+    simulated_s = time.perf_counter() - started
+    x = with_noise(statistics(sweep, records, data, plan.measures), data, plan.measures, plan.noise,
+                   settings["seed"], "prior")
+    valid = np.all(np.isfinite(x), axis=1)
+    train_rows = np.flatnonzero(valid[:settings["simulations"]])
+    held_rows = settings["simulations"] + np.flatnonzero(valid[settings["simulations"]:])
+    if len(train_rows) < 10:
+        raise ConfigError(f"only {len(train_rows)} of {settings['simulations']} simulated participants succeeded "
+                          f"(see {out / 'simulations' / 'index.csv'}); narrow the priors")
+    theta, x_train = drawn[train_rows], x[train_rows]
+    estimator, training = load_or_train(plan, theta, x_train, out / "estimator.pt", identity)
+    posterior = inference.posterior(plan.parameters, estimator)
+
+    timing = []
+    samples = []
+    for number, observed in enumerate(select(data, plan)):
+        tick = time.perf_counter()
+        samples.append(inference.sample(posterior, observed, settings["posterior_samples"],
+                                        simulation_seed(settings["seed"], number, "posterior") % 2**62))
+        timing.append(time.perf_counter() - tick)
+    samples = report.natural(plan.parameters, np.stack(samples))
+    atomic_write(out / "posterior.csv", report.posterior_csv(plan.parameters, data.participants, samples))
+    atomic_write(out / "estimates.csv", report.estimates_csv(plan.parameters, data.participants, samples))
+
+    calibration = None
+    if len(held_rows):
+        held = np.stack([inference.sample(posterior, x[row], settings["calibration_samples"],
+                                          simulation_seed(settings["seed"], int(row), "calibration") % 2**62)
+                         for row in held_rows])
+        calibration = calibrate(held, drawn[held_rows])
+        atomic_write(out / "calibration.csv", report.calibration_csv(plan.parameters, calibration))
+        atomic_write(out / "recovery.csv", report.recovery_csv(
+            plan.parameters, report.natural(plan.parameters, drawn[held_rows]), report.natural(plan.parameters, held),
+            calibration["ranks"]))
+        atomic_write(out / "held_out.csv", held_out_csv(data, plan, x[held_rows], held_rows))
+        report.calibration_figure(plan.parameters, calibration, drawn[held_rows], out / "figures" / "calibration.png")
+
+    predictive = predictive_check(data, plan, posterior, out, pool)
+    result = run_record(data, plan, sweep, records, training, timing, calibration, predictive, valid, held_rows,
+                        simulated_s, ran_now, time.perf_counter() - began)
+    atomic_write(out / "run.json", json.dumps(result, indent=1, sort_keys=True, allow_nan=True) + "\n")
+    return result
+
+
+def load_or_train(plan: FitPlan, theta, x, path: Path, identity: str):
+    """The estimator saved in ``path`` when it was trained on this very training set with these settings,
+    else trained now and saved (weights only: torch.load(weights_only=True) reads it back)."""
+    import torch
+
+    from master.fit import inference
+
+    trained_on = canonical_hash({"fit": identity, "theta": theta.tolist(), "x": x.tolist()})
+    seed = simulation_seed(plan.settings["seed"], 0, "estimator") % 2**62
+    if path.is_file() and not path.is_symlink():
+        try:
+            saved = torch.load(path, weights_only=True)
+        except Exception:  # noqa: BLE001: a damaged or foreign file is trained over
+            saved = None
+        if isinstance(saved, dict) and saved.get("trained_on") == trained_on:
+            estimator = inference.rebuild(plan.parameters, theta, x, plan.estimator, saved["state"], seed)
+            return estimator, json.loads(saved["summary"])
+    estimator, summary = inference.train(plan.parameters, theta, x, plan.estimator, seed)
+    state = {"state": estimator.state_dict(), "trained_on": trained_on, "summary": json.dumps(summary)}
+    atomic_write(path, lambda file: torch.save(state, file))
+    return estimator.eval(), summary
+
+
+def held_out_csv(data: Data, plan: FitPlan, x: np.ndarray, rows) -> str:
+    """The held-out simulated participants as a data file (their statistics, noise included): a fit of it is a
+    recovery of the parameters recovery.csv lists (participant simN: prior draw N)."""
+    from master.outputs.tables import csv_text, number
+
+    condition = "offset_m" if data.conditions else "condition"
+    stimulation = "delay_s" if data.stimulations else "stimulation"
+    header = ["participant", condition, stimulation, *(["time_s"] if data.time_s is not None else []), *plan.measures]
+    lines = []
+    for values, row in zip(x.reshape(len(x), len(data.cells), len(plan.measures)), rows):
+        for (c, s), cell in zip(data.cells, values):
+            lines.append([f"sim{int(row)}", number(data.conditions[c]) if data.conditions else c,
+                          number(data.stimulations[s]) if data.stimulations else s,
+                          *([number(data.time_s)] if data.time_s is not None else []), *(number(v) for v in cell)])
+    return csv_text(header, lines)
+
+
+def predictive_check(data: Data, plan: FitPlan, posterior, out: Path, pool) -> dict | None:
+    """Simulate ``fit.predictive_draws`` posterior draws of each of the first ``fit.predictive_participants``
+    participants (a sweep in DIR/predictive); predictive.csv and figures/posterior_predictive.png."""
+    from master.fit import inference
+
+    settings = plan.settings
+    count = min(settings["predictive_participants"], len(data.participants))
+    draws = settings["predictive_draws"]
+    if not count or not draws:
+        return None
+    values = np.concatenate([inference.sample(posterior, data.observed[n], draws,
+                                              simulation_seed(settings["seed"], n, "predictive") % 2**62)
+                             for n in range(count)])
+    sweep = participants_sweep(plan, values, "predictive")
+    records, _ = simulate(sweep, out / "predictive", pool, "rhi fit: posterior predictive", replace=True)
+    predicted = with_noise(statistics(sweep, records, data, plan.measures), data, plan.measures, plan.noise,
+                           settings["seed"], "predictive").reshape(count, draws, -1)
+    names = data_statistic_names(data, plan)
+    observed = select(data, plan)[:count]
+    atomic_write(out / "predictive.csv", report.predictive_csv(names, data.participants[:count], observed, predicted))
+    report.predictive_figure(names, data.participants[:count], observed, predicted,
+                             out / "figures" / "posterior_predictive.png")
+    return {"participants": count, "draws": draws, "trials": len(sweep.trials)}
+
+
+def data_statistic_names(data: Data, plan: FitPlan) -> list[str]:
+    return [f"{m}[{c}/{s}]" for c, s in data.cells for m in plan.measures]
+
+
+def select(data: Data, plan: FitPlan) -> np.ndarray:
+    """The data's statistics of the fitted measures only (fit.measures may leave some out)."""
+    positions = [data.measures.index(m) for m in plan.measures]
+    shaped = data.observed.reshape(len(data.participants), len(data.cells), len(data.measures))
+    return shaped[:, :, positions].reshape(len(data.participants), -1)
+
+
+def run_record(data, plan, sweep, records, training, timing, calibration, predictive, valid, held_rows,
+               simulated_s, ran_now, wall_s) -> dict:
+    import torch
+
+    from master.fit.calibration import LEVELS
+
+    result = {
+        "command": COMMAND, "data": data.path, "participants": data.participants, "design_cells": data.cells,
+        "statistics": data_statistic_names(data, plan), "model": plan.settings["model"],
+        "parameters": [p.describe() for p in plan.parameters], "settings": plan.settings, "measures": plan.measures,
+        "noise": plan.noise, "estimator": {**plan.estimator, "torch_threads": torch.get_num_threads(), **training},
+        "seeds": {"fit": plan.settings["seed"], "simulated_participants": [p["experiment.seed"] for p in sweep.points]},
+        "simulations": {"participants": len(sweep.points), "trials": len(sweep.trials),
+                        "failed_participants": int((~valid).sum()), "trials_run_now": ran_now,
+                        "wall_s_now": round(simulated_s, 3),
+                        "trials_per_s_now": round(ran_now / simulated_s, 3) if ran_now and simulated_s else None,
+                        "steps_per_trial": plan.base["experiment"]["steps"],
+                        "resolution": plan.base["experiment"]["resolution"]},
+        "posterior_seconds_per_participant": {"max": round(max(timing), 4), "mean": round(float(np.mean(timing)), 4)},
+        "wall_s": round(wall_s, 3), "configuration": plan.base, "versions": package_versions(),
+    }
+    for package in ("sbi", "nflows", "zuko"):
+        try:
+            from importlib import metadata
+            result["versions"][package] = metadata.version(package)
+        except Exception:  # noqa: BLE001
+            pass
+    if calibration is not None:
+        result["calibration"] = {
+            "held_out": calibration["participants"], "samples_per_participant": calibration["samples"],
+            "sbc_test": "scipy.stats.chisquare of the binned ranks; scipy.stats.kstest of (rank + 1/2) / (L + 1)",
+            **{p.key: {"correlation": float(calibration["recovery"]["correlation"][d]),
+                       "sd_ratio": float(calibration["recovery"]["sd_ratio"][d]),
+                       **{f"coverage_{int(level * 100)}": float(calibration["coverage"][level][d]) for level in LEVELS},
+                       "sbc_chisquare_p": float(calibration["uniformity"]["chisquare_p"][d]),
+                       "sbc_ks_p": float(calibration["uniformity"]["ks_p"][d])}
+               for d, p in enumerate(plan.parameters)}}
+    if predictive is not None:
+        result["predictive"] = predictive
+    del records
+    return result

@@ -1,0 +1,100 @@
+"""Simulated participants on the sweep machinery: prior (or posterior) draws as sweep points, their trials run
+in lockstep batches of several participants, resumably, and read back as summary statistics.
+
+One simulated participant is one draw of the fitted parameters with its own master seed (its own tactile
+delays), run over every design cell of the data (``fit.trials_per_cell`` trials each). Its summary statistics
+are, per cell and measure, the mean of the trials' final values, cell-major as in
+:meth:`master.fit.data.Data.statistic_names`. The trials of ``fit.participants_per_batch`` consecutive
+participants share one lockstep batch (:func:`master.sweeps.plan.build`): their parameters differ per trial.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from master.fit.data import Data
+from master.fit.plan import FitPlan, simulation_seed
+from master.sweeps import plan as sweeps
+
+
+def participant_points(plan: FitPlan, inference_values: np.ndarray, stream: str) -> list[dict]:
+    """One sweep point per row of ``inference_values`` (draws in the inference space): the parameters'
+    values in their own units and the participant's master seed."""
+    points = []
+    for number, row in enumerate(inference_values):
+        point = {p.key: float(p.from_inference(value)) for p, value in zip(plan.parameters, row)}
+        point["experiment.seed"] = simulation_seed(plan.settings["seed"], number, stream)
+        points.append(point)
+    return points
+
+
+def participants_sweep(plan: FitPlan, inference_values: np.ndarray, stream: str) -> sweeps.Sweep:
+    """The sweep that simulates these participants (checked, planned; nothing runs)."""
+    return sweeps.build(plan.base, participant_points(plan, inference_values, stream),
+                        workers=plan.settings["workers"],
+                        points_per_batch=plan.settings["participants_per_batch"])
+
+
+def simulate(sweep: sweeps.Sweep, out: Path, client, label: str, replace: bool = False) -> tuple[dict[str, dict], int]:
+    """Run the sweep's missing trials into ``out`` (a sweep folder) on ``client()`` (a callable giving a checked
+    dask Client); (every record by trial id, trials run now). replace: a different sweep in ``out`` is
+    replaced, keeping the trials the two share (the posterior predictive's draws follow the data)."""
+    from master.sweeps.run import run_into
+
+    return run_into(sweep, sweeps.resolve_task(sweep.task), out, force=replace, label=label, plots=False,
+                    client=client)
+
+
+class Pool:
+    """One dask Client for a fit's sweeps, started on first use (a rerun with nothing missing starts none) and
+    closed with the fit: a callable giving it, checked (the workers import this package)."""
+
+    def __init__(self, scheduler: str | None, workers: int | None, debug: bool):
+        from contextlib import ExitStack
+
+        self.scheduler, self.workers, self.debug, self.stack, self.client = scheduler, workers, debug, ExitStack(), None
+
+    def __call__(self):
+        if self.client is None:
+            from master.sweeps.plan import DEFAULT_TASK
+            from master.sweeps.runner import check_workers, dask_client
+
+            self.client = self.stack.enter_context(dask_client(self.scheduler, self.workers, self.debug))
+            check_workers(self.client, DEFAULT_TASK)
+        return self.client
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return self.stack.__exit__(*exc)
+
+
+def statistics(sweep: sweeps.Sweep, records: dict[str, dict], data: Data, measures: list[str]) -> np.ndarray:
+    """(participants, cells x measures): each simulated participant's cell means, NaN where a trial failed."""
+    cells = {cell: n for n, cell in enumerate(data.cells)}
+    sums = np.zeros((len(sweep.points), len(data.cells), len(measures)))
+    counts = np.zeros((len(sweep.points), len(data.cells)))
+    for trial in sweep.trials:
+        cell = cells.get((trial.condition, trial.stimulation))
+        if cell is None:  # a cell of the full cross that the data lack
+            continue
+        record = records.get(trial.id)
+        if record is None or record.get("status") != "ok":
+            sums[trial.point, cell] = np.nan
+        else:
+            sums[trial.point, cell] += [record["outcome"][m] for m in measures]
+        counts[trial.point, cell] += 1
+    return (sums / counts[:, :, None]).reshape(len(sweep.points), -1)
+
+
+def with_noise(values: np.ndarray, data: Data, measures: list[str], noise: dict[str, float], seed: int,
+               stream: str) -> np.ndarray:
+    """``values`` plus the observation noise: a normal of sd ``noise[measure]`` on each cell mean, drawn from
+    the fit's seed and the stream's name (the same seed, the same noise)."""
+    sd = np.array([noise.get(m, 0.0) for _ in data.cells for m in measures])
+    if not sd.any():
+        return values
+    rng = np.random.default_rng([seed, 1, sum(map(ord, stream))])
+    return values + rng.standard_normal(values.shape) * sd

@@ -1,0 +1,61 @@
+"""A sweep run into its folder: checked, locked, resumed, its chunks on a local pool or a Dask cluster, its
+tables and plots written at the end (what `rhi sweep` and `rhi fit` run)."""
+from __future__ import annotations
+
+import sys
+import time
+from contextlib import nullcontext
+from pathlib import Path
+
+from master.outputs.files import atomic_write
+from master.sweeps.folder import sweep_folder
+from master.sweeps.plan import Sweep
+from master.sweeps.plots import plot_sweep
+from master.sweeps.runner import check_decoders, check_workers, dask_client, execute, prepare_decoders
+from master.sweeps.tables import index_rows, write_tables
+
+INDEX_EVERY_S = 2.0
+
+
+def run_into(sweep: Sweep, task, out: Path, scheduler: str | None = None, force: bool = False, debug: bool = False,
+             label: str = "rhi sweep", plots: bool = True, client=None) -> tuple[dict[str, dict], int]:
+    """Run every trial of ``sweep`` that ``out`` holds no successful record of; returns (every record by trial
+    id, how many ran now). client: a callable giving a dask Client to run on, checked and kept open by the
+    caller (several sweeps on one pool); default: one of its own, on ``scheduler`` or a local pool.
+
+    A stop (Ctrl-C, a kill) leaves the records written so far, each whole: the same call again runs only
+    the rest (docs/sweeps.md)."""
+    from tqdm import tqdm
+
+    check_decoders(sweep)
+    with sweep_folder(out, sweep, force) as records:
+        done = {key for key, record in records.items() if record["status"] == "ok"}
+        bar = None
+        counts, last_index = {"ok": len(done), "failed": 0}, [time.monotonic()]
+
+        def arrived(record):
+            records[record["id"]] = record
+            counts["ok" if record["status"] == "ok" else "failed"] += 1
+            bar.set_postfix(completed=counts["ok"], failed=counts["failed"],
+                            remaining=len(sweep.trials) - counts["ok"] - counts["failed"], refresh=False)
+            bar.update(1)
+            if time.monotonic() - last_index[0] > INDEX_EVERY_S:
+                atomic_write(out / "index.csv", index_rows(sweep, records))
+                last_index[0] = time.monotonic()
+
+        try:
+            if len(done) < len(sweep.trials):
+                prepare_decoders(sweep)
+                with (nullcontext(client()) if client else dask_client(scheduler, sweep.workers, debug)) as pool:
+                    if not client:
+                        check_workers(pool, sweep.task)
+                    bar = tqdm(total=len(sweep.trials), initial=len(done), unit="trial", desc=label,
+                               file=sys.stderr, dynamic_ncols=True, smoothing=0.05)
+                    execute(sweep, task, pool, out, done, on_record=arrived)
+        finally:
+            if bar is not None:
+                bar.close()
+            summary = write_tables(out, sweep, records)
+        if plots:
+            plot_sweep(sweep.keys, summary, out / "figures")
+    return records, counts["ok"] - len(done)

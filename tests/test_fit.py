@@ -1,0 +1,225 @@
+"""rhi fit: the calibration's arithmetic against hand and analytic truth, the data and fit files' refusals, a
+lockstep batch of several configurations against each alone, and a tiny fit end to end, killed and resumed.
+
+The fits here are tiny (32x32 quick decoders, a few steps, a few dozen simulated participants, a flow of a
+few weights): they test the machinery, not the estimator's quality (docs/fit.md measures that).
+"""
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from master.cosim import ConfigError
+from master.fit.calibration import coverage, rank_bins, rank_histogram, sbc_ranks, uniformity
+from master.fit.data import read_data
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_sbc_ranks_by_hand():
+    samples = np.array([[[0.1, 5.0], [0.4, 1.0], [0.3, 2.0]],      # participant 0: L = 3 samples of 2 parameters
+                        [[1.0, 0.0], [2.0, 0.0], [3.0, 0.0]]])
+    truths = np.array([[0.35, 0.5], [9.0, -1.0]])
+    # below 0.35: 0.1, 0.3 -> 2; below 0.5: none -> 0; below 9: all 3; below -1: none
+    assert sbc_ranks(samples, truths).tolist() == [[2, 0], [3, 0]]
+    assert rank_bins(99, 100) == 20 and rank_bins(99, 50) == 10 and rank_bins(3, 2) == 1
+    ranks = np.array([[0], [1], [2], [3], [3], [99]])
+    assert rank_histogram(ranks, 99, 10)[:, 0].tolist() == [5, 0, 0, 0, 0, 0, 0, 0, 0, 1]  # 10 rank values per bin
+
+
+def test_calibration_of_an_exact_conjugate_posterior():
+    """theta ~ N(0, 1), x | theta ~ N(theta, s^2): the posterior is N(x / (1 + s^2), s^2 / (1 + s^2)). Exact
+    posterior samples must cover at the nominal rates and give uniform ranks; a posterior too narrow must not."""
+    rng = np.random.default_rng(0)
+    count, draws, s = 2000, 99, 0.5
+    theta = rng.standard_normal((count, 1))
+    x = theta + s * rng.standard_normal((count, 1))
+    mean, sd = x / (1 + s**2), np.sqrt(s**2 / (1 + s**2))
+    exact = mean[:, None, :] + sd * rng.standard_normal((count, draws, 1))
+    for level in (0.5, 0.9):
+        # the empirical interval of 99 samples covers a little less than its level: its expected coverage is
+        # the probability that a 100th draw falls between the order statistics, computed here by simulation
+        # of the same order statistics; the tolerance is 4 binomial sds of the share over 2000 participants
+        tolerance = 4 * np.sqrt(level * (1 - level) / count)
+        reference = coverage(rng.standard_normal((20000, draws, 1)), rng.standard_normal((20000, 1)), level)[0]
+        assert abs(coverage(exact, theta, level)[0] - reference) < tolerance
+        assert abs(reference - level) < 0.02  # and that is the level, up to the finite-sample interval's width
+    result = uniformity(sbc_ranks(exact, theta), draws)
+    assert result["bins"] == 20 and result["chisquare_p"][0] > 1e-3 and result["ks_p"][0] > 1e-3
+    narrow = mean[:, None, :] + 0.3 * sd * rng.standard_normal((count, draws, 1))  # overconfident
+    assert coverage(narrow, theta, 0.9)[0] < 0.6
+    assert uniformity(sbc_ranks(narrow, theta), draws)["chisquare_p"][0] < 1e-6
+    # chisquare against the histogram by hand
+    counts = rank_histogram(sbc_ranks(exact, theta), draws, 20)[:, 0]
+    by_hand = ((counts - count / 20) ** 2 / (count / 20)).sum()
+    assert result["chisquare"][0] == pytest.approx(by_hand, rel=1e-12)
+    assert result["chisquare_p"][0] == pytest.approx(stats.chi2.sf(by_hand, 19), rel=1e-9)
+
+
+def write(path, text):
+    path.write_text(text)
+    return path
+
+
+def test_data_file_summaries_and_refusals(tmp_path):
+    data = read_data(write(tmp_path / "d.csv", "participant,condition,stimulation,drift_cm\n"
+                                             "a,left,sync,-2\na,left,sync,-4\na,left,async,0.5\n"
+                                             "b,left,async,1\nb,left,sync,-1\n"))
+    assert data.participants == ["a", "b"] and data.cells == [("left", "async"), ("left", "sync")]
+    assert data.observed.tolist() == [[0.5, -3.0], [1.0, -1.0]] and data.counts.tolist() == [[1, 2], [1, 1]]
+    offsets = read_data(write(tmp_path / "o.csv", "participant,offset_m,delay_s,time_s,drift_cm,force_n\n"
+                                                  "p,-0.15,0,30,-2,-0.1\n"))
+    assert offsets.conditions == {"offset_-0.15_m": -0.15} and offsets.stimulations == {"delay_0_s": 0.0}
+    assert offsets.time_s == 30.0 and offsets.measures == ["drift_cm", "force_n"]
+    bad = {"participant,condition,stimulation,drift_cm,mood\n": "unknown column 'mood'",
+           "participant,condition,stimulation,drift_cm\na,left,sync,\n": "line 2: empty value in column drift_cm",
+           "participant,condition,stimulation,drift_cm\na,left,sync,big\n": "line 2: column drift_cm = 'big' is not",
+           "participant,condition,stimulation,drift_cm\na,left,sync,1\nb,left,async,1\n":
+               "participant a has no row for the design cell left/async",
+           "participant,condition,offset_m,stimulation,drift_cm\n": "exactly one of the columns condition and offset_m",
+           "participant,condition,stimulation,drift_cm\na,left,sync,nan\n": "is not a finite number"}
+    for text, message in bad.items():
+        with pytest.raises(ConfigError, match=message.replace("(", r"\(")):
+            read_data(write(tmp_path / "bad.csv", text))
+
+
+FIT = """
+[experiment]
+steps = {steps}
+[decoder]
+fast = true
+[fit]
+quick = true
+simulations = {simulations}
+calibration = {calibration}
+seed = 3
+participants_per_batch = 5
+workers = 1
+posterior_samples = 50
+calibration_samples = 9
+predictive_draws = 2
+predictive_participants = 1
+[fit.noise]
+drift_cm = 0.01
+[fit.estimator]
+hidden_features = 8
+transforms = 1
+max_epochs = 8
+batch_size = 10
+threads = 1
+[fit.parameters."decoder.visual_variance"]
+prior = "log-uniform"
+low = 5.0
+high = 80.0
+[fit.parameters.brain.proprioceptive_variance]
+prior = "normal"
+mean = 1.0
+sd = 0.3
+low = 0.5
+high = 2.0
+"""
+DATA = "participant,condition,stimulation,drift_cm,force_n\np1,left,sync,-0.3,-0.02\np1,left,async,-0.01,0.0\n"
+
+
+def rhi(*arguments, cwd, env=None):
+    environment = {**os.environ, **(env or {}),
+                   "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    return subprocess.run([sys.executable, "-m", "master", *arguments], capture_output=True, text=True, cwd=cwd,
+                          env=environment, timeout=300)
+
+
+def test_bad_data_and_fit_files_are_one_line_exit_2_nothing_written(tmp_path):
+    write(tmp_path / "fit.toml", FIT.format(steps=5, simulations=20, calibration=0))
+    write(tmp_path / "good.csv", DATA)
+    write(tmp_path / "bad.csv", DATA.replace("-0.3", "oops"))
+    write(tmp_path / "typo.toml", FIT.format(steps=5, simulations=20, calibration=0).replace("low = 5.0", "lo = 5.0"))
+    write(tmp_path / "key.toml", FIT.format(steps=5, simulations=20, calibration=0).replace(
+        '"decoder.visual_variance"', '"brain.gama0"'))
+    before = sorted(p.name for p in tmp_path.iterdir())
+    cases = [(("--data", "bad.csv", "--config", "fit.toml"), "bad.csv line 2: column drift_cm = 'oops' is not a number"),
+             (("--data", "good.csv", "--config", "typo.toml"), "unknown fit key fit.parameters.decoder.visual_variance.lo"),
+             (("--data", "good.csv", "--config", "key.toml"), "unknown config key fit.parameters.brain.gama0 (did you mean"),
+             (("--data", "none.csv", "--config", "fit.toml"), "data file none.csv does not exist")]
+    for arguments, message in cases:
+        result = rhi("fit", *arguments, "--out", "out", cwd=tmp_path)
+        lines = result.stderr.splitlines()
+        assert result.returncode == 2 and len(lines) == 1, result.stderr[-2000:]
+        assert lines[0].startswith("rhi fit: error: ") and message in lines[0], lines[0]
+        assert sorted(p.name for p in tmp_path.iterdir()) == before  # nothing half-written
+
+
+def test_a_batch_of_several_configurations_equals_each_alone(quick_cache, monkeypatch):
+    """Two points differing in per-trial parameters, run in one lockstep batch, get their own numbers: each
+    trial equals the same trial run in a batch of its point alone (the exact mode: no shared linearisations;
+    a batch's float32 sums depend on its size, so the reference batch has the same size: the other point's
+    trials as partners with its own values)."""
+    from master.experiment import config as configuration
+    from master.sweeps import plan as sweeps
+    from master.sweeps.runner import run_chunk
+
+    monkeypatch.setenv("RHI_CACHE", str(quick_cache))
+    base = configuration.load(quick=True, overrides={"experiment.steps": 30, "experiment.decoders": ["conv"],
+                                                     "experiment.conditions": ["left"], "decoder.fast": False})
+    points = [{"brain.gamma0": 0.01, "decoder.visual_variance": 20.0},
+              {"brain.gamma0": 0.3, "decoder.visual_variance": 8.0}]
+    sweep = sweeps.build(base, points, points_per_batch=2)
+    assert len(sweep.chunks) == 1 and len(sweep.chunks[0]) == 4
+    members = [sweep.trials[p] for p in sweep.chunks[0]]
+    together = run_chunk(sweep.configs[0], members, [sweep.configs[t.point] for t in members])
+    for number in (0, 1):
+        alone = sweeps.build(base, [points[number], {**points[number], "experiment.seed": 99}], points_per_batch=2)
+        mine = [alone.trials[p] for p in alone.chunks[0]]
+        reference = run_chunk(alone.configs[0], mine, [alone.configs[t.point] for t in mine])
+        for trial, record in zip(members, together):
+            if trial.point == number:
+                twin = next(r for t, r in zip(mine, reference) if t.point == 0 and t.stimulation == trial.stimulation)
+                assert record["outcome"]["drift_cm"] == twin["outcome"]["drift_cm"]
+                assert record["outcome"]["gamma_final"] == twin["outcome"]["gamma_final"]
+    drifts = {(t.point, t.stimulation): r["outcome"]["drift_cm"] for t, r in zip(members, together)}
+    assert drifts[(0, "sync")] != drifts[(1, "sync")]  # the parameters reached their own trials
+
+
+def test_a_tiny_fit_end_to_end_killed_and_resumed(quick_cache, tmp_path, monkeypatch, capsys):
+    from master.commands.cli import main
+
+    monkeypatch.setenv("RHI_CACHE", str(quick_cache))
+    write(tmp_path / "fit.toml", FIT.format(steps=8, simulations=20, calibration=10))
+    write(tmp_path / "data.csv", DATA)
+    out = tmp_path / "out"
+    command = ["fit", "--data", str(tmp_path / "data.csv"), "--config", str(tmp_path / "fit.toml"), "--out", str(out)]
+    assert main(command) == 0
+    run = json.loads((out / "run.json").read_text())
+    assert run["simulations"] == {**run["simulations"], "participants": 30, "trials": 60, "trials_run_now": 60}
+    assert run["estimator"]["hidden_features"] == 8 and run["seeds"]["fit"] == 3
+    posterior = (out / "posterior.csv").read_bytes()
+    header = posterior.decode().splitlines()[0]
+    assert header == "participant,sample,decoder.visual_variance,brain.proprioceptive_variance"
+    values = np.loadtxt(out / "posterior.csv", delimiter=",", skiprows=1, usecols=(2, 3))
+    assert len(values) == 50 and (values[:, 0] >= 5).all() and (values[:, 0] <= 80).all()
+    assert (values[:, 1] >= 0.5).all() and (values[:, 1] <= 2.0).all()  # the prior's bounds hold
+    for name in ("estimates.csv", "calibration.csv", "recovery.csv", "held_out.csv", "predictive.csv",
+                 "figures/calibration.png", "figures/posterior_predictive.png", "estimator.pt"):
+        assert (out / name).exists(), name
+    # a kill: some trial records never written, the outputs after the simulations never written
+    trials = sorted((out / "simulations" / "trials").glob("*.json"))
+    for path in trials[::7]:
+        path.unlink()
+    for name in ("estimator.pt", "posterior.csv", "run.json"):
+        (out / name).unlink()
+    assert main(command) == 0
+    rerun = json.loads((out / "run.json").read_text())
+    assert rerun["simulations"]["trials_run_now"] == len(trials[::7])  # only the missing ones were written
+    assert (out / "posterior.csv").read_bytes() == posterior  # the same simulations, seed and weights
+    # a new participant of the same design: the same simulations and estimator serve it
+    write(tmp_path / "new.csv", DATA.replace("p1", "p2").replace("-0.3", "-0.1"))
+    assert main([*command[:2], str(tmp_path / "new.csv"), *command[3:]]) == 0
+    assert json.loads((out / "run.json").read_text())["simulations"]["trials_run_now"] == 0
+    # another fit in the same folder is refused
+    write(tmp_path / "other.toml", FIT.format(steps=9, simulations=20, calibration=10))
+    assert main([*command[:4], str(tmp_path / "other.toml"), *command[5:]]) == 2
+    assert "holds a different fit" in capsys.readouterr().err
