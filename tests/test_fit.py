@@ -211,15 +211,16 @@ def test_a_tiny_fit_end_to_end_killed_and_resumed(quick_cache, tmp_path, monkeyp
         path.unlink()
     for name in ("estimator.pt", "posterior.csv", "run.json"):
         (out / name).unlink()
+    # run again, with a second participant of the same design: the same simulations and estimator serve it
+    write(tmp_path / "data.csv", DATA + "".join(DATA.replace("p1", "p2").replace("-0.3", "-0.1").splitlines(True)[1:]))
     assert main(command) == 0
     rerun = json.loads((out / "run.json").read_text())
     assert rerun["simulations"]["trials_run_now"] == len(trials[::7])  # only the missing ones were written
-    assert (out / "posterior.csv").read_bytes() == posterior  # the same simulations, seed and weights
-    # a new participant of the same design: the same simulations and estimator serve it
-    write(tmp_path / "new.csv", DATA.replace("p1", "p2").replace("-0.3", "-0.1"))
-    assert main([*command[:2], str(tmp_path / "new.csv"), *command[3:]]) == 0
-    assert json.loads((out / "run.json").read_text())["simulations"]["trials_run_now"] == 0
-    # another fit in the same folder is refused
+    assert rerun["participants"] == ["p1", "p2"]
+    again = (out / "posterior.csv").read_bytes()
+    assert again[:len(posterior)] == posterior  # p1's: the same simulations, seed and weights, the same bytes
+    assert len(again.splitlines()) == 2 * len(posterior.splitlines()) - 1
+    # another fit in the same folder is refused, before anything is written
     write(tmp_path / "other.toml", FIT.format(steps=9, simulations=20, calibration=10))
     assert main([*command[:4], str(tmp_path / "other.toml"), *command[5:]]) == 2
     assert "holds a different fit" in capsys.readouterr().err

@@ -28,6 +28,8 @@ from master.outputs.files import atomic_write, package_versions
 from master.sweeps.plan import canonical_hash
 
 COMMAND = "rhi fit"
+# settings that change only what is computed from the trained estimator: not part of the fit's identity
+AFTER_TRAINING = ("workers", "posterior_samples", "calibration_samples", "predictive_draws", "predictive_participants")
 OUTPUTS = ("fit.json", "simulations", "estimator.pt", "posterior.csv", "estimates.csv", "calibration.csv",
            "recovery.csv", "held_out.csv", "predictive", "predictive.csv", "figures", "run.json", ".lock")
 
@@ -36,7 +38,7 @@ def fingerprint(plan: FitPlan, sweep_fingerprint: str) -> str:
     """What decides the simulations and the estimator: the design, the priors, the settings (not the data's
     observed values, so that new participants of the same design reuse them)."""
     return canonical_hash({"simulations": sweep_fingerprint, "parameters": [p.describe() for p in plan.parameters],
-                           "settings": {k: v for k, v in plan.settings.items() if k != "workers"},
+                           "settings": {k: v for k, v in plan.settings.items() if k not in AFTER_TRAINING},
                            "measures": plan.measures, "noise": plan.noise, "estimator": plan.estimator})
 
 
@@ -231,6 +233,7 @@ def run_record(data, plan, sweep, records, training, timing, calibration, predic
                         "failed_participants": int((~valid).sum()), "trials_run_now": ran_now,
                         "wall_s_now": round(simulated_s, 3),
                         "trials_per_s_now": round(ran_now / simulated_s, 3) if ran_now and simulated_s else None,
+                        "cpu_s_per_trial": cpu_per_trial(records),
                         "steps_per_trial": plan.base["experiment"]["steps"],
                         "resolution": plan.base["experiment"]["resolution"]},
         "posterior_seconds_per_participant": {"max": round(max(timing), 4), "mean": round(float(np.mean(timing)), 4)},
@@ -256,3 +259,10 @@ def run_record(data, plan, sweep, records, training, timing, calibration, predic
         result["predictive"] = predictive
     del records
     return result
+
+
+def cpu_per_trial(records: dict[str, dict]) -> float | None:
+    """The workers' CPU seconds per trial over the records that say (each a chunk's CPU time over its size):
+    the simulator's cost apart from what else the machine runs."""
+    values = [r["cpu_s"] / r["batch"] for r in records.values() if r.get("status") == "ok" and "cpu_s" in r]
+    return round(float(np.mean(values)), 6) if values else None

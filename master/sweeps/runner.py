@@ -180,7 +180,7 @@ def run_chunk(config: dict, trials: list[TrialSpec], configs: list[dict] | None 
     importlib.import_module("master.experiment.decoders")  # torch: once per worker, before the clock starts
 
     steady_malloc()
-    started, began = time.time(), time.perf_counter()
+    started, began, cpu = time.time(), time.perf_counter(), time.process_time()
     try:
         own = [()] * len(trials)
         if configs is not None:  # several points in one batch: each trial carries its point's parameter values
@@ -191,8 +191,8 @@ def run_chunk(config: dict, trials: list[TrialSpec], configs: list[dict] | None 
         results = batch_outcomes(config, trials[0].decoder, protocol)
     except Exception as error:  # noqa: BLE001: batch_outcomes isolates failures; this is the last resort
         results = [failed_record(type(error).__name__, str(error), traceback.format_exc())] * len(trials)
-    timing = {"elapsed_s": round(time.perf_counter() - began, 6), "host": socket.gethostname(),
-              "started_at": round(started, 3), "batch": len(trials)}
+    timing = {"elapsed_s": round(time.perf_counter() - began, 6), "cpu_s": round(time.process_time() - cpu, 6),
+              "host": socket.gethostname(), "started_at": round(started, 3), "batch": len(trials)}
     return [{**result, **timing} for result in results]
 
 
