@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-COMMANDS = ("train", "experiment", "export-body", "export-agent", "export-system", "run-system", "sweep", "bench")
+COMMANDS = ("train", "experiment", "export-body", "export-agent", "export-system", "run-system", "sweep", "fit", "bench")
 
 
 def rhi(*args, cwd=None, env=None):
@@ -51,6 +51,7 @@ BAD_INPUT = {
     "export-system": (["--quick", "--trial", "left/sync", "--out", "{tmp}/RHI.ssp"], "must be CONDITION/STIMULATION/INDEX"),
     "run-system": (["{tmp}/bad.toml", "--out", "{tmp}/out.csv"], "bad.toml is not an SSP package: it is not a zip"),
     "sweep": (["--config", "{tmp}/missing.toml", "--out", "{tmp}/out"], "missing.toml does not exist"),
+    "fit": (["--data", "{tmp}/missing.csv", "--config", "{tmp}/bad.toml", "--out", "{tmp}/out"], "missing.csv does not exist"),
     "bench": (["--threads", "-2"], "--threads -2 must be a positive number"),
 }
 

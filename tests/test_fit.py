@@ -133,7 +133,7 @@ def rhi(*arguments, cwd, env=None):
                           env=environment, timeout=300)
 
 
-def test_bad_data_and_fit_files_are_one_line_exit_2_nothing_written(tmp_path):
+def test_bad_data_and_fit_files_are_one_line_exit_2_nothing_written(tmp_path, capsys):
     write(tmp_path / "fit.toml", FIT.format(steps=5, simulations=20, calibration=0))
     write(tmp_path / "good.csv", DATA)
     write(tmp_path / "bad.csv", DATA.replace("-0.3", "oops"))
@@ -142,14 +142,23 @@ def test_bad_data_and_fit_files_are_one_line_exit_2_nothing_written(tmp_path):
         '"decoder.visual_variance"', '"brain.gama0"'))
     before = sorted(p.name for p in tmp_path.iterdir())
     cases = [(("--data", "bad.csv", "--config", "fit.toml"), "bad.csv line 2: column drift_cm = 'oops' is not a number"),
-             (("--data", "good.csv", "--config", "typo.toml"), "unknown fit key fit.parameters.decoder.visual_variance.lo"),
              (("--data", "good.csv", "--config", "key.toml"), "unknown config key fit.parameters.brain.gama0 (did you mean"),
-             (("--data", "none.csv", "--config", "fit.toml"), "data file none.csv does not exist")]
-    for arguments, message in cases:
-        result = rhi("fit", *arguments, "--out", "out", cwd=tmp_path)
-        lines = result.stderr.splitlines()
-        assert result.returncode == 2 and len(lines) == 1, result.stderr[-2000:]
+             (("--data", "good.csv", "--config", "typo.toml"), "unknown fit key fit.parameters.decoder.visual_variance.lo"),
+             (("--data", "none.csv", "--config", "fit.toml"), "none.csv does not exist")]
+    for number, (arguments, message) in enumerate(cases):
+        if number < 2:  # the console script in a process of its own
+            result = rhi("fit", *arguments, "--out", "out", cwd=tmp_path)
+            status, stderr = result.returncode, result.stderr
+        else:  # the same entry point in this process (a subprocess costs seconds of imports)
+            from master.commands.cli import main
+
+            status = main(["fit", *(str(tmp_path / a) if a.endswith((".csv", ".toml")) else a for a in arguments),
+                           "--out", str(tmp_path / "out")])
+            stderr = capsys.readouterr().err
+        lines = stderr.splitlines()
+        assert status == 2 and len(lines) == 1, stderr[-2000:]
         assert lines[0].startswith("rhi fit: error: ") and message in lines[0], lines[0]
+        assert "Traceback" not in stderr
         assert sorted(p.name for p in tmp_path.iterdir()) == before  # nothing half-written
 
 
@@ -224,3 +233,29 @@ def test_a_tiny_fit_end_to_end_killed_and_resumed(quick_cache, tmp_path, monkeyp
     write(tmp_path / "other.toml", FIT.format(steps=9, simulations=20, calibration=10))
     assert main([*command[:4], str(tmp_path / "other.toml"), *command[5:]]) == 2
     assert "holds a different fit" in capsys.readouterr().err
+
+
+def test_fit_file_refusals(tmp_path):
+    from master.fit.plan import read_plan
+
+    data = read_data(write(tmp_path / "d.csv", DATA))
+    good = FIT.format(steps=5, simulations=20, calibration=0)
+    plan = read_plan(write(tmp_path / "f.toml", good), data)
+    assert [p.key for p in plan.parameters] == ["decoder.visual_variance", "brain.proprioceptive_variance"]
+    assert plan.base["experiment"]["decoders"] == ["conv"] and plan.base["experiment"]["conditions"] == ["left"]
+    assert plan.measures == ["drift_cm", "force_n"] and plan.noise == {"drift_cm": 0.01, "force_n": 0.0}
+    bad = {"[experiment]\nsteps = 5\n": "has no [fit] table",
+           good.replace('prior = "log-uniform"', 'prior = "cauchy"'): "prior = 'cauchy' is not one of",
+           good.replace("sd = 0.3\n", ""): "a normal prior needs sd",
+           good.replace("low = 5.0", "low = 0.0"): "a log-uniform prior needs low > 0",
+           good.replace('"decoder.visual_variance"', '"experiment.steps"'): "not a parameter a fit can vary",
+           good.replace("[decoder]", '[experiment]\ndecoders = ["conv", "vae"]\n[decoder]').replace(
+               "[experiment]\nsteps", "[stimulus]\nperiod = 2.0\n#"): "a fit simulates one decoder",
+           good.replace("high = 2.0", "high = 0.4"): "low must be below high",
+           good.replace("simulations = 20", "simulations = 3"): "fit.simulations must be at least 10",
+           good.replace("[fit.noise]\ndrift_cm = 0.01", "[fit.noise]\ndrift = 0.01"): "unknown fit key fit.noise.drift"}
+    for text, message in bad.items():
+        with pytest.raises(ConfigError, match=message.replace("[", r"\[").replace("(", r"\(")):
+            read_plan(write(tmp_path / "bad.toml", text), data)
+    with pytest.raises(ConfigError, match="condition 'far' is not defined"):
+        read_plan(write(tmp_path / "f.toml", good), read_data(write(tmp_path / "far.csv", DATA.replace("left", "far"))))
