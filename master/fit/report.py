@@ -163,3 +163,42 @@ def write_table(path: Path, text: str) -> None:
 
 __all__ = ["LEVELS", "natural", "posterior_csv", "estimates_csv", "calibration_csv", "recovery_csv",
            "calibration_figure", "predictive_figure", "predictive_csv"]
+
+
+def results_markdown(out: Path) -> str:
+    """A fit's calibration and timing as Markdown tables, from its own files (calibration.csv, run.json):
+    what docs/fit.md shows of a measured fit."""
+    import csv
+    import json
+
+    run = json.loads((out / "run.json").read_text())
+    with open(out / "calibration.csv", newline="") as file:
+        rows = list(csv.DictReader(file))
+    lines = ["| parameter | prior | r (true, median) | posterior sd / prior sd | 50 % coverage | 90 % coverage | "
+             "SBC chi-square p | SBC KS p |", "|---|---|---|---|---|---|---|---|"]
+    priors = {p["key"]: p for p in run["parameters"]}
+    for row in rows:
+        prior = priors[row["parameter"]]
+        bounds = f"{prior['prior']} [{prior.get('low', '-inf')}, {prior.get('high', 'inf')}]"
+        lines.append(f"| `{row['parameter']}` | {bounds} | {float(row['correlation']):.3f} | "
+                     f"{float(row['sd_ratio']):.2f} | {float(row['coverage_50']):.2f} | {float(row['coverage_90']):.2f} | "
+                     f"{float(row['sbc_chisquare_p']):.3f} | {float(row['sbc_ks_p']):.3f} |")
+    simulations, estimator = run["simulations"], run["estimator"]
+    timing = run["posterior_seconds_per_participant"]
+    lines += ["", "| measure | value |", "|---|---|",
+              f"| simulated participants (trials) | {simulations['participants']} ({simulations['trials']}, "
+              f"{simulations['steps_per_trial']} steps at {simulations['resolution']}x{simulations['resolution']}) |",
+              f"| held out for the calibration | {run['calibration']['held_out']} "
+              f"(L = {run['calibration']['samples_per_participant']}) |",
+              f"| failed simulated participants | {simulations['failed_participants']} |",
+              f"| simulations' wall time | {simulations['wall_s_now']:.0f} s "
+              f"({simulations['trials_per_s_now']} trials/s) |",
+              f"| workers' CPU time per trial | {simulations['cpu_s_per_trial']:.3f} s |",
+              f"| training | {estimator['seconds']:.1f} s, {estimator['epochs']} epochs, {estimator['density']} "
+              f"({estimator['hidden_features']} hidden, {estimator['transforms']} transforms), "
+              f"{estimator['torch_threads']} torch threads |",
+              f"| posterior of a participant ({run['settings']['posterior_samples']} samples) | "
+              f"{timing['mean']:.3f} s mean, {timing['max']:.3f} s max |",
+              f"| whole fit | {run['wall_s']:.0f} s |",
+              f"| CPU | {run['versions']['cpu']['model']} |"]
+    return "\n".join(lines) + "\n"
