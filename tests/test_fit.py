@@ -259,3 +259,25 @@ def test_fit_file_refusals(tmp_path):
             read_plan(write(tmp_path / "bad.toml", text), data)
     with pytest.raises(ConfigError, match="condition 'far' is not defined"):
         read_plan(write(tmp_path / "f.toml", good), read_data(write(tmp_path / "far.csv", DATA.replace("left", "far"))))
+
+
+def test_per_trial_parameters_of_a_batch_of_configurations():
+    """wiring.parameters and causal.parameters give each trial its own values where trials carry them, and the
+    configuration's own (a scalar, as before) where none differs; brain.coupling_sd is derived per trial."""
+    from master.experiment import causal, config as configuration, make_trial
+    from master.experiment.wiring import batchable_keys, parameters
+
+    base = configuration.load(quick=True, model_name="causal")
+    assert {"decoder.visual_variance", "brain.sync_sd", "causal.peripersonal_sd",
+            "causal.timing_noise_sd"} <= batchable_keys(base)
+    assert "experiment.steps" not in batchable_keys(base) and "body.substeps" not in batchable_keys(base)
+    own = [(("brain.sync_sd", 0.1), ("causal.peripersonal_sd", 0.15), ("decoder.visual_variance", 20.0)),
+           (("brain.sync_sd", 0.3), ("causal.peripersonal_sd", 0.3), ("decoder.visual_variance", 20.0))]
+    trials = [make_trial(base, "conv", "left", "sync", 0, overrides) for overrides in own]
+    given = causal.parameters(trials, base, parameters(trials, base))
+    assert given["brain.sync_sd"].tolist() == [0.1, 0.3]
+    assert "brain.gamma0" not in batchable_keys(base)  # the causal brain has no gamma floor: not fitted there
+    assert given["decoder.visual_variance"] == 20.0  # the same for both: the configuration's scalar
+    assert np.array_equal(given["brain.coupling_sd"], np.stack([causal.coupling_sd(0.15), causal.coupling_sd(0.3)]))
+    plain = causal.parameters(trials[:1], base, parameters([make_trial(base, "conv", "left", "sync", 0)], base))
+    assert np.array_equal(plain["brain.coupling_sd"], causal.coupling_sd(base["causal"]["peripersonal_sd"]))

@@ -157,7 +157,10 @@ def batchable_keys(config: dict) -> set[str]:
     from master.experiment import causal
 
     sources = [s for p, s in PARAMETER_SOURCES.items() if p not in CONSTRUCTED]
-    if config.get("model", {}).get("name", "paper") == "causal":
+    if config.get("model", {}).get("name", "paper") == "causal":  # its brain declares its own parameters
+        declared = set(causal.CausalBrain().variables)
+        sources = [s for p, s in PARAMETER_SOURCES.items() if p not in CONSTRUCTED
+                   and (not p.startswith("brain.") or p.partition(".")[2] in declared)]
         sources += [*causal.PARAMETER_SOURCES.values(), causal.DERIVED_FROM]
     keys = set()
     for source in sources:
