@@ -67,8 +67,8 @@ def write(path, text):
 
 
 def test_data_file_summaries_and_refusals(tmp_path):
-    data = read_data(write(tmp_path / "d.csv", "participant,condition,stimulation,drift_cm\n"
-                                             "a,left,sync,-2\na,left,sync,-4\na,left,async,0.5\n"
+    data = read_data(write(tmp_path / "d.csv", "# source: a note, with commas\nparticipant,condition,stimulation,drift_cm\n"
+                                             "a,left,sync,-2\n# a comment\na,left,sync,-4\na,left,async,0.5\n"
                                              "b,left,async,1\nb,left,sync,-1\n"))
     assert data.participants == ["a", "b"] and data.cells == [("left", "async"), ("left", "sync")]
     assert data.observed.tolist() == [[0.5, -3.0], [1.0, -1.0]] and data.counts.tolist() == [[1, 2], [1, 1]]

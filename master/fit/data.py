@@ -9,6 +9,8 @@ Columns (docs/fit.md):
   ``time_s``, the trial's length (s), the same on every row;
 - the observed measures: ``drift_cm`` and optionally ``force_n`` (a trial outcome's final values).
 
+A line whose first cell starts with ``#`` is a comment (a source, a note), as is a blank line.
+
 A participant's summary statistics are the mean of each measure over its rows in each design cell; every
 participant must have every cell of the design. Any problem is a ConfigError naming the file, the line and
 the column.
@@ -133,7 +135,8 @@ def read_rows(path: str | Path) -> tuple[list[tuple[int, list[str]]], list[str]]
         parsed = list(csv.reader(text.splitlines()))
     except csv.Error as error:
         raise ConfigError(f"{name}: not a CSV file ({error})") from None
-    numbered = [(line, row) for line, row in enumerate(parsed, start=1) if any(cell.strip() for cell in row)]
+    numbered = [(line, row) for line, row in enumerate(parsed, start=1)
+                if any(cell.strip() for cell in row) and not row[0].lstrip().startswith("#")]  # blank, comment
     if not numbered:
         raise ConfigError(f"{name}: empty (no header)")
     (_, header), *rows = numbered
