@@ -123,7 +123,7 @@ def predictive_figure(names: list[str], participants: list[str], observed: np.nd
     count = len(participants)
     columns = min(4, count)
     rows = -(-count // columns)
-    fig, axes = plt.subplots(rows, columns, figsize=(4.2 * columns, 3.2 * rows), squeeze=False)
+    fig, axes = plt.subplots(rows, columns, figsize=(max(6.5, 4.2 * columns), 3.2 * rows + 0.6), squeeze=False)
     positions = np.arange(len(names))
     for n, (participant, axis) in enumerate(zip(participants, axes.flat)):
         draws = predicted[n][np.all(np.isfinite(predicted[n]), axis=1)]
