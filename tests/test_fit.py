@@ -146,7 +146,7 @@ def test_bad_data_and_fit_files_are_one_line_exit_2_nothing_written(tmp_path, ca
              (("--data", "good.csv", "--config", "typo.toml"), "unknown fit key fit.parameters.decoder.visual_variance.lo"),
              (("--data", "none.csv", "--config", "fit.toml"), "none.csv does not exist")]
     for number, (arguments, message) in enumerate(cases):
-        if number < 2:  # the console script in a process of its own
+        if number < 1:  # the console script in a process of its own
             result = rhi("fit", *arguments, "--out", "out", cwd=tmp_path)
             status, stderr = result.returncode, result.stderr
         else:  # the same entry point in this process (a subprocess costs seconds of imports)
