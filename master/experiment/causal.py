@@ -14,6 +14,7 @@ from components.body import kinematics
 from components.brain.causal_brain import CausalBrain
 from components.vision.pose_encoder import PoseEncoder, load_encoder
 from master.experiment import training_data
+from master.experiment.protocol import per_trial
 
 GROUND_TRUTH_LINKS = ("rubber_arm.hand", "body.hand_x", "body.hand_y")  # never into the causal brain
 EXTRA_CONNECTIONS = [("camera.image", "pose_encoder.image"), ("pose_encoder.pose", "brain.seen_pose"),
@@ -68,8 +69,6 @@ def parameters(trials, config: dict, paper_given: dict) -> dict:
     declared = set(CausalBrain().variables)
     given = {path: value for path, value in paper_given.items()
              if not path.startswith("brain.") or path.partition(".")[2] in declared}
-    from master.experiment.wiring import per_trial
-
     for path, source in PARAMETER_SOURCES.items():
         if not source.startswith(("derived", "per trial")):
             given[path] = per_trial(trials, config, source)

@@ -8,6 +8,8 @@ from __future__ import annotations
 import hashlib
 from dataclasses import dataclass
 
+import numpy as np
+
 from components.body import kinematics
 
 @dataclass(frozen=True)
@@ -62,3 +64,13 @@ def rubber_pose(offset_x: float, offset_y: float = 0.0) -> tuple[float, float]:
     shoulder, elbow = kinematics.inverse(kinematics.REST_HAND[0] + offset_x, kinematics.REST_HAND[1] + offset_y)
     return float(shoulder), float(elbow)
 
+
+def per_trial(trials: list[Trial], config: dict, key: str):
+    """The value of configuration ``key`` for the components: the configuration's, or, when some trial carries
+    its own (``Trial.overrides``, a batch of several configurations), one value per trial, shape (B,)."""
+    table, name = key.split(".")
+    value = config[table][name]
+    if not any(t.overrides for t in trials):
+        return value
+    values = [dict(t.overrides).get(key, value) for t in trials]
+    return value if all(v == value for v in values) else np.array(values, dtype=float)

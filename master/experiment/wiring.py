@@ -18,7 +18,7 @@ from components.brain.integrator import Brain
 from components.stimulus import Stimulus
 from components.component import ComponentError
 from master.cosim import ConfigError, System, simulate
-from master.experiment.protocol import Trial, plan
+from master.experiment.protocol import Trial, per_trial, plan
 
 # Gauss-Seidel order within one step (docs/design.md): the decoder reads the brain's mu of time t and the
 # image of time t; the brain then integrates; the body finally receives the new action.
@@ -137,17 +137,6 @@ def parameters(trials: list[Trial], config: dict) -> dict:
         else:
             given[path] = per_trial(trials, config, config_key(source))
     return given
-
-
-def per_trial(trials: list[Trial], config: dict, key: str):
-    """The value of configuration ``key`` for the components: the configuration's, or, when some trial carries
-    its own (``Trial.overrides``, a batch of several configurations), one value per trial, shape (B,)."""
-    table, name = key.split(".")
-    value = config[table][name]
-    if not any(t.overrides for t in trials):
-        return value
-    values = [dict(t.overrides).get(key, value) for t in trials]
-    return value if all(v == value for v in values) else np.array(values, dtype=float)
 
 
 def batchable_keys(config: dict) -> set[str]:
