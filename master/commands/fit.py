@@ -22,7 +22,14 @@ def add_arguments(parser) -> None:
 
 
 def run_fit(args) -> int:
+    import importlib.util
+
+    from master.cosim import ConfigError
     from master.fit.run import fit
+
+    if importlib.util.find_spec("sbi") is None:  # an install without the fit extra
+        raise ConfigError("rhi fit needs the sbi package: pip install -c constraints.txt -e '.[fit]' "
+                          "(make setup installs it)")
 
     out = Path(args.out)
     result = fit(args.data, args.config, out, getattr(args, "model", None), args.scheduler, args.debug)
