@@ -6,7 +6,8 @@ from pathlib import Path
 
 import pytest
 
-COMMANDS = ("train", "experiment", "export-body", "export-agent", "export-system", "run-system", "sweep", "fit", "bench")
+COMMANDS = ("train", "experiment", "export-body", "export-agent", "export-system", "run-system", "sweep", "fit", "bench",
+            "reach")
 
 
 def rhi(*args, cwd=None, env=None):
@@ -53,6 +54,7 @@ BAD_INPUT = {
     "sweep": (["--config", "{tmp}/missing.toml", "--out", "{tmp}/out"], "missing.toml does not exist"),
     "fit": (["--data", "{tmp}/missing.csv", "--config", "{tmp}/bad.toml", "--out", "{tmp}/out"], "missing.csv does not exist"),
     "bench": (["--threads", "-2"], "--threads -2 must be a positive number"),
+    "reach": (["--config", "{tmp}/bad.toml", "--out", "{tmp}/out"], "unknown config key brain.sigma_p"),
 }
 
 

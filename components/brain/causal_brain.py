@@ -10,6 +10,9 @@ Each step, for each of the B trials (docs/model.md):
    (:func:`belief_rate`): x_v and Sigma_x (deg, deg^2 per joint) come from the pose encoder;
 4. a_dot and the action as in the paper's brain (:mod:`components.brain.integrator`).
 
+A reach goal's pull (input ``goal_drive``, docs/reach.md) is added to mu_dot unweighted by gamma, as in the
+paper's brain; it is 0 (no goal) unless the reach task connects it.
+
 The brain reads no position from the simulator: the seen arm reaches it only through the camera's
 image and the pose encoder, the felt arm only as the sensed joint angles s_p. Each trial is one
 participant: its parameters are drawn from the population once, at initialization, from its
@@ -100,6 +103,11 @@ class CausalBrain(Component):
                      description="the paper's visual error, read only when pixel_weight > 0"),
             Variable("visual_stiffness", "input", start=0.0, unit="1/s", min=0.0,
                      description="the pixel term's stiffness, for the stability guard"),
+            Variable("goal_drive", "input", start=(0.0, 0.0), unit="deg/s", **joint,
+                     description="a reach goal's pull on mu, unweighted by gamma (0: no goal; docs/reach.md)"),
+            Variable("goal_error", "input", start=0.0, unit="1", min=0.0, description="the goal's free-energy term"),
+            Variable("goal_stiffness", "input", start=0.0, unit="1/s", min=0.0,
+                     description="the goal term's stiffness, for the stability guard (0: no goal)"),
             Variable("visual_time", "input", start=-np.inf, unit="s", description="last visual touch event"),
             Variable("tactile_time", "input", start=-np.inf, unit="s", description="last tactile event"),
             Variable("mu", unit="deg", **joint, **state, description="belief of the joint angles"),
@@ -139,7 +147,8 @@ class CausalBrain(Component):
 
     def step(self, t, h):
         v, who = self.values, self.participant
-        for name in ("q_shoulder", "q_elbow", "seen_pose", "seen_pose_variance"):
+        for name in ("q_shoulder", "q_elbow", "seen_pose", "seen_pose_variance", "goal_drive", "goal_error",
+                     "goal_stiffness"):
             _require_finite(name, v[name])
         for name in ("visual_time", "tactile_time"):
             _require_finite(name, v[name], allow_minus_inf=True)
@@ -163,15 +172,17 @@ class CausalBrain(Component):
         gamma = posterior(timing, spatial)
 
         stiffness = h * (1.0 / variance + gamma * (1.0 / v["seen_pose_variance"]).max(axis=1)
-                         + v["pixel_weight"] * gamma * v["visual_stiffness"])
+                         + v["pixel_weight"] * gamma * v["visual_stiffness"] + v["goal_stiffness"])
         if np.any(~(stiffness < STABILITY_LIMIT)):
             raise StepFailure(f"step too large for stable explicit Euler in {_trials(~(stiffness < STABILITY_LIMIT))}: "
                               f"dt * (1/Sigma_p + gamma/Sigma_x + ...) = {stiffness.max():.4g} >= 2")
         pixels = v["pixel_weight"] > 0
         drive = np.where(pixels[:, None], v["visual_drive"], 0.0)
         error = np.where(pixels, v["visual_error"], 0.0)
-        new_mu = mu + h * belief_rate(s_p, mu, gamma, v["seen_pose"], v["seen_pose_variance"], variance,
-                                      v["pixel_weight"], drive)
+        rate = belief_rate(s_p, mu, gamma, v["seen_pose"], v["seen_pose_variance"], variance, v["pixel_weight"], drive)
+        if np.any(v["goal_drive"]):  # a reach goal, unweighted by gamma as the released agent's attractor
+            rate = rate + v["goal_drive"]                   # (components.brain.integrator.euler_step)
+        new_mu = mu + h * rate
         a_dot = action_rate(s_p, new_mu, variance)
         action = action_update(np.stack([v["u_shoulder"], v["u_elbow"]], axis=1), a_dot, v["action_time_constant"],
                                v["action_limit"], h)

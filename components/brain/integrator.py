@@ -4,7 +4,8 @@ Each step, for each of the B trials, in the released agent's order (docs/design.
 
 1. gamma from the events (eqs. 8-9, :mod:`components.brain.causal_inference`; with the
    extension over space there, ``spatial_sd`` finite, also from the seen and felt hands);
-2. mu_dot = (s_p - mu)/Sigma_p + gamma * visual_drive;  mu <- mu + dt * mu_dot  (:func:`belief_rate`);
+2. mu_dot = (s_p - mu)/Sigma_p + gamma * visual_drive [+ goal_drive, a reach goal's pull, unweighted by
+   gamma; 0 unless the reach task connects it, docs/reach.md];  mu <- mu + dt * mu_dot  (:func:`belief_rate`);
 3. a_dot = -(s_p - mu)/Sigma_p with the UPDATED mu  (:func:`action_rate`, eq. 7);
 4. a <- clip(a + dt * (a_dot - a/tau), -limit, limit)  (:func:`action_update`, the action law).
 
@@ -96,14 +97,21 @@ def action_update(action, a_dot, action_time_constant, action_limit, h):
 
 
 def euler_step(mu, action, s_p, gamma, visual_drive, proprioceptive_variance, action_limit, h,
-               action_time_constant):
+               action_time_constant, goal_drive=None):
     """One explicit Euler step of eqs. 6 and 7 in the released agent's order; returns (new_mu, a_dot, new_action).
 
-    mu <- mu + h * mu_dot (:func:`belief_rate`); a_dot from the UPDATED mu (:func:`action_rate`);
-    the action by the action law (:func:`action_update`). mu, action, s_p, visual_drive: (B, 2);
-    gamma, proprioceptive_variance, action_limit, action_time_constant: (B,).
+    mu <- mu + h * mu_dot (:func:`belief_rate`, plus ``goal_drive`` when given); a_dot from the UPDATED mu
+    (:func:`action_rate`); the action by the action law (:func:`action_update`). mu, action, s_p, visual_drive,
+    goal_drive: (B, 2); gamma, proprioceptive_variance, action_limit, action_time_constant: (B,).
+
+    goal_drive: a reach goal's pull on the belief, added to mu_dot unweighted by gamma, as the released agent
+    adds its attractor term (``FepAgent.active_inference_step``: mu_dot = dF_dmu_vis + dF_dmu_attr +
+    proprioception; the term itself: the goal decoder's drive or ``components.brain.goal``).
     """
-    new_mu = mu + h * belief_rate(s_p, mu, gamma, visual_drive, proprioceptive_variance)
+    rate = belief_rate(s_p, mu, gamma, visual_drive, proprioceptive_variance)
+    if goal_drive is not None and np.any(goal_drive):
+        rate = rate + goal_drive
+    new_mu = mu + h * rate
     a_dot = action_rate(s_p, new_mu, proprioceptive_variance)
     return new_mu, a_dot, action_update(action, a_dot, action_time_constant, action_limit, h)
 
@@ -170,6 +178,12 @@ class Brain(Component):
                      description="1/2 e^T Sigma_v^-1 e from the decoder, e = s_v - g(mu), at this step's mu"),
             Variable("visual_stiffness", "input", start=0.0, unit="1/s", min=0.0,
                      description="largest eigenvalue of J^T J / Sigma_v, for the stability guard"),
+            Variable("goal_drive", "input", start=(0.0, 0.0), unit="deg/s", **joint,
+                     description="a reach goal's pull on mu, unweighted by gamma (0: no goal; docs/reach.md)"),
+            Variable("goal_error", "input", start=0.0, unit="1", min=0.0,
+                     description="the goal's free-energy term (0: no goal)"),
+            Variable("goal_stiffness", "input", start=0.0, unit="1/s", min=0.0,
+                     description="the goal term's stiffness, for the stability guard (0: no goal)"),
             Variable("seen_hand", "input", start=(np.nan, np.nan), unit="m", **joint,
                      description="the seen (rubber) hand (x, y); read only when spatial_sd is finite"),
             Variable("hand_x", "input", start=np.nan, unit="m",
@@ -220,7 +234,7 @@ class Brain(Component):
 
     def _sensed(self, proprioception=True):
         """s_p as (B, 2) after checking the inputs; StepFailure names the bad one."""
-        names = ("visual_drive", "visual_error", "visual_stiffness")
+        names = ("visual_drive", "visual_error", "visual_stiffness", "goal_drive", "goal_error", "goal_stiffness")
         for name in ("q_shoulder", "q_elbow") + names if proprioception else names:
             _require_finite(name, self.values[name])
         for name in ("visual_time", "tactile_time"):
@@ -263,12 +277,13 @@ class Brain(Component):
         gamma = update_gamma(v["gamma"], pair, visual_time, tactile_time, t + h, h, v["gamma0"],
                              v["sync_sd"], v["async_density"], v["decay_rate"], spatial)
 
-        unstable = ~(stability_number(h, variance, gamma, v["visual_stiffness"]) < STABILITY_LIMIT)
+        number = stability_number(h, variance, gamma, v["visual_stiffness"]) + h * v["goal_stiffness"]
+        unstable = ~(number < STABILITY_LIMIT)
         if unstable.any():
             i = np.flatnonzero(unstable)[0]
             raise StepFailure(
                 f"step too large for stable explicit Euler in {_trials(unstable)}: dt * (1/Sigma_p + gamma * "
-                f"visual_stiffness) = {stability_number(h, variance, gamma, v['visual_stiffness'])[i]:.4g} >= 2 "
+                f"visual_stiffness + goal_stiffness) = {number[i]:.4g} >= 2 "
                 f"(dt = {h:g} s, Sigma_p = {variance[i]:g}, gamma = {gamma[i]:.4g}, visual_stiffness = "
                 f"{v['visual_stiffness'][i]:.4g} 1/s); use a smaller step or a larger visual_variance")
 
@@ -284,8 +299,10 @@ class Brain(Component):
         with np.errstate(over="ignore", invalid="ignore"):  # overflow is caught just below, by name
             new_mu, a_dot, action = euler_step(mu, np.stack([v["u_shoulder"], v["u_elbow"]], axis=1), s_p, gamma,
                                                v["visual_drive"], variance, v["action_limit"], h,
-                                               v["action_time_constant"])
+                                               v["action_time_constant"], v["goal_drive"])
             energy = free_energy(s_p, mu, gamma, v["visual_error"], variance)
+            if np.any(v["goal_error"]):
+                energy = energy + v["goal_error"]
         for name, value in (("mu", new_mu), ("action_rate", a_dot), ("free_energy", energy)):
             _require_finite(name, value)
 

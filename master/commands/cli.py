@@ -122,6 +122,10 @@ def build_parser() -> argparse.ArgumentParser:
     __import__("master.commands.fit", fromlist=["_"]).add_arguments(fit)
     fit.set_defaults(run=lambda args: __import__("master.commands.fit", fromlist=["_"]).run_fit(args))
 
+    reach = commands.add_parser("reach", help="the free arm reaching to a seen goal: near and far goals per decoder")
+    __import__("master.commands.reach", fromlist=["_"]).add_arguments(reach)
+    reach.set_defaults(run=lambda args: __import__("master.commands.reach", fromlist=["_"]).run_reach(args))
+
     bench = commands.add_parser("bench", help="measure speed")
     bench.add_argument("--json", action="store_true", help="print the results as JSON (for machines)")
     bench.add_argument("--quick", action="store_true", help="tiny settings: a smoke test in seconds")

@@ -105,15 +105,18 @@ def package_versions() -> dict:
 # What `rhi experiment` writes into DIR: --force replaces a folder holding nothing else, never another one.
 OUTPUT_ENTRIES = ("summary.csv", "trials.csv", "run.json", "figures")
 OUTPUT_COMMAND = "rhi experiment"  # run.json's "command"
+OUTPUT_COMMANDS = {OUTPUT_COMMAND: OUTPUT_ENTRIES, "rhi reach": OUTPUT_ENTRIES + ("goals.csv",)}  # and what each writes
 STAGING_MARK = ".rhi-staging"  # inside a staging folder until it is published: ours, and safe to clean
 _ACTIVE: dict[Path, "OutputLock"] = {}  # staging folder -> its lock, while this process writes them
 
 
 def foreign_entries(folder: Path) -> list[str]:
-    """What in ``folder`` an earlier `rhi experiment` did not write (empty: the folder is one of its outputs).
+    """What in ``folder`` an earlier `rhi experiment` (or `rhi reach`) did not write (empty: the folder is one of
+    its outputs).
 
     Its own output holds run.json with ``"command": "rhi experiment"``, otherwise only the files summary.csv
-    and trials.csv and the folder figures/, and figures/ only the files run.json lists; none of them a link.
+    and trials.csv and the folder figures/, and figures/ only the files run.json lists; none of them a link
+    (`rhi reach`: the same, and goals.csv; :data:`OUTPUT_COMMANDS`).
     """
     try:
         names = sorted(entry.name for entry in folder.iterdir())
@@ -123,9 +126,10 @@ def foreign_entries(folder: Path) -> list[str]:
         run = json.loads((folder / "run.json").read_text(encoding="utf-8"))
     except (OSError, ValueError):
         run = None
-    if not isinstance(run, dict) or run.get("command") != OUTPUT_COMMAND:
+    if not isinstance(run, dict) or run.get("command") not in OUTPUT_COMMANDS:
         return names or ["nothing"]
-    foreign = [name for name in names if name not in OUTPUT_ENTRIES or (folder / name).is_symlink()
+    entries = OUTPUT_COMMANDS[run["command"]]
+    foreign = [name for name in names if name not in entries or (folder / name).is_symlink()
                or not ((folder / name).is_dir() if name == "figures" else (folder / name).is_file())]
     figures = folder / "figures"
     if figures.is_dir() and not figures.is_symlink():

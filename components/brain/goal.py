@@ -1,0 +1,71 @@
+"""A reach goal as an attractor of the belief, in body space (docs/reach.md).
+
+The paper's released agent reaches by a visual attractor: an image of the arm at the goal pose, whose
+prediction error with g(mu) is back-propagated through the decoder and added to mu_dot, not weighted by
+gamma (``FepAgent.get_df_dmu_attr``: beta (attr - g(mu)) / sigma_mu, beta = 1, sigma_mu = 5e3, beside the
+seen image's 1 / sigma_v_mu, sigma_v_mu = 1e4). In pixels that term is the decoder's visual drive with the
+goal image in place of the camera's (a second decoder component computes it). In body space the goal is a
+pose x_g with a variance Sigma_g (the pose encoder's reading of the same goal image), and the same free-energy
+term 1/2 w (x_g - mu)^2 / Sigma_g has the gradient of :func:`body_space_attraction`.
+
+:class:`GoalAttractor` outputs what the brains read as ``goal_drive``, ``goal_stiffness`` and ``goal_error``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from components.component import StepFailure, Component
+from components.variables import Variable
+
+
+def body_space_attraction(mu, goal_pose, goal_variance, precision_ratio):
+    """The released agent's attractor term in body space: w (x_g - mu) / Sigma_g, (B, 2) deg/s.
+
+    Source: the released agent's ``get_df_dmu_attr`` (beta J^T (attr - g(mu)) / sigma_mu) with the generative
+    map of a body-space observation, g = identity on the joint angles (as the causal model's seen-pose term,
+    ``causal_brain.belief_rate``), so J = I. w = ``precision_ratio`` is the attractor's precision relative to the
+    seen observation's: the released agent's beta sigma_v_mu / sigma_mu = 1e4 / 5e3 = 2. mu, goal_pose,
+    goal_variance: (B, 2) deg, deg^2; precision_ratio: (B,).
+    """
+    return precision_ratio[:, None] * (goal_pose - mu) / goal_variance
+
+
+def body_space_goal_error(mu, goal_pose, goal_variance, precision_ratio):
+    """The free energy of the body-space attractor, 1/2 w sum_j (x_g - mu)_j^2 / Sigma_g,j, (B,); its gradient in
+    mu is minus :func:`body_space_attraction`."""
+    return 0.5 * precision_ratio * ((goal_pose - mu) ** 2 / goal_variance).sum(axis=1)
+
+
+class GoalAttractor(Component):
+    """Belief and goal pose in, the goal's pull on the belief out (body space)."""
+
+    def __init__(self, name: str = "goal_attractor"):
+        joint = dict(type="Array", shape=(2,))
+        feed = dict(causality="output", depends_on=("mu", "goal_pose", "goal_pose_variance"))
+        super().__init__(name, [
+            Variable("precision_ratio", "parameter", start=2.0, unit="1", min=0.0,
+                     description="w: the goal's precision relative to the seen pose's (released agent: 2)"),
+            Variable("mu", "input", start=(0.0, 0.0), unit="deg", **joint, description="belief mu"),
+            Variable("goal_pose", "input", start=(np.nan, np.nan), unit="deg", **joint,
+                     description="x_g: the goal's joint angles (the pose encoder's reading of the goal image)"),
+            Variable("goal_pose_variance", "input", start=(1.0, 1.0), unit="deg2", **joint,
+                     description="Sigma_g: the variance of x_g"),
+            Variable("goal_drive", unit="deg/s", **joint, **feed, description="w (x_g - mu) / Sigma_g"),
+            Variable("goal_error", unit="1", **feed, description="1/2 w sum (x_g - mu)^2 / Sigma_g"),
+            Variable("goal_stiffness", unit="1/s", causality="output", depends_on=("goal_pose_variance",),
+                     description="largest w / Sigma_g, for the brain's stability guard"),
+        ])
+
+    def initialize(self):
+        self.step(0.0, 0.0)
+
+    def step(self, t, h):
+        v = self.values
+        for name in ("mu", "goal_pose", "goal_pose_variance"):
+            if not np.all(np.isfinite(v[name])):
+                raise StepFailure(f"{self.name}.{name} is not finite: {np.asarray(v[name]).tolist()}")
+        if np.any(v["goal_pose_variance"] <= 0):
+            raise StepFailure(f"{self.name}.goal_pose_variance must be positive")
+        v["goal_drive"] = body_space_attraction(v["mu"], v["goal_pose"], v["goal_pose_variance"], v["precision_ratio"])
+        v["goal_error"] = body_space_goal_error(v["mu"], v["goal_pose"], v["goal_pose_variance"], v["precision_ratio"])
+        v["goal_stiffness"] = v["precision_ratio"] / v["goal_pose_variance"].min(axis=1)

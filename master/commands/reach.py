@@ -1,0 +1,41 @@
+"""`rhi reach`: the free arm reaching to a seen goal, near and far goals per decoder (docs/reach.md)."""
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+from master.commands.experiment import add_model
+from master.outputs.files import check_output
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--config", metavar="FILE", help="TOML file overriding master/defaults.toml and "
+                                                         "master/reach.toml (reach.goals, reach.ranges, ...)")
+    add_model(parser)
+    parser.add_argument("--quick", action="store_true", help="a small version, for smoke tests (tiny decoders "
+                                                             "at 32 px, 2 near goals, 500 steps)")
+    parser.add_argument("--goals", type=int, help="goals per band (default 40)")
+    parser.add_argument("--seed", type=int, help="master seed (draws the goals)")
+    parser.add_argument("--out", metavar="DIR", required=True)
+    parser.add_argument("--force", action="store_true", help="replace DIR if it holds an earlier rhi output")
+
+
+def run_reach(args) -> int:
+    from master.experiment import reach
+
+    started = time.perf_counter()
+    overrides = {key: value for key, value in (("reach.goals", args.goals), ("experiment.seed", args.seed))
+                 if value is not None}
+    config = reach.load(args.config, quick=args.quick, model_name=args.model, overrides=overrides)
+    check_output(args.out, args.force)
+    from master.experiment.reach_publish import run_into
+
+    failures = run_into(args.out, config, force=args.force, progress=True)
+    for trial, error in failures.items():
+        print(f"rhi reach: reach failed and left out: {trial.decoder}/{trial.band} goal {trial.index}: {error}",
+              file=sys.stderr)
+    print(f"wrote {args.out}: summary.csv, goals.csv, trials.csv, run.json, figures/ "
+          f"({time.perf_counter() - started:.0f} s)")
+    print((Path(args.out) / "summary.csv").read_text(), end="")
+    return 1 if failures else 0

@@ -1,0 +1,336 @@
+"""The reach task: its configuration, its goals, its system, and one lockstep batch of it (docs/reach.md).
+
+The free arm (``body.held = false``) starts at rest and reaches to a goal it sees: the camera's image of the
+arm at the goal pose (a :class:`~components.body.arm_pose.PosedArm` in front of a second camera), the released
+agent's attractor image. The goal pulls the belief (through the decoder in pixels, or through the pose
+encoder in joint angles), the proprioceptive error mu - s_p drives the action, and the arm follows.
+"""
+from __future__ import annotations
+
+import copy
+import hashlib
+from dataclasses import dataclass
+from importlib import resources
+
+import numpy as np
+
+from components.body import kinematics
+from components.body.arm_pose import JointPose, PosedArm
+from components.body.camera import Camera
+from components.body.plant import ArmPlant
+from master.cosim import ConfigError, System, simulate
+from master.experiment import config as configuration
+from master.experiment import wiring
+from master.experiment.training_data import HALF_RANGES
+
+ATTRACTORS = ("auto", "pixels", "body")
+VIEWS = ("auto", "on", "off")
+RECORD = ["brain.mu", "brain.gamma", "brain.u_shoulder", "brain.u_elbow", "brain.free_energy", "body.q_shoulder",
+          "body.q_elbow", "body.hand_x", "body.hand_y"]
+
+
+@dataclass(frozen=True)
+class ReachTrial:
+    """One reach: its decoder, band and index, its seed, and the goal's offset from the rest pose (deg)."""
+
+    decoder: str
+    band: str
+    index: int
+    seed: int
+    shoulder_offset: float
+    elbow_offset: float
+
+    @property
+    def goal_pose(self) -> tuple[float, float]:
+        return kinematics.REST_POSE[0] + self.shoulder_offset, kinematics.REST_POSE[1] + self.elbow_offset
+
+
+# -- configuration -----------------------------------------------------------------------------------------
+def task() -> dict:
+    """master/reach.toml: the task's own table [reach] (and its [quick]), and the keys it changes elsewhere."""
+    with resources.files("master").joinpath("reach.toml").open("rb") as file:
+        import tomllib
+        return tomllib.load(file)
+
+
+def load(path=None, quick: bool = False, model_name: str = "paper", overrides: dict | None = None) -> dict:
+    """The reach's configuration: the defaults (and their [quick]), the model, master/reach.toml (and its
+    [quick]), the file, the overrides (``{"reach.goals": 2}``); checked, ConfigError naming the key."""
+    config = configuration.defaults()
+    quick_values = config.pop("quick")
+    if quick:
+        config = configuration.merge(config, quick_values)
+    config = configuration.with_model(config, model_name)
+    shipped = task()
+    quick_task = shipped.pop("quick")
+    config = configuration.merge({**config, "reach": copy.deepcopy(shipped.pop("reach"))}, shipped)
+    if quick:
+        config = configuration.merge(config, quick_task)
+    if path is not None:
+        given = configuration.read_toml(path)
+        new_bands = given.get("reach", {}).get("ranges", {}) if isinstance(given.get("reach"), dict) else {}
+        if isinstance(new_bands, dict):  # a band of one's own: an open table, each entry like the shipped ones
+            for name in new_bands:
+                config["reach"]["ranges"].setdefault(name, [0.0, 0.0])
+        config = configuration.merge(config, given)
+    config = configuration.merge(config, configuration.nest(overrides or {}))
+    configuration.validate(config)
+    validate(config)
+    return config
+
+
+def attractor(config: dict) -> str:
+    """"pixels" or "body": the configured one, or the model's ("auto": pixels for the paper, body for causal)."""
+    chosen = config["reach"]["attractor"]
+    if chosen == "auto":
+        return "body" if configuration.model_name(config) == "causal" else "pixels"
+    return chosen
+
+
+def view(config: dict) -> bool:
+    """Whether the camera sees the real arm: reach.view, "auto" = on for the causal model, off for the paper's."""
+    chosen = config["reach"]["view"]
+    return configuration.model_name(config) == "causal" if chosen == "auto" else chosen == "on"
+
+
+def validate(config: dict) -> None:
+    """The [reach] keys: counts, bands, ranges inside the joint ranges the decoders know, the attractor."""
+    reach = config["reach"]
+    if reach["goals"] < 1:
+        raise ConfigError(f"reach.goals must be at least 1, got {reach['goals']}")
+    if reach["record_every"] < 1:
+        raise ConfigError(f"reach.record_every must be at least 1 step, got {reach['record_every']}")
+    for key in ("radius_cm", "precision_ratio"):
+        if not reach[key] > 0:
+            raise ConfigError(f"reach.{key} must be positive, got {reach[key]}")
+    if reach["attractor"] not in ATTRACTORS:
+        raise ConfigError(f"reach.attractor = {reach['attractor']!r} is not one of {', '.join(ATTRACTORS)}")
+    if not reach["bands"]:
+        raise ConfigError("reach.bands is empty: name at least one of reach.ranges")
+    for band in reach["bands"]:
+        if band not in reach["ranges"]:
+            raise ConfigError(f"reach.bands: unknown band {band!r} (reach.ranges has {', '.join(reach['ranges'])})")
+    if len(set(reach["bands"])) != len(reach["bands"]):
+        raise ConfigError("reach.bands lists a band more than once")
+    for band in reach["bands"]:
+        check_range(band, reach["ranges"][band])
+    if reach["view"] not in VIEWS:
+        raise ConfigError(f"reach.view = {reach['view']!r} is not one of {', '.join(VIEWS)}")
+    if configuration.model_name(config) == "causal" and reach["view"] == "off":
+        raise ConfigError("reach.view = \"off\": the causal model's brain needs the seen arm (its pose encoder "
+                          "reads the camera); use \"on\" or \"auto\"")
+
+
+def check_range(band: str, values) -> None:
+    """A band's [low, high] deg: two numbers, 0 <= low <= high, and every goal inside the joint ranges."""
+    if not (isinstance(values, list) and len(values) == 2
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) for v in values)):
+        raise ConfigError(f"reach.ranges.{band} = {values!r} must be [low, high] in degrees")
+    low, high = values
+    if not 0 <= low <= high:
+        raise ConfigError(f"reach.ranges.{band} = {values!r}: need 0 <= low <= high (deg from rest)")
+    if high > min(HALF_RANGES):
+        raise ConfigError(f"reach.ranges.{band} = {values!r}: goals up to {high:g} deg from rest leave the joint "
+                          f"ranges the decoders know (shoulder rest ± {HALF_RANGES[0]:g} deg, elbow rest ± "
+                          f"{HALF_RANGES[1]:g} deg)")
+
+
+# -- goals ---------------------------------------------------------------------------------------------------
+def goal_seed(master_seed: int, band: str, index: int) -> int:
+    """A stable 63-bit seed per goal; the same for both decoders, and a goal's draw is independent of the count."""
+    digest = hashlib.sha256(f"{master_seed}/reach/{band}/{index}".encode()).digest()
+    return int.from_bytes(digest[:8], "little") >> 1
+
+
+def draw_offset(seed: int, low: float, high: float) -> tuple[float, float]:
+    """One goal's offset from rest (deg per joint): |offset| ~ U[low, high), the sign + or - with equal odds.
+
+    The released agent's law (model_operation/main_inference.py, reaching_tasks):
+    ``np.random.uniform(low, high, (40, 2)) * (-2 * np.random.randint(0, 2, (40, 2)) + 1)``, here per goal
+    from its own seeded generator.
+    """
+    generator = np.random.default_rng(seed)
+    magnitude = generator.uniform(low, high, size=2)
+    sign = 1 - 2 * generator.integers(0, 2, size=2)
+    return float(magnitude[0] * sign[0]), float(magnitude[1] * sign[1])
+
+
+def plan(config: dict) -> list[ReachTrial]:
+    """Every reach, in order: decoder, band, index."""
+    reach, seed = config["reach"], config["experiment"]["seed"]
+    trials = []
+    for decoder in config["experiment"]["decoders"]:
+        for band in reach["bands"]:
+            low, high = reach["ranges"][band]
+            for index in range(reach["goals"]):
+                goal = goal_seed(seed, band, index)
+                trials.append(ReachTrial(decoder, band, index, goal, *draw_offset(goal, low, high)))
+    return trials
+
+
+# -- the system ----------------------------------------------------------------------------------------------
+def links(kind: str, view: bool, pixel_decoder: bool) -> list[tuple[str, str]]:
+    """The reach system's connections, in step order; ``kind`` = "pixels" or "body" (the goal's term)."""
+    connections = [("goal.pose", "goal_camera.arm_pose")]
+    if kind == "pixels":
+        connections += [("goal_camera.image", "goal_decoder.image"), ("brain.mu", "goal_decoder.mu"),
+                        ("goal_decoder.visual_drive", "brain.goal_drive"),
+                        ("goal_decoder.visual_error", "brain.goal_error"),
+                        ("goal_decoder.visual_stiffness", "brain.goal_stiffness")]
+    else:
+        connections += [("goal_camera.image", "goal_encoder.image"), ("goal_encoder.pose", "goal_attractor.goal_pose"),
+                        ("goal_encoder.pose_variance", "goal_attractor.goal_pose_variance"),
+                        ("brain.mu", "goal_attractor.mu"), ("goal_attractor.goal_drive", "brain.goal_drive"),
+                        ("goal_attractor.goal_error", "brain.goal_error"),
+                        ("goal_attractor.goal_stiffness", "brain.goal_stiffness")]
+    if view:
+        connections += [("body.q_shoulder", "arm_pose.q_shoulder"), ("body.q_elbow", "arm_pose.q_elbow"),
+                        ("arm_pose.pose", "camera.arm_pose")]
+        if pixel_decoder:
+            connections += [("camera.image", "decoder.image"), ("brain.mu", "decoder.mu"),
+                            ("decoder.visual_drive", "brain.visual_drive"),
+                            ("decoder.visual_error", "brain.visual_error"),
+                            ("decoder.visual_stiffness", "brain.visual_stiffness")]
+    return connections + [("body.q_shoulder", "brain.q_shoulder"), ("body.q_elbow", "brain.q_elbow"),
+                          ("brain.u_shoulder", "body.u_shoulder"), ("brain.u_elbow", "body.u_elbow")]
+
+
+def encoder_file(kind: str, config: dict) -> str:
+    """The pose encoder of decoder ``kind`` (the causal model's setting, else the shipped one)."""
+    from master.experiment.pose_encoders import encoder_path, shipped_path
+
+    if "causal" in config:
+        return encoder_path(kind, config)
+    path = shipped_path(kind, config["experiment"]["resolution"])
+    if not path.is_file():
+        raise ConfigError(f"reach.attractor = \"body\": no shipped {kind} pose encoder at "
+                          f"{config['experiment']['resolution']} px ({path})")
+    return str(path)
+
+
+def build_system(kind: str, path: str, config: dict, threads: int = 1) -> System:
+    """The reach system of decoder ``kind`` (checkpoint ``path``) under ``config``."""
+    from components.vision.component import Decoder
+    from components.vision.fast import LinearisedDecoder
+    from master.experiment.decoders import check_kind, loaded
+
+    resolution, causal = config["experiment"]["resolution"], configuration.model_name(config) == "causal"
+    goal_term, seen = attractor(config), view(config)
+    pixel_decoder = not causal or config["causal"]["pixel_weight"] > 0
+    model = loaded(path, resolution, config["camera"]["blur"])
+    check_kind(kind, path, model)
+
+    def decoder(name):
+        if config["decoder"]["fast"]:
+            return LinearisedDecoder(model, name=name, relinearise_tolerance=config["decoder"]["relinearise_tolerance"],
+                                     threads=threads)
+        return Decoder(model, name=name, threads=threads)
+
+    parts = [PosedArm("goal"), Camera("goal_camera", resolution=resolution)]
+    if goal_term == "pixels":
+        parts.append(decoder("goal_decoder"))
+    else:
+        from components.brain.goal import GoalAttractor
+        from components.vision.pose_encoder import PoseEncoder, load_encoder
+        parts += [PoseEncoder(load_encoder(encoder_file(kind, config)), name="goal_encoder", resolution=resolution,
+                              threads=threads), GoalAttractor()]
+    if seen:
+        parts += [JointPose("arm_pose"), Camera("camera", resolution=resolution)]
+        if pixel_decoder:
+            parts.append(decoder("decoder"))
+    if causal:
+        from components.brain.causal_brain import CausalBrain
+        from components.vision.pose_encoder import PoseEncoder, load_encoder
+        parts += [PoseEncoder(load_encoder(encoder_file(kind, config)), resolution=resolution, threads=threads),
+                  CausalBrain()]
+        connections = links(goal_term, seen, pixel_decoder) + [
+            ("camera.image", "pose_encoder.image"), ("pose_encoder.pose", "brain.seen_pose"),
+            ("pose_encoder.pose_variance", "brain.seen_pose_variance")]
+    else:
+        from components.brain.integrator import Brain
+        parts.append(Brain())
+        connections = links(goal_term, seen, pixel_decoder)
+    parts.append(ArmPlant())
+    return System(parts, connections)
+
+
+def parameters(trials: list[ReachTrial], config: dict, system: System) -> dict:
+    """Every parameter of the reach system: the experiment's sources for the brain, body, cameras and decoders
+    (:data:`master.experiment.wiring.PARAMETER_SOURCES`), the goal per trial, and the goal's precision."""
+    given = {}
+    for path, source in wiring.PARAMETER_SOURCES.items():
+        name = path.split(".")[0]
+        if name not in ("brain", "body", "camera", "decoder") or path in wiring.CONSTRUCTED:
+            continue
+        given[path] = wiring.DERIVED[path]() if path in wiring.DERIVED else \
+            config[wiring.config_key(source).split(".")[0]][wiring.config_key(source).split(".")[1]]
+    for key in ("blur", "ball_radius"):
+        given[f"goal_camera.{key}"] = config["camera"][key]
+    given["goal.shoulder"] = np.array([t.goal_pose[0] for t in trials])
+    given["goal.elbow"] = np.array([t.goal_pose[1] for t in trials])
+    ratio = config["reach"]["precision_ratio"]
+    if "goal_decoder" in system.components:  # the attractor image: Sigma_v / w, the released agent's sigma_mu
+        given["goal_decoder.visual_variance"] = config["decoder"]["visual_variance"] / ratio
+    if "goal_attractor" in system.components:
+        given["goal_attractor.precision_ratio"] = ratio
+    if configuration.model_name(config) == "causal":
+        from master.experiment import causal
+        given = causal.parameters(trials, config, given)
+    return {path: value for path, value in given.items() if path.split(".")[0] in system.components
+            and path.partition(".")[2] in system.components[path.split(".")[0]].variables}
+
+
+def run_batch(kind: str, path: str, trials: list[ReachTrial], config: dict, threads: int = 1, progress=None):
+    """Run ``trials`` (all of decoder ``kind``) in lockstep; returns the master's Result."""
+    experiment = config["experiment"]
+    system = build_system(kind, path, config, threads)
+    record = RECORD + (["goal.hand"] if "goal" in system.components else [])
+    return simulate(system, stop_time=experiment["steps"] * experiment["step_size"],
+                    step_size=experiment["step_size"], scheme=experiment["scheme"], batch_size=len(trials),
+                    parameters=parameters(trials, config, system), record=record, progress=progress)
+
+
+# -- measures --------------------------------------------------------------------------------------------------
+def measures(result) -> dict[str, np.ndarray]:
+    """Per step and trial (steps + 1, B): the hand, its distance to the goal hand (cm), the belief's, and more."""
+    values = result.values
+    goal = values["goal.hand"][0]  # (B, 2): the goal does not move
+    hand_x, hand_y = values["body.hand_x"], values["body.hand_y"]
+    mu = values["brain.mu"]
+    seen_x, seen_y = kinematics.forward(mu[..., 0], mu[..., 1])
+    return {
+        "hand_x_m": hand_x, "hand_y_m": hand_y,
+        "goal_x_m": np.broadcast_to(goal[:, 0], hand_x.shape), "goal_y_m": np.broadcast_to(goal[:, 1], hand_x.shape),
+        "distance_cm": 100.0 * np.hypot(hand_x - goal[:, 0], hand_y - goal[:, 1]),
+        "belief_distance_cm": 100.0 * np.hypot(seen_x - goal[:, 0], seen_y - goal[:, 1]),
+        "mu_shoulder_deg": mu[..., 0], "mu_elbow_deg": mu[..., 1],
+        "s_p_shoulder_deg": values["body.q_shoulder"], "s_p_elbow_deg": values["body.q_elbow"],
+        "action_shoulder_deg_s": values["brain.u_shoulder"], "action_elbow_deg_s": values["brain.u_elbow"],
+        "gamma": values["brain.gamma"], "free_energy": values["brain.free_energy"],
+    }
+
+
+def time_to_reach(times: np.ndarray, distance_cm: np.ndarray, radius_cm: float) -> np.ndarray:
+    """Per trial (B,): the first time from which the hand stays within ``radius_cm`` of the goal to the end
+    (NaN where it ends outside). distance_cm: (steps + 1, B)."""
+    inside = distance_cm <= radius_cm
+    outside_from_end = np.flip(~inside, axis=0)
+    last_outside = len(times) - 1 - np.argmax(outside_from_end, axis=0)  # index of the last step outside
+    first = np.where(outside_from_end.any(axis=0), last_outside + 1, 0)
+    return np.where(inside[-1], np.asarray(times)[np.minimum(first, len(times) - 1)], np.nan)
+
+
+def path_length_cm(hand_x: np.ndarray, hand_y: np.ndarray) -> np.ndarray:
+    """Per trial (B,): the length of the hand's path, the sum of its straight steps, cm."""
+    return 100.0 * np.hypot(np.diff(hand_x, axis=0), np.diff(hand_y, axis=0)).sum(axis=0)
+
+
+def outcomes(times: np.ndarray, per_step: dict[str, np.ndarray], radius_cm: float) -> dict[str, np.ndarray]:
+    """Per trial (B,): start and final distance (cm), reached, time to reach (s), path length (cm), and
+    whether it ended farther from the goal than it started."""
+    distance = per_step["distance_cm"]
+    return {"start_distance_cm": distance[0], "final_distance_cm": distance[-1],
+            "reached": distance[-1] <= radius_cm, "time_to_reach_s": time_to_reach(times, distance, radius_cm),
+            "path_length_cm": path_length_cm(per_step["hand_x_m"], per_step["hand_y_m"]),
+            "farther_than_start": distance[-1] > distance[0],
+            "final_belief_distance_cm": per_step["belief_distance_cm"][-1]}
