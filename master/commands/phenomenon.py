@@ -16,7 +16,7 @@ from master.phenomena import NAMES, sweep_file
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("name", choices=NAMES, help="the phenomenon")
+    parser.add_argument("name", choices=NAMES + ("moving-hand",), help="the phenomenon")
     parser.add_argument("--config", metavar="FILE",
                         help="a sweep file to use instead of the shipped one (copy master/phenomena/NAME.toml)")
     parser.add_argument("--scheduler", metavar="ADDRESS",
@@ -34,6 +34,15 @@ def run_phenomenon(args) -> int:
     from master.experiment import config as configuration
 
     started = time.perf_counter()
+    if args.name == "moving-hand":  # not a sweep: its own protocol (master/phenomena/moving_hand.py)
+        from master.phenomena import moving_hand
+
+        config = moving_hand.load(args.config, "paper" if args.model == "both" else args.model)
+        written = moving_hand.run_into(args.out, config, args.force)
+        print(f"rhi phenomenon moving-hand: wrote {', '.join(str(Path(args.out) / name) for name in written)} "
+              f"({time.perf_counter() - started:.0f} s)")
+        print((Path(args.out) / written[0]).read_text(), end="")
+        return 0
     path = Path(args.config) if args.config else sweep_file(args.name)
     models = ("paper", "causal") if getattr(args, "model", "both") == "both" else (args.model,)
     Path(args.out).mkdir(parents=True, exist_ok=True)

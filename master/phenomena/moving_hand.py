@@ -1,0 +1,178 @@
+"""`rhi phenomenon moving-hand`: the moving rubber hand, drift and common-cause belief per visuomotor delay.
+
+The real arm (free) swings by itself at the shoulder; the rubber arm, the only arm in view, repeats the
+movement after a delay; no touch. The paper's brain perceives (its action is not fed to the body: the movement
+is the participant's own, and the released agent's illusion task ran without action); its gamma weighs the
+delay between the seen and the felt turning points of the movement by eqs. 8-9
+(:mod:`components.brain.turning_points`). Drift and gamma are the means over the last movement period.
+"""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from components.body import kinematics
+from components.body.camera import Camera
+from components.body.movement import MirroredArm, Movement
+from components.body.plant import ArmPlant
+from components.brain.integrator import Brain
+from components.brain.turning_points import TurningPoints
+from master.cosim import ConfigError, System, simulate
+from master.experiment import config as configuration
+from master.experiment import wiring
+from master.experiment.decoders import check_decoders, decoder_component, ensure_checkpoints
+from master.experiment.parallel import JOB_THREADS, Workers, run_jobs
+from master.experiment.protocol import rubber_pose
+from master.outputs import tables
+from master.outputs.files import atomic_write, output_folder, package_versions
+
+NAME = "moving-hand"
+COLUMNS = ["decoder", "delay_s", "drift_cm", "drift_relative", "gamma", "gamma_relative"]
+CONNECTIONS = [
+    ("body.q_shoulder", "rubber_arm.q_shoulder"), ("body.q_elbow", "rubber_arm.q_elbow"),
+    ("rubber_arm.pose", "turning_points.seen_pose"), ("body.q_shoulder", "turning_points.q_shoulder"),
+    ("rubber_arm.pose", "camera.arm_pose"), ("camera.image", "decoder.image"), ("brain.mu", "decoder.mu"),
+    ("decoder.visual_drive", "brain.visual_drive"), ("decoder.visual_error", "brain.visual_error"),
+    ("decoder.visual_stiffness", "brain.visual_stiffness"),
+    ("turning_points.visual_time", "brain.visual_time"), ("turning_points.tactile_time", "brain.tactile_time"),
+    ("body.q_shoulder", "brain.q_shoulder"), ("body.q_elbow", "brain.q_elbow"),
+    ("movement.u_shoulder", "body.u_shoulder"), ("movement.u_elbow", "body.u_elbow")]
+
+
+def shipped_file() -> Path:
+    from importlib import resources
+    return Path(str(resources.files("master.phenomena").joinpath("moving_hand.toml")))
+
+
+def load(path=None, model_name: str = "paper") -> dict:
+    """The defaults with the protocol's [moving_hand] table (and any other keys of the file) over them."""
+    if model_name != "paper":
+        raise ConfigError("rhi phenomenon moving-hand runs the paper's model only (--model paper)")
+    given = configuration.read_toml(path if path is not None else shipped_file())
+    protocol = given.pop("moving_hand", None)
+    if not isinstance(protocol, dict):
+        raise ConfigError(f"{path}: a moving-hand file needs a [moving_hand] table (copy {shipped_file()})")
+    shipped = configuration.read_toml(shipped_file())["moving_hand"]
+    config = configuration.defaults()
+    config.pop("quick")
+    config = configuration.merge({**config, "moving_hand": shipped}, {"moving_hand": protocol, **given})
+    configuration.validate(config)
+    moving = config["moving_hand"]
+    step = config["experiment"]["step_size"]
+    if not moving["delays"] or any(not 0 <= d or abs(d / step - round(d / step)) > 1e-6 for d in moving["delays"]):
+        raise ConfigError(f"moving_hand.delays = {moving['delays']}: each must be >= 0 and a whole number of "
+                          f"{step} s steps")
+    if moving["condition"] not in config["conditions"]:
+        raise ConfigError(f"moving_hand.condition: unknown condition {moving['condition']!r}")
+    for key in ("amplitude", "period"):
+        if not moving[key] > 0:
+            raise ConfigError(f"moving_hand.{key} must be positive, got {moving[key]}")
+    if moving["period"] > config["experiment"]["steps"] * step:
+        raise ConfigError("moving_hand.period is longer than the trial (experiment.steps x step_size)")
+    return config
+
+
+def parameters(config: dict, delays: list[float]) -> dict:
+    """The brain's, body's, camera's and decoder's parameters as the experiment gives them; the rubber arm at
+    the condition's rest pose; the delays per trial; the free body."""
+    given = {}
+    for path, source in wiring.PARAMETER_SOURCES.items():
+        if path.split(".")[0] not in ("brain", "body", "camera", "decoder") or path in wiring.CONSTRUCTED:
+            continue
+        key = wiring.config_key(source)
+        given[path] = wiring.DERIVED[path]() if path in wiring.DERIVED else config[key.split(".")[0]][key.split(".")[1]]
+    moving = config["moving_hand"]
+    shoulder, elbow = rubber_pose(config["conditions"][moving["condition"]], config["rubber_arm"]["offset_y"])
+    given.update({"body.held": False, "rubber_arm.delay": np.array(delays, dtype=float),
+                  "rubber_arm.rest_shoulder": shoulder, "rubber_arm.rest_elbow": elbow,
+                  "movement.amplitude": moving["amplitude"], "movement.period": moving["period"]})
+    return given
+
+
+def decoder_delays(config: dict, kind: str, path: str) -> dict:
+    """Every delay of one decoder in one lockstep batch (a job): drift and gamma per delay."""
+    experiment, moving = config["experiment"], config["moving_hand"]
+    delays = list(moving["delays"])
+    system = System([Movement(), MirroredArm(step_size=experiment["step_size"]), TurningPoints(),
+                     Camera(resolution=experiment["resolution"]), decoder_component(kind, path, config, threads=JOB_THREADS),
+                     Brain(), ArmPlant()], CONNECTIONS)
+    result = simulate(system, stop_time=experiment["steps"] * experiment["step_size"],
+                      step_size=experiment["step_size"], scheme=experiment["scheme"], batch_size=len(delays),
+                      parameters=parameters(config, delays),
+                      record=["brain.mu", "brain.gamma", "body.q_shoulder", "body.q_elbow"])
+    return measures(result.times, result.values, moving["period"])
+
+
+def measures(times, values, period: float) -> dict:
+    """Per trial: the drift (perceived minus real hand x, cm) and gamma, each its mean over the last period
+    (rows after the trial's end minus one period). The belief lags the moving arm (it relaxes to s_p at
+    1/Sigma_p), so the drift at any one instant swings with the movement; over a whole period the lag's
+    swing averages out."""
+    mu = values["brain.mu"]
+    perceived, _ = kinematics.forward(mu[..., 0], mu[..., 1])
+    real, _ = kinematics.forward(values["body.q_shoulder"], values["body.q_elbow"])
+    drift = 100.0 * (perceived - real)
+    last = np.asarray(times) > times[-1] - period + 1e-9
+    return {"drift_cm": drift[last].mean(axis=0), "gamma": values["brain.gamma"][last].mean(axis=0)}
+
+
+def rows(config: dict, found: dict[str, dict]) -> list[list]:
+    delays = config["moving_hand"]["delays"]
+    out = []
+    for kind, values in found.items():
+        zero = {key: values[key][delays.index(0.0)] if 0.0 in delays else np.nan for key in ("drift_cm", "gamma")}
+        for i, delay in enumerate(delays):
+            out.append([kind, tables.number(delay), tables.number(values["drift_cm"][i]),
+                        tables.number(values["drift_cm"][i] / zero["drift_cm"]), tables.number(values["gamma"][i]),
+                        tables.number(values["gamma"][i] / zero["gamma"])])
+    return out
+
+
+def figure(config: dict, found: dict[str, dict], path: Path) -> None:
+    from master.outputs.figures import METADATA, plt
+    from master.phenomena.report import caption, draw_human, human_references
+
+    delays = config["moving_hand"]["delays"]
+    references = human_references("moving_hand")
+    fig, axes = plt.subplots(1, 2, figsize=(10, 5.4))
+    for axis, key, label in ((axes[0], "drift_cm", "drift toward the rubber hand, relative to 0 s"),
+                             (axes[1], "gamma", "gamma (common cause), relative to 0 s")):
+        for kind, values in found.items():
+            zero = values[key][delays.index(0.0)] if 0.0 in delays else 1.0
+            axis.plot(delays, values[key] / zero, "o-", label=f"paper model, {kind}")
+        axis.axhline(0.5, color="gray", ls=":", lw=1, label="half the 0 s value")
+        axis.set_xlim(-0.05, max(delays) + 0.05)
+        draw_human(axis, references, with_labels=axis is axes[0])
+        axis.set_xlabel("visuomotor delay (s)")
+        axis.set_ylabel(label)
+        axis.legend(fontsize="x-small")
+    fig.suptitle("rhi phenomenon moving-hand: the rubber arm repeats the real arm's movement after a delay",
+                 fontsize=10)
+    fig.text(0.01, 0.005, caption(references, "paper"), fontsize=6, va="bottom", wrap=True)
+    fig.tight_layout(rect=(0, 0.2, 1, 0.95))  # room for the caption (save's own tight layout would take it)
+    try:
+        atomic_write(path, lambda file: fig.savefig(file, format="png", dpi=110, metadata=METADATA))
+    finally:
+        plt.close(fig)
+
+
+def run_into(out, config: dict, force: bool = False) -> list[str]:
+    """Run the protocol for each decoder (side by side) and write DIR: moving_hand.csv, moving_hand.png, run.json."""
+    started = time.perf_counter()
+    check_decoders(config)
+    with output_folder(out, force) as staging, Workers() as workers:
+        checkpoints, _ = ensure_checkpoints(config, progress=True, workers=workers)
+        kinds = config["experiment"]["decoders"]
+        results = run_jobs(decoder_delays, [(config, kind, checkpoints[kind]) for kind in kinds], workers=workers)
+        found = dict(zip(kinds, results))
+        atomic_write(staging / "moving_hand.csv", tables.csv_text(COLUMNS, rows(config, found)))
+        figure(config, found, staging / "moving_hand.png")
+        atomic_write(staging / "run.json", json.dumps({
+            "schema_version": tables.SCHEMA_VERSION, "command": f"rhi phenomenon {NAME}", "model": "paper",
+            "configuration": config, "checkpoints": checkpoints, "versions": package_versions(),
+            "timings_s": {"total": time.perf_counter() - started}}, indent=2, default=str) + "\n")
+    return ["moving_hand.csv", "moving_hand.png", "run.json"]
+
