@@ -271,7 +271,8 @@ def test_a_swapped_body_gets_the_body_keys_it_declares_and_the_rest_are_named(fm
     body = FMUComponent(fmus["kinematic"], "body", BODY_CONTRACT)
     system = experiment.build_system(Decoder(tiny_model(), threads=1), config, body)
     assert undeclared(experiment.parameters(trials, config), system) == [
-        "body.substeps", "body.upper_arm_mass", "body.forearm_mass", "body.clamp_stiffness", "body.clamp_damping"]
+        "body.substeps", "body.upper_arm_mass", "body.forearm_mass", "body.clamp_stiffness", "body.clamp_damping",
+        "body.release_time"]
     result = experiment.run_batch(Decoder(tiny_model(), threads=1), trials, config,
                                   FMUComponent(fmus["kinematic"], "body", BODY_CONTRACT))
     u = np.radians(np.stack([result.values["brain.u_shoulder"][-1], result.values["brain.u_elbow"][-1]], 1))

@@ -24,13 +24,13 @@ CONTRACT = {"u_shoulder": ("input", "deg/s"), "u_elbow": ("input", "deg/s"), "q_
 SCALARS = {
     ArmPlant: ["u_shoulder", "u_elbow", "q_shoulder", "q_elbow", "hand_x", "hand_y", "force_x", "force_y", "held",
                "q0_shoulder", "q0_elbow", "substeps", "servo_gain", "torque_limit", "upper_arm_mass", "forearm_mass",
-               "clamp_stiffness", "clamp_damping"],
+               "clamp_stiffness", "clamp_damping", "release_time"],
     Camera: ["resolution", "blur", "ball_radius"],
     RubberArm: ["offset_x", "offset_y"],
     Stimulus: ["period", "delay_min", "delay_max", "seed", "ball_distance", "stop_time", "visual_time", "tactile_time"],
     Brain: ["proprioceptive_variance", "gamma0", "sync_sd", "async_density", "decay_rate", "action_limit",
             "spatial_sd", "action_time_constant", "q_shoulder", "q_elbow", "visual_error", "visual_stiffness",
-            "hand_x", "hand_y", "visual_time", "tactile_time", "u_shoulder", "u_elbow", "gamma", "free_energy"],
+            "goal_error", "goal_stiffness", "hand_x", "hand_y", "visual_time", "tactile_time", "u_shoulder", "u_elbow", "gamma", "free_energy"],
 }
 # Array ports (name: causality, shape, dependsOn or None for a non-output), in the vendor annotation.
 ARRAYS = {
@@ -39,7 +39,8 @@ ARRAYS = {
              "image": ("output", "64 64", "arm_pose ball")},
     RubberArm: {"pose": ("output", "2", ""), "hand": ("output", "2", "")},
     Stimulus: {"target": ("input", "2", None), "ball": ("output", "2", "target")},
-    Brain: {"mu0": ("parameter", "2", None), "visual_drive": ("input", "2", None), "seen_hand": ("input", "2", None),
+    Brain: {"mu0": ("parameter", "2", None), "visual_drive": ("input", "2", None), "goal_drive": ("input", "2", None),
+            "seen_hand": ("input", "2", None),
             "mu": ("output", "2", ""),
             "action_rate": ("output", "2", "")},
 }

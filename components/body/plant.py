@@ -8,7 +8,7 @@ joint velocities, deg/s) drives a velocity servo with finite gain and a torque l
     tau_elbow    = clip(K (a_elbow - w_elbow), +-limit)         on the forearm, against the upper arm
 
 Two modes, per trial (the ``held`` parameter):
-- free: the arm moves under the servo;
+- free: the arm moves under the servo (a held arm becomes free at ``release_time``: its load cell goes);
 - held: the hand is clamped to the table at its initial position by a stiff two-axis
   load cell (two pymunk DampedSprings, one along x, one along y). The reported force is
   the load cell's reading: the springs' constraint impulses summed over the sub-steps,
@@ -91,6 +91,9 @@ class ArmPlant(Component):
                      description="stiffness of the load cell holding the hand, per axis"),
             Variable("clamp_damping", "parameter", start=300.0, min=0.0, unit="N.s/m",
                      description="damping of the load cell, per axis"),
+            Variable("release_time", "parameter", start=np.inf, min=0.0, unit="s",
+                     description="held: the load cell lets the hand go at the first step from this time on "
+                                 "(inf: never; reaching after the illusion)"),
         ])
         self.space: pymunk.Space | None = None
         self._arms: list[tuple[pymunk.Body, pymunk.Body]] = []
@@ -147,6 +150,7 @@ class ArmPlant(Component):
     # -- stepping ------------------------------------------------------------------------------
     def step(self, t, h):
         v = self.values
+        self._release(t)
         command = np.radians(np.stack([v["u_shoulder"], v["u_elbow"]], axis=1))
         if not np.all(np.isfinite(command)):
             raise StepFailure(f"{self.name}: commanded velocity is not finite: {np.degrees(command).tolist()}")
@@ -182,6 +186,13 @@ class ArmPlant(Component):
                 total[1] += get_impulse(along_y)
         # The springs' impulse is what the clamp does to the arm; the arm exerts the opposite.
         self._publish(-np.array(impulses) / h)
+
+    def _release(self, t):
+        """Remove the load cell of every held trial whose ``release_time`` has come (the arm is free from now)."""
+        for trial, cell in enumerate(self._cells):
+            if cell is not None and t >= self.values["release_time"][trial] - 1e-9:
+                self.space.remove(*cell)
+                self._cells[trial] = None
 
     def _publish(self, force):
         """Replace every output array from the bodies' current state (never mutate in place)."""

@@ -69,3 +69,37 @@ class GoalAttractor(Component):
         v["goal_drive"] = body_space_attraction(v["mu"], v["goal_pose"], v["goal_pose_variance"], v["precision_ratio"])
         v["goal_error"] = body_space_goal_error(v["mu"], v["goal_pose"], v["goal_pose_variance"], v["precision_ratio"])
         v["goal_stiffness"] = v["precision_ratio"] / v["goal_pose_variance"].min(axis=1)
+
+
+def shown_from(t, onset, values):
+    """``values`` (B, ...) where the goal is shown (t >= onset, per trial), 0 before: a goal that appears."""
+    shown = t >= onset - 1e-9
+    return np.where(shown.reshape((-1,) + (1,) * (np.ndim(values) - 1)), values, 0.0)
+
+
+class GoalOnset(Component):
+    """A goal's pull that starts at ``onset``: goal_drive, goal_error, goal_stiffness passed through from then on,
+    0 before (reaching after the illusion: the target appears when the arm is let go)."""
+
+    def __init__(self, name: str = "goal_onset"):
+        joint = dict(type="Array", shape=(2,))
+        super().__init__(name, [
+            Variable("onset", "parameter", start=0.0, unit="s", min=0.0, description="when the goal appears"),
+            Variable("drive", "input", start=(0.0, 0.0), unit="deg/s", **joint, description="the goal's pull"),
+            Variable("error", "input", start=0.0, unit="1", description="the goal's free-energy term"),
+            Variable("stiffness", "input", start=0.0, unit="1/s", description="the goal term's stiffness"),
+            Variable("goal_drive", "output", unit="deg/s", depends_on=("drive",), **joint,
+                     description="drive from onset on, else 0"),
+            Variable("goal_error", "output", unit="1", depends_on=("error",), description="error from onset on"),
+            Variable("goal_stiffness", "output", unit="1/s", depends_on=("stiffness",),
+                     description="stiffness from onset on"),
+        ])
+
+    def initialize(self):
+        self.step(self.start_time, 0.0)
+
+    def step(self, t, h):
+        v = self.values
+        v["goal_drive"] = shown_from(t, v["onset"], np.asarray(v["drive"], dtype=float))
+        v["goal_error"] = shown_from(t, v["onset"], np.asarray(v["error"], dtype=float))
+        v["goal_stiffness"] = shown_from(t, v["onset"], np.asarray(v["stiffness"], dtype=float))

@@ -283,7 +283,7 @@ class Brain(Component):
             i = np.flatnonzero(unstable)[0]
             raise StepFailure(
                 f"step too large for stable explicit Euler in {_trials(unstable)}: dt * (1/Sigma_p + gamma * "
-                f"visual_stiffness + goal_stiffness) = {number[i]:.4g} >= 2 "
+                f"visual_stiffness{' + goal_stiffness' if v['goal_stiffness'][i] else ''}) = {number[i]:.4g} >= 2 "
                 f"(dt = {h:g} s, Sigma_p = {variance[i]:g}, gamma = {gamma[i]:.4g}, visual_stiffness = "
                 f"{v['visual_stiffness'][i]:.4g} 1/s); use a smaller step or a larger visual_variance")
 

@@ -14,9 +14,11 @@ from pathlib import Path
 
 from master.phenomena import NAMES, sweep_file
 
+OWN_PROTOCOLS = ("moving-hand", "reach-after")  # not sweeps: master/phenomena/moving_hand.py, reach_after.py
+
 
 def add_arguments(parser) -> None:
-    parser.add_argument("name", choices=NAMES + ("moving-hand",), help="the phenomenon")
+    parser.add_argument("name", choices=NAMES + OWN_PROTOCOLS, help="the phenomenon")
     parser.add_argument("--config", metavar="FILE",
                         help="a sweep file to use instead of the shipped one (copy master/phenomena/NAME.toml)")
     parser.add_argument("--scheduler", metavar="ADDRESS",
@@ -34,12 +36,11 @@ def run_phenomenon(args) -> int:
     from master.experiment import config as configuration
 
     started = time.perf_counter()
-    if args.name == "moving-hand":  # not a sweep: its own protocol (master/phenomena/moving_hand.py)
-        from master.phenomena import moving_hand
-
-        config = moving_hand.load(args.config, "paper" if args.model == "both" else args.model)
-        written = moving_hand.run_into(args.out, config, args.force)
-        print(f"rhi phenomenon moving-hand: wrote {', '.join(str(Path(args.out) / name) for name in written)} "
+    if args.name in OWN_PROTOCOLS:
+        protocol = __import__(f"master.phenomena.{args.name.replace('-', '_')}", fromlist=["_"])
+        config = protocol.load(args.config, "paper" if args.model == "both" else args.model)
+        written = protocol.run_into(args.out, config, args.force)
+        print(f"rhi phenomenon {args.name}: wrote {', '.join(str(Path(args.out) / name) for name in written)} "
               f"({time.perf_counter() - started:.0f} s)")
         print((Path(args.out) / written[0]).read_text(), end="")
         return 0

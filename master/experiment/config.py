@@ -68,7 +68,7 @@ def with_model(config: dict, name: str) -> dict:
 
 MAX_CONFIG_BYTES = 2**20  # a configuration or sweep file; the shipped ones are a few KiB
 MAX_DEPTH = 16  # tables and arrays within each other; the shipped files nest three deep
-INFINITE_KEYS = ("brain.spatial_sd", "brain.action_time_constant")  # inf means the paper's model (docs)
+INFINITE_KEYS = ("brain.spatial_sd", "brain.action_time_constant", "body.release_time")  # inf: the paper's model
 
 
 def depth(value) -> int:

@@ -91,6 +91,7 @@ PARAMETER_SOURCES = {
     "body.forearm_mass": "body.forearm_mass",
     "body.clamp_stiffness": "body.clamp_stiffness",
     "body.clamp_damping": "body.clamp_damping",
+    "body.release_time": "body.release_time",
 }
 
 # The values of the "derived:" sources, and the trial field of the per-trial ones.

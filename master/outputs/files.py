@@ -106,7 +106,8 @@ def package_versions() -> dict:
 OUTPUT_ENTRIES = ("summary.csv", "trials.csv", "run.json", "figures")
 OUTPUT_COMMAND = "rhi experiment"  # run.json's "command"
 OUTPUT_COMMANDS = {OUTPUT_COMMAND: OUTPUT_ENTRIES, "rhi reach": OUTPUT_ENTRIES + ("goals.csv",),  # what each writes
-                   "rhi phenomenon moving-hand": ("moving_hand.csv", "moving_hand.png", "run.json")}
+                   "rhi phenomenon moving-hand": ("moving_hand.csv", "moving_hand.png", "run.json"),
+                   "rhi phenomenon reach-after": ("reach_after.csv", "run.json")}
 STAGING_MARK = ".rhi-staging"  # inside a staging folder until it is published: ours, and safe to clean
 _ACTIVE: dict[Path, "OutputLock"] = {}  # staging folder -> its lock, while this process writes them
 

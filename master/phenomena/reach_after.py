@@ -1,0 +1,147 @@
+"""`rhi phenomenon reach-after`: reaching after the illusion, the endpoint's bias against the drift.
+
+The experiment's trial (the held arm, the rubber arm in view, synchronous or asynchronous touch) runs to
+``release``; then the touches stop, the load cell lets the hand go (``body.release_time``), and a target appears:
+the camera's image of the arm at the target pose, the `rhi reach` attractor (docs/reach.md), through a
+:class:`~components.brain.goal.GoalOnset`. The action law is the reach's (the released agent's integrator).
+Measured: the drift at release, and the hand's x error from the target ``window`` seconds after release,
+signed toward the rubber hand.
+"""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from components.body import kinematics
+from components.body.arm_pose import PosedArm
+from components.body.camera import Camera
+from components.brain.goal import GoalOnset
+from master.cosim import ConfigError, System, simulate
+from master.experiment import config as configuration
+from master.experiment import wiring
+from master.experiment.decoders import check_decoders, decoder_component, ensure_checkpoints, loaded
+from master.experiment.parallel import JOB_THREADS, Workers, run_jobs
+from master.experiment.protocol import plan
+from master.outputs import tables
+from master.outputs.files import atomic_write, output_folder, package_versions
+
+NAME = "reach-after"
+COLUMNS = ["decoder", "condition", "stimulation", "n_trials", "drift_at_release_cm_mean", "endpoint_bias_cm_mean",
+           "endpoint_bias_cm_sd", "endpoint_error_cm_mean", "gamma_at_release_mean"]
+GOAL_LINKS = [("goal.pose", "goal_camera.arm_pose"), ("goal_camera.image", "goal_decoder.image"),
+              ("brain.mu", "goal_decoder.mu"), ("goal_decoder.visual_drive", "goal_onset.drive"),
+              ("goal_decoder.visual_error", "goal_onset.error"), ("goal_decoder.visual_stiffness", "goal_onset.stiffness"),
+              ("goal_onset.goal_drive", "brain.goal_drive"), ("goal_onset.goal_error", "brain.goal_error"),
+              ("goal_onset.goal_stiffness", "brain.goal_stiffness")]
+
+
+def shipped_file() -> Path:
+    from importlib import resources
+    return Path(str(resources.files("master.phenomena").joinpath("reach_after.toml")))
+
+
+def load(path=None, model_name: str = "paper") -> dict:
+    """The defaults, the file's [reach_after] table and its other keys over them (the shipped file's first)."""
+    if model_name != "paper":
+        raise ConfigError("rhi phenomenon reach-after runs the paper's model only (--model paper)")
+    config = configuration.defaults()
+    config.pop("quick")
+    shipped = configuration.read_toml(shipped_file())
+    config = configuration.merge({**config, "reach_after": shipped.pop("reach_after")}, shipped)
+    if path is not None:
+        config = configuration.merge(config, configuration.read_toml(path))
+    configuration.validate(config)
+    after, step = config["reach_after"], config["experiment"]["step_size"]
+    for key in ("release", "window"):
+        if not after[key] > 0:
+            raise ConfigError(f"reach_after.{key} must be positive, got {after[key]}")
+    if len(after["target"]) != 2:
+        raise ConfigError(f"reach_after.target = {after['target']} must be [dx, dy] in m from the resting hand")
+    kinematics.inverse(kinematics.REST_HAND[0] + after["target"][0], kinematics.REST_HAND[1] + after["target"][1])
+    config["experiment"]["steps"] = int(round((after["release"] + after["window"]) / step))
+    config["stimulus"]["stop_time"] = after["release"]
+    config["body"]["release_time"] = after["release"]
+    return config
+
+
+def target_pose(config: dict) -> tuple[float, float]:
+    dx, dy = config["reach_after"]["target"]
+    shoulder, elbow = kinematics.inverse(kinematics.REST_HAND[0] + dx, kinematics.REST_HAND[1] + dy)
+    return float(shoulder), float(elbow)
+
+
+def decoder_trials(config: dict, kind: str, path: str):
+    """One decoder's trials in one lockstep batch (a job): the per-trial values of the table."""
+    from components.vision.component import Decoder
+    from components.vision.fast import LinearisedDecoder
+
+    trials = [t for t in plan(config) if t.decoder == kind]
+    resolution = config["experiment"]["resolution"]
+    base = wiring.build_system(decoder_component(kind, path, config, threads=JOB_THREADS), config)
+    model = loaded(path, resolution, config["camera"]["blur"])
+    goal_decoder = (LinearisedDecoder(model, name="goal_decoder", threads=JOB_THREADS,
+                                      relinearise_tolerance=config["decoder"]["relinearise_tolerance"])
+                    if config["decoder"]["fast"] else Decoder(model, name="goal_decoder", threads=JOB_THREADS))
+    parts = list(base.components.values())
+    parts[-2:-2] = [PosedArm("goal"), Camera("goal_camera", resolution=resolution), goal_decoder, GoalOnset()]
+    system = System(parts, wiring.CONNECTIONS + GOAL_LINKS)
+    given = wiring.parameters(trials, config)
+    shoulder, elbow = target_pose(config)
+    given.update({"goal.shoulder": shoulder, "goal.elbow": elbow, "goal_onset.onset": config["reach_after"]["release"],
+                  "goal_decoder.visual_variance": config["decoder"]["visual_variance"]
+                  / config["reach_after"]["precision_ratio"],
+                  "goal_camera.blur": config["camera"]["blur"], "goal_camera.ball_radius": config["camera"]["ball_radius"]})
+    experiment = config["experiment"]
+    result = simulate(system, stop_time=experiment["steps"] * experiment["step_size"],
+                      step_size=experiment["step_size"], batch_size=len(trials), parameters=given,
+                      record=["brain.mu", "brain.gamma", "body.q_shoulder", "body.q_elbow", "body.hand_x",
+                              "body.hand_y"])
+    return trials, measures(result.times, result.values, config, trials)
+
+
+def measures(times, values, config: dict, trials) -> dict:
+    """Per trial: the drift and gamma at release; the hand's error from the target at the end (cm), and its x
+    part signed toward the rubber hand (positive: toward it)."""
+    release = int(np.argmin(np.abs(np.asarray(times) - config["reach_after"]["release"])))
+    mu = values["brain.mu"]
+    perceived, _ = kinematics.forward(mu[..., 0], mu[..., 1])
+    real, _ = kinematics.forward(values["body.q_shoulder"], values["body.q_elbow"])
+    target = np.array(kinematics.forward(*target_pose(config)))
+    error_x = 100.0 * (values["body.hand_x"][-1] - target[0])
+    error = 100.0 * np.hypot(values["body.hand_x"][-1] - target[0], values["body.hand_y"][-1] - target[1])
+    toward = np.sign([t.offset_x for t in trials])
+    return {"drift_at_release_cm": 100.0 * (perceived[release] - real[release]) * np.where(toward == 0, 1, toward),
+            "endpoint_bias_cm": error_x * np.where(toward == 0, 1, toward), "endpoint_error_cm": error,
+            "gamma_at_release": values["brain.gamma"][release]}
+
+
+def rows(found: list[tuple]) -> list[list]:
+    out = []
+    for trials, values in found:
+        for (decoder, condition, stimulation), members in tables.cells(trials).items():
+            pick = {key: np.asarray(v)[members] for key, v in values.items()}
+            mean, sd = tables.mean_sd(pick["endpoint_bias_cm"])
+            out.append([decoder, condition, stimulation, len(members),
+                        tables.number(pick["drift_at_release_cm"].mean()), tables.number(mean), tables.number(sd),
+                        tables.number(pick["endpoint_error_cm"].mean()), tables.number(pick["gamma_at_release"].mean())])
+    return out
+
+
+def run_into(out, config: dict, force: bool = False) -> list[str]:
+    """Every decoder's trials side by side; DIR: reach_after.csv, run.json."""
+    started = time.perf_counter()
+    check_decoders(config)
+    with output_folder(out, force) as staging, Workers() as workers:
+        checkpoints, _ = ensure_checkpoints(config, progress=True, workers=workers)
+        kinds = config["experiment"]["decoders"]
+        found = run_jobs(decoder_trials, [(config, kind, checkpoints[kind]) for kind in kinds], workers=workers)
+        atomic_write(staging / "reach_after.csv", tables.csv_text(COLUMNS, rows(found)))
+        atomic_write(staging / "run.json", json.dumps({
+            "schema_version": tables.SCHEMA_VERSION, "command": f"rhi phenomenon {NAME}", "model": "paper",
+            "configuration": config, "checkpoints": checkpoints, "versions": package_versions(),
+            "seeds": [t.__dict__ for trials, _ in found for t in trials],
+            "timings_s": {"total": time.perf_counter() - started}}, indent=2, default=str) + "\n")
+    return ["reach_after.csv", "run.json"]
