@@ -10,7 +10,7 @@ from components.body import camera, kinematics
 from components.body.arm_pose import PosedArm
 from components.body.camera import Camera
 from components.body.plant import ArmPlant
-from components.brain.goal import GoalAttractor, body_space_attraction, body_space_goal_error
+from components.brain.goal import GoalAttractor, GoalOnset, body_space_attraction, body_space_goal_error
 from components.brain.integrator import Brain
 from linear_decoder import LinearDecoder
 from master.commands.cli import main
@@ -163,3 +163,38 @@ def test_the_goal_image_is_the_cameras_picture_of_the_goal_pose(quick_cache):
                      stop_time=0.02, step_size=0.02, parameters={"goal.shoulder": 150.0, "goal.elbow": -80.0},
                      record=["goal_camera.image"])
     assert alone.values["goal_camera.image"][0, 0].tobytes() == camera.render([[150.0, -80.0]], 32)[0].tobytes()
+
+
+def test_a_held_arm_let_go_moves_freely_from_its_release_time():
+    """Held to 0.2 s (the hand still, a force on the load cell), then free: no force, and the shoulder turns at
+    the commanded 1 deg/s (the servo reaches the speed within a few ms: K / inertia ~ 100/s)."""
+    body = ArmPlant()
+    body.instantiate(1)
+    body.set("release_time", 0.2)
+    body.setup_experiment()
+    body.enter_initialization_mode()
+    body.exit_initialization_mode()
+    q, force = [body.values["q_shoulder"][0]], [0.0]
+    for k in range(50):
+        body.set("u_shoulder", 1.0)
+        body.do_step(0.02 * k, 0.02)
+        q.append(body.values["q_shoulder"][0])
+        force.append(float(np.hypot(body.values["force_x"][0], body.values["force_y"][0])))
+    q, force = np.array(q), np.array(force)
+    # held: the hand moves only by force / stiffness, 0.1 mm at 2 N, about 0.016 deg over a 0.36 m limb
+    assert abs(q[10] - q[0]) < 0.05 and force[10] > 0.1
+    assert np.all(force[11:] == 0.0)
+    assert (q[-1] - q[20]) / 0.6 == pytest.approx(1.0, rel=0.02)  # free, at the commanded speed
+
+
+def test_a_goal_that_appears_pulls_only_from_its_onset():
+    onset = GoalOnset()
+    onset.instantiate(2)
+    onset.set("onset", np.array([0.5, 0.0]))
+    onset.set("drive", np.array([[1.0, -2.0], [3.0, 4.0]]))
+    onset.setup_experiment()
+    onset.enter_initialization_mode()
+    onset.exit_initialization_mode()
+    assert onset.values["goal_drive"].tolist() == [[0.0, 0.0], [3.0, 4.0]]
+    onset.do_step(0.5, 0.02)
+    assert onset.values["goal_drive"].tolist() == [[1.0, -2.0], [3.0, 4.0]]
