@@ -39,7 +39,6 @@ class Movement(Component):
             Variable("u_elbow", "output", start=0.0, unit="deg/s", depends_on=(),
                      description="commanded elbow velocity (0: the elbow is still)"),
         ])
-        self._step = None
 
     def step(self, t, h):
         """The velocity for the step [t, t + h]: the body steps after this component, over the same step."""

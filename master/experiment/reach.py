@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import copy
 import hashlib
+import tomllib
 from dataclasses import dataclass
 from importlib import resources
 
@@ -49,7 +50,6 @@ class ReachTrial:
 def task() -> dict:
     """master/reach.toml: the task's own table [reach] (and its [quick]), and the keys it changes elsewhere."""
     with resources.files("master").joinpath("reach.toml").open("rb") as file:
-        import tomllib
         return tomllib.load(file)
 
 
