@@ -56,6 +56,7 @@ def bundled(resources: str, spec: str):
 # The base from the copy this file sits beside (the FMU's resources, or the builder's staging folder).
 ComponentSlaveBase = bundled(os.path.dirname(os.path.abspath(__file__)),
                              "components.fmu_slave_base:ComponentSlaveBase")
+xml_value = bundled(os.path.dirname(os.path.abspath(__file__)), "components.model_description:xml_value")
 
 
 class ComponentSlave(ComponentSlaveBase):
@@ -71,7 +72,8 @@ class ComponentSlave(ComponentSlaveBase):
         self.serve(component)
 
     def start_text(self, variable, written):
-        """A Real's start as the instantiated component holds it, to 17 digits (pythonfmu writes fewer)."""
+        """A Real's start as the instantiated component holds it, to 17 digits (pythonfmu writes fewer; an
+        infinite one as XML Schema writes it, INF)."""
         if variable.type == "Real" and written is not None:
-            return repr(float(self.component.values[variable.name][0]))
+            return xml_value(float(self.component.values[variable.name][0]))
         return written
