@@ -30,6 +30,7 @@ from master.outputs import tables
 from master.outputs.files import atomic_write, output_folder, package_versions
 
 NAME = "moving-hand"
+HUMAN_TABLE = "moving_hand"  # its human references in human.toml
 COLUMNS = ["decoder", "delay_s", "drift_cm", "drift_relative", "gamma", "gamma_relative"]
 CONNECTIONS = [
     ("body.q_shoulder", "rubber_arm.q_shoulder"), ("body.q_elbow", "rubber_arm.q_elbow"),
@@ -136,7 +137,7 @@ def figure(config: dict, found: dict[str, dict], path: Path) -> None:
     from master.phenomena.report import caption, draw_human, human_references
 
     delays = config["moving_hand"]["delays"]
-    references = human_references("moving_hand")
+    references = human_references(HUMAN_TABLE)
     fig, axes = plt.subplots(1, 2, figsize=(10, 5.4))
     for axis, key, label in ((axes[0], "drift_cm", "drift toward the rubber hand, relative to 0 s"),
                              (axes[1], "gamma", "gamma (common cause), relative to 0 s")):
