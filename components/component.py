@@ -20,6 +20,8 @@ Hooks, each called by the lifecycle verb named:
 - :meth:`Component.initialize` (by ``exit_initialization_mode``, with the inputs
   set): state and initial outputs.
 - :meth:`Component.step` (by ``do_step``): advance one communication step.
+- :meth:`Component.check_parameters` (by the component's own ``initialize``, and by a master
+  before any work): the rules the parameters must meet beyond their declared ranges.
 - :meth:`Component.terminate_hook` (by ``terminate``): release resources.
 
 Values live in ``self.values`` as arrays with a leading batch dimension. A
@@ -139,6 +141,11 @@ class Component:
 
     def initialize(self) -> None:
         """Compute state and initial outputs from parameters and start values."""
+
+    def check_parameters(self) -> None:
+        """Raise ComponentError, naming the parameter, if the parameters set break a rule the declared
+        ranges cannot state (a positive sd, one value for every trial, a hand within reach); needs no
+        input, so a master calls it right after setting the parameters. Default: nothing."""
 
     def step(self, t: float, h: float) -> None:
         """Advance from ``t`` to ``t + h`` using the current inputs; raise StepFailure to fail."""

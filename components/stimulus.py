@@ -48,11 +48,15 @@ class Stimulus(Component):
                      description="ball position (x, y)"),
         ])
 
-    def initialize(self):
+    def check_parameters(self):
         v = self.values
         if np.any(v["delay_max"] < v["delay_min"]):
             raise ComponentError(f"{self.name}.delay_max = {v['delay_max'].tolist()} is below delay_min = "
                                  f"{v['delay_min'].tolist()}")
+
+    def initialize(self):
+        self.check_parameters()
+        v = self.values
         self._generators = [np.random.default_rng(int(seed)) for seed in v["seed"]]
         self._delays = np.empty((self.batch_size, 0))
         self._publish(self.start_time)

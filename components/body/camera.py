@@ -220,6 +220,10 @@ class Camera(Component):
         self._arm_layers: dict[bytes, np.ndarray] = {}  # pose bytes -> arm layer, at self._blur_sigma
         self._blur_sigma, self._ball_radius = BLUR_SIGMA, BALL_RADIUS
 
+    def check_parameters(self):
+        for name in ("blur", "ball_radius"):
+            self._shared(name)
+
     def initialize(self):
         self._blur_sigma, self._ball_radius = (self._shared(name) for name in ("blur", "ball_radius"))
         self._arm_layers = {}  # drawn with this run's blur only

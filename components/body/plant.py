@@ -106,11 +106,15 @@ class ArmPlant(Component):
         hand_x, hand_y = forward(*q0)
         self.values.update(q_shoulder=q0[0].copy(), q_elbow=q0[1].copy(), hand_x=hand_x, hand_y=hand_y)
 
-    def initialize(self):
+    def check_parameters(self):
         v = self.values
         if np.any(v["substeps"] != v["substeps"][0]):
             raise ComponentError(f"{self.name}.substeps = {v['substeps'].tolist()} must be the same for every "
                                  f"trial (the trials share one pymunk space)")
+
+    def initialize(self):
+        self.check_parameters()
+        v = self.values
         self.space = pymunk.Space()
         self.space.gravity = (0.0, 0.0)  # a horizontal table
         self._arms, self._cells = [], []

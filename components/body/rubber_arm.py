@@ -32,7 +32,14 @@ class RubberArm(Component):
         """Pose the arm as soon as the parameters are in: components earlier in the step order read it."""
         self.initialize()
 
+    def check_parameters(self):
+        self._pose()
+
     def initialize(self):
+        self.values["pose"], self.values["hand"] = self._pose()
+
+    def _pose(self):
+        """The rubber arm's joint angles (B, 2) and hand (B, 2); a ComponentError if a hand is out of reach."""
         hand = np.stack([REST_HAND[0] + self.values["offset_x"], REST_HAND[1] + self.values["offset_y"]], axis=1)
         try:
             shoulder, elbow = inverse(hand[:, 0], hand[:, 1])
@@ -40,8 +47,7 @@ class RubberArm(Component):
             raise ComponentError(f"{self.name}.offset_x/offset_y = ({self.values['offset_x'].tolist()}, "
                                  f"{self.values['offset_y'].tolist()}) put the rubber hand out of reach: "
                                  f"{error}") from None
-        self.values["pose"] = np.stack([shoulder, elbow], axis=1)
-        self.values["hand"] = hand
+        return np.stack([shoulder, elbow], axis=1), hand
 
     def step(self, t, h):
         """The rubber arm does not move: its output arrays stay as they are (never mutated)."""

@@ -138,12 +138,15 @@ class CausalBrain(Component):
         self._events = (np.full(batch, -np.inf), np.full(batch, -np.inf), np.zeros(batch, bool), np.zeros(batch, bool))
 
     def initialize(self):
+        self.check_parameters()
+        self.publish_initial()
+
+    def check_parameters(self):
         for name in ("coupling_sd", "workspace_sd"):
             if not np.all(self.values[name] > 0):
                 raise ComponentError(f"{self.name}.{name} must be positive, got {self.values[name].tolist()!r}")
         if not np.all(np.isfinite(self.values["mu0"])):
             raise ComponentError(f"{self.name}.mu0 must be finite, got {self.values['mu0'].tolist()!r}")
-        self.publish_initial()
 
     def step(self, t, h):
         v, who = self.values, self.participant

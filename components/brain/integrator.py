@@ -216,7 +216,7 @@ class Brain(Component):
         # Event bookkeeping (observe_events): last seen times, and events seen since the last Bayes update.
         self._events = (np.full(batch, -np.inf), np.full(batch, -np.inf), np.zeros(batch, bool), np.zeros(batch, bool))
 
-    def _check_parameters(self):
+    def check_parameters(self):
         for name in ("proprioceptive_variance", "sync_sd", "async_density", "action_limit"):
             bad = self.values[name][~((self.values[name] > 0) & np.isfinite(self.values[name]))]
             if bad.size:
@@ -262,7 +262,7 @@ class Brain(Component):
         initialization s_p may not have arrived (the body comes after the brain in the agreed
         order, and the brain would see its start value), so row 0 of a recorded F is NaN.
         """
-        self._check_parameters()
+        self.check_parameters()
         self.publish_initial()  # again: parameters may have been set in initialization mode
         self._sensed(proprioception=False)
 

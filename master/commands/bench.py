@@ -10,14 +10,15 @@ from master.bench.report import table
 from master.bench.settings import QUICK, BenchSettings
 from master.bench.suite import run_suite
 from master.cosim import ConfigError
+from master.experiment.config import MAX_THREADS
 
 
 def run_bench(args) -> int:
     """The ``rhi bench`` command: args.json, and optionally args.quick, args.threads."""
     settings = QUICK if getattr(args, "quick", False) else BenchSettings()
     threads = getattr(args, "threads", 0) or 0
-    if threads < 0:
-        raise ConfigError(f"--threads {threads} must be a positive number of threads (0: all cores)")
+    if not 0 <= threads <= MAX_THREADS:
+        raise ConfigError(f"--threads {threads} must be 0 (all cores) to {MAX_THREADS} threads")
     checkpoint = getattr(args, "checkpoint", "") or ""
     if checkpoint and os.path.isdir(checkpoint):
         raise ConfigError(f"--checkpoint {checkpoint} is a folder, not a checkpoint file")

@@ -34,6 +34,8 @@ def run_phenomenon(args) -> int:
     from master.phenomena.report import report
 
     from master.experiment import config as configuration
+    from master.sweeps import plan
+    from master.sweeps.folder import check_folder
 
     started = time.perf_counter()
     if args.name in OWN_PROTOCOLS:
@@ -46,12 +48,15 @@ def run_phenomenon(args) -> int:
         return 0
     path = Path(args.config) if args.config else sweep_file(args.name)
     models = ("paper", "causal") if getattr(args, "model", "both") == "both" else (args.model,)
+    trials = {model: configuration.load(model_name=model)["causal"]["participants"]  # one participant a trial
+              for model in models if model != "paper"}
+    for model in models:  # every model's points checked before anything runs or is written
+        plan.load(path, model, trials.get(model))
+    check_folder(Path(args.out))
     Path(args.out).mkdir(parents=True, exist_ok=True)
-    folders, trials, status = {}, {}, 0
+    folders, status = {}, 0
     for model in models:
         folders[model] = Path(args.out) / model
-        if model != "paper":  # a population: one participant per trial
-            trials[model] = configuration.load(model_name=model)["causal"]["participants"]
         status = max(status, run_sweep(argparse.Namespace(
             config=str(path), out=str(folders[model]), scheduler=args.scheduler, force=args.force, debug=args.debug,
             model=model, trials=trials.get(model))))

@@ -12,7 +12,6 @@ import numpy as np
 
 from components.body import kinematics
 from components.brain.causal_brain import CausalBrain
-from components.vision.pose_encoder import PoseEncoder, load_encoder
 from master.experiment import training_data
 from master.experiment.protocol import per_trial
 
@@ -52,6 +51,7 @@ def components(decoder, config: dict, paper_connections: list, body):
     from components.body.plant import ArmPlant
     from components.body.rubber_arm import RubberArm
     from components.stimulus import Stimulus
+    from components.vision.pose_encoder import PoseEncoder, load_encoder
     from master.experiment.pose_encoders import encoder_path
 
     kind = decoder.model.metadata.get("kind", "conv")

@@ -68,6 +68,9 @@ def with_model(config: dict, name: str) -> dict:
 
 MAX_CONFIG_BYTES = 2**20  # a configuration or sweep file; the shipped ones are a few KiB
 MAX_DEPTH = 16  # tables and arrays within each other; the shipped files nest three deep
+# torch threads (train.threads): twice the hardware threads of the largest common server (two 128-core CPUs
+# with 2-way SMT: 512); a thread count is a setting that makes bits, not a measure of the machine.
+MAX_THREADS = 1024
 INFINITE_KEYS = ("brain.spatial_sd", "brain.action_time_constant", "body.release_time")  # inf: the paper's model
 
 
@@ -232,6 +235,9 @@ def validate(config: dict) -> None:
                           "of memory)")
     if not experiment["step_size"] > 0:
         raise ConfigError(f"experiment.step_size must be positive, got {experiment['step_size']}")
+    threads = config.get("train", {}).get("threads", 0)
+    if not 0 <= threads <= MAX_THREADS:
+        raise ConfigError(f"train.threads = {threads} must be 0 (every usable core) to {MAX_THREADS}")
     if experiment["scheme"] not in SCHEMES:
         raise ConfigError(f"experiment.scheme = {experiment['scheme']!r} is not one of {', '.join(SCHEMES)}")
     for key in LISTS:
@@ -268,6 +274,11 @@ def validate(config: dict) -> None:
             raise ConfigError(f"camera.{key} must be >= 0 m, got {config['camera'][key]}")
     if config["decoder"]["visual_variance"] <= 0:
         raise ConfigError(f"decoder.visual_variance must be positive, got {config['decoder']['visual_variance']}")
+    for kind in ("conv", "vae"):  # a checkpoint named must be there, whether or not its decoder runs
+        given = config["decoder"][f"{kind}_checkpoint"]
+        if given and not Path(given).is_file():
+            raise ConfigError(f"decoder.{kind}_checkpoint: {given} " + (
+                "is a folder, not a checkpoint file" if Path(given).is_dir() else "does not exist"))
     if not config["decoder"]["relinearise_tolerance"] >= 0:
         raise ConfigError(f"decoder.relinearise_tolerance must be >= 0 deg, got "
                           f"{config['decoder']['relinearise_tolerance']}")
@@ -282,6 +293,27 @@ def validate(config: dict) -> None:
     from master.experiment.wiring import check_parameters  # the components' own ranges (substeps, period, ...)
 
     check_parameters(config)
+    check_step_size(config)  # after the components' ranges: it reads stimulus.period and [brain]
+
+
+def check_step_size(config: dict) -> None:
+    """experiment.step_size below each bound the configuration alone fixes, else a ConfigError naming it:
+    at most one touch period (stimulus.period: a longer step would merge touches into one event), and
+    below STABILITY_LIMIT times the belief's relaxation time (brain.proprioceptive_variance, the rate
+    1/Sigma_p of paper eq. 6 with gamma = 0) and the action's time constant (brain.action_time_constant):
+    explicit Euler on a decay of rate k is stable iff dt * k < 2 (the brain's own run-time check, which
+    adds gamma's visual term)."""
+    from components.brain.integrator import STABILITY_LIMIT
+
+    step, brain = config["experiment"]["step_size"], config["brain"]
+    if step > config["stimulus"]["period"]:
+        raise ConfigError(f"experiment.step_size = {step:g} s is over the limit of stimulus.period = "
+                          f"{config['stimulus']['period']:g} s (a longer step would merge touches)")
+    for key, what in (("proprioceptive_variance", "the belief's relaxation time Sigma_p"),
+                      ("action_time_constant", "the action's time constant")):
+        if not step < STABILITY_LIMIT * brain[key]:
+            raise ConfigError(f"experiment.step_size = {step:g} s must be below {STABILITY_LIMIT:g} x brain.{key} = "
+                              f"{STABILITY_LIMIT * brain[key]:g} s ({what}: explicit Euler is stable iff dt * k < 2)")
 
 
 # Bytes per trial and step of the recorded values, the tables built from them and trials.csv's rows, and

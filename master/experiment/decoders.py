@@ -29,6 +29,7 @@ from master.cosim import ConfigError
 from master.experiment.parallel import Workers, run_jobs
 from master.experiment.training import load_decoder, prepare_data, train_decoder, train_settings
 
+KINDS = ("conv", "vae")  # the decoder slots of [decoder] and experiment.decoders
 SHIPPED = Path(__file__).parent / "checkpoints"  # the default decoders, named as the cache names them
 
 
@@ -67,9 +68,12 @@ def checkpoint_path(kind: str, config: dict, must_exist: bool = False, device: s
 def check_decoders(config: dict, device: str = "cpu") -> None:
     """Before any work: every checkpoint named in ``[decoder]`` loads, is of its slot's kind and fits the
     camera (resolution, blur, ranges); every decoder still to be trained has valid ``[train]`` settings at
-    this resolution and a usable cache folder. A ConfigError or CheckpointError (one line) otherwise."""
+    this resolution and a usable cache folder. A ConfigError or CheckpointError (one line) otherwise.
+    A checkpoint named for a decoder the experiment does not run is checked too: never silently ignored."""
     needs_training = []
-    for kind in config["experiment"]["decoders"]:
+    for kind in KINDS:
+        if kind not in config["experiment"]["decoders"] and not config["decoder"].get(f"{kind}_checkpoint"):
+            continue
         path = checkpoint_path(kind, config, device=device)
         if config["decoder"].get(f"{kind}_checkpoint"):
             check_kind(kind, path, loaded(path, config["experiment"]["resolution"], config["camera"]["blur"]))

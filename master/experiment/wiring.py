@@ -190,14 +190,23 @@ def run_batch(decoder, trials: list[Trial], config: dict, body=None, progress=No
 
 def check_parameters(config: dict) -> None:
     """Before any work: every parameter the configuration gives the components (but the decoder, which
-    config.validate checks) within the range the component declares; a ConfigError naming the key."""
+    config.validate checks) within the range the component declares and meeting the component's own rules
+    (:meth:`Component.check_parameters`: a positive sd, a rubber hand within reach); a ConfigError naming
+    the key."""
+    check_reach(config)
     trials = plan(config)
     given = parameters(trials, config)
     try:
         camera = Camera(resolution=config["experiment"]["resolution"])
     except ComponentError as error:
         raise ConfigError(f"experiment.resolution: {error}") from None
-    components = {c.name: c for c in (RubberArm(), Stimulus(), camera, Brain(), ArmPlant())}
+    brain = Brain()
+    if config.get("model", {}).get("name", "paper") == "causal":
+        from components.brain.causal_brain import CausalBrain
+        from master.experiment import causal
+
+        given, brain = causal.parameters(trials, config, given), CausalBrain()
+    components = {c.name: c for c in (RubberArm(), Stimulus(), camera, brain, ArmPlant())}
     for component in components.values():
         component.instantiate(len(trials))
     for path, value in given.items():
@@ -207,5 +216,34 @@ def check_parameters(config: dict) -> None:
         try:
             components[name].set(variable, value)
         except ComponentError as error:
-            source = PARAMETER_SOURCES[path].split()[0]
+            source = {**PARAMETER_SOURCES, **causal_sources(config)}.get(path, path).split()[0]
             raise ConfigError(f"{source}: {error}") from None
+    for component in components.values():
+        try:
+            component.check_parameters()
+        except ComponentError as error:
+            raise ConfigError(str(error)) from None
+
+
+def causal_sources(config: dict) -> dict:
+    """The causal model's parameter sources, when ``config`` runs it; else none."""
+    if config.get("model", {}).get("name", "paper") != "causal":
+        return {}
+    from master.experiment import causal
+
+    return causal.PARAMETER_SOURCES
+
+
+def check_reach(config: dict) -> None:
+    """Each condition's rubber hand within the arm's reach (RubberArm.check_parameters), named by condition."""
+    for name in config["experiment"]["conditions"]:
+        arm = RubberArm()
+        arm.instantiate(1)
+        try:
+            arm.set("offset_x", config["conditions"][name])
+            arm.set("offset_y", config["rubber_arm"]["offset_y"])
+            arm.check_parameters()
+        except ComponentError as error:
+            raise ConfigError(f"conditions.{name} = {config['conditions'][name]} m (rubber_arm.offset_y = "
+                              f"{config['rubber_arm']['offset_y']} m) puts the rubber hand out of the arm's reach: "
+                              f"{str(error).partition(': ')[2]}") from None

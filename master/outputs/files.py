@@ -141,6 +141,38 @@ def foreign_entries(folder: Path) -> list[str]:
     return foreign
 
 
+# What rhi adds to an output's name for what it makes beside it, the longest of them: its staging folder
+# ".NAME.XXXXXXXX.partial" (tempfile's 8 random characters); the others (.old, .probe, .tmp, .lock) are shorter.
+NAME_MARGIN = len("..XXXXXXXX.partial")
+DEFAULT_NAME_MAX = 255  # bytes, where the file system does not say (Linux's ext4, XFS, btrfs, tmpfs)
+
+
+def name_max(folder: Path) -> int:
+    """The longest name, in bytes, the file system of ``folder`` (or of its nearest existing parent) takes."""
+    folder = folder.absolute()
+    while not folder.is_dir() and folder != folder.parent:
+        folder = folder.parent
+    try:
+        return os.pathconf(folder, "PC_NAME_MAX")
+    except (OSError, ValueError):
+        return DEFAULT_NAME_MAX
+
+
+def check_name_length(out: str | os.PathLike) -> None:
+    """ConfigError unless each part of ``out`` fits the file system's NAME_MAX, the last one with
+    NAME_MARGIN to spare for the names rhi makes beside it."""
+    path = Path(out)
+    limit = name_max(path.parent)
+    for number, part in enumerate(path.parts):
+        last = number == len(path.parts) - 1
+        allowed = limit - NAME_MARGIN if last else limit
+        if len(os.fsencode(part)) > allowed:
+            shown = part if len(part) <= 24 else part[:20] + "..."
+            raise ConfigError(f"--out: the name {shown} has {len(os.fsencode(part))} bytes, over the limit of "
+                              f"{allowed} (this file system's NAME_MAX of {limit}" +
+                              (f", less {NAME_MARGIN} for the staging name .NAME.XXXXXXXX.partial)" if last else ")"))
+
+
 def check_output_file(out: str | os.PathLike, noun: str, suffix: str = "") -> Path:
     """``out`` as a Path if a ``noun`` (e.g. "checkpoint file") can be written there, checked before any work:
     a name (ending in ``suffix`` when one is given), not a folder, in a folder that exists and takes new
@@ -151,6 +183,7 @@ def check_output_file(out: str | os.PathLike, noun: str, suffix: str = "") -> Pa
         raise ConfigError(f"--out {text!r} must be a file name ending in {suffix}")
     if not text.strip():
         raise ConfigError(f"--out is empty: name the {noun} to write")
+    check_name_length(out)
     if out.is_dir():
         raise ConfigError(f"--out {text} is a folder; name the {noun} to write")
     if out.exists() and not out.is_file():
@@ -175,6 +208,7 @@ def check_output(out: str | os.PathLike, force: bool) -> Path:
     """
     if not str(out).strip():
         raise ConfigError("--out is empty: name a new folder for the results")
+    check_name_length(out)
     path = Path(out)
     resolved, here = path.resolve(), Path.cwd().resolve()
     if resolved == here or resolved in here.parents or resolved == Path(resolved.anchor):

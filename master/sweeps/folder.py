@@ -16,7 +16,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from master.cosim import ConfigError
-from master.outputs.files import atomic_write, package_versions
+from master.outputs.files import atomic_write, check_name_length, package_versions
 from master.sweeps.plan import Sweep
 
 COMMAND = "rhi sweep"  # sweep.json's "command": the folder is a sweep's output
@@ -78,6 +78,7 @@ def check_folder(out: Path) -> None:
     """ConfigError unless DIR names a folder a sweep may create or use (see :func:`sweep_folder`)."""
     if not str(out).strip():
         raise ConfigError("--out is empty: name a folder for the sweep")
+    check_name_length(out)
     resolved, here = Path(out).resolve(), Path.cwd().resolve()
     if resolved == here or resolved in here.parents or resolved == Path(resolved.anchor):
         raise ConfigError(f"output {out} is the working folder or a folder above it; name a folder for the sweep")
