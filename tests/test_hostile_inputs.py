@@ -7,6 +7,7 @@ unit. No case trains a decoder.
 """
 from __future__ import annotations
 
+import json
 import os
 import re
 
@@ -110,3 +111,70 @@ def test_a_phenomenon_point_out_of_reach_is_refused_before_the_sweep_runs(tmp_pa
     refused(done, "sweep point 8 (conditions.right=0.95): conditions.right = 0.95 m (rubber_arm.offset_y = 0.0 m) puts "
                   "the rubber hand out of the arm's reach")
     assert sorted(os.listdir(tmp_path / "work")) == ["far.toml"]
+
+
+# ======================================================================================================
+# A fast-check verdict is trusted only when it is one
+# ======================================================================================================
+GOOD_VERDICT = {"fast": True, "reason": "checked", "relative_error": 0.001, "bound": 0.01, "trials": ["left sync 0"],
+                "drift_exact_cm": [-4.8], "drift_fast_cm": [-4.8048]}
+DAMAGED = {"not_json": "{not json", "not_an_object": "[1, 2]", "truncated": '{"fast": true, "reason": "che',
+           "missing_field": json.dumps({k: v for k, v in GOOD_VERDICT.items() if k != "bound"}),
+           "wrong_type": json.dumps({**GOOD_VERDICT, "fast": "yes"}),
+           "wrong_item_type": json.dumps({**GOOD_VERDICT, "drift_fast_cm": ["x"]}),
+           "inconsistent": json.dumps({**GOOD_VERDICT, "relative_error": 0.5})}
+
+
+@pytest.fixture
+def verdict_setup(tmp_path, monkeypatch):
+    """A quick configuration, a stand-in checkpoint (the key hashes its bytes), an empty shipped folder, and
+    the check replaced by one that counts its calls and answers GOOD_VERDICT (no trial runs)."""
+    from master.experiment import fast_check
+
+    (tmp_path / "cache").mkdir()
+    (tmp_path / "shipped").mkdir()
+    monkeypatch.setenv("RHI_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setattr(fast_check, "SHIPPED", tmp_path / "shipped")
+    calls = []
+    monkeypatch.setattr(fast_check, "run_jobs", lambda function, jobs, workers=None: calls.extend(jobs) or
+                        [dict(GOOD_VERDICT) for _ in jobs])
+    (tmp_path / "conv.pt").write_bytes(b"stand-in checkpoint bytes")
+    config = load({"experiment.decoders": ["conv"]})
+    name = f"fast-check-conv-{fast_check.verdict_key(str(tmp_path / 'conv.pt'), config)}.json"
+    return config, {"conv": str(tmp_path / "conv.pt")}, tmp_path / "cache" / name, tmp_path / "shipped" / name, calls
+
+
+@pytest.mark.parametrize("damage", list(DAMAGED))
+def test_a_damaged_cached_verdict_is_checked_again_and_rewritten_with_one_note(verdict_setup, capsys, damage):
+    from master.experiment import fast_check
+
+    config, checkpoints, cached, _, calls = verdict_setup
+    cached.write_text(DAMAGED[damage])
+    assert fast_check.verdicts(config, checkpoints)["conv"] == GOOD_VERDICT
+    assert len(calls) == 1 and json.loads(cached.read_text()) == GOOD_VERDICT  # checked again, rewritten whole
+    said = capsys.readouterr().err.strip().splitlines()
+    assert len(said) == 1 and said[0].startswith(f"rhi: note: the fast-check verdict {cached} is damaged (")
+    assert said[0].endswith("); checking again")
+    assert not [p for p in cached.parent.iterdir() if p.name.endswith(".tmp")]
+    fast_check.verdicts(config, checkpoints)  # now sound: used as stored, no check, no note
+    assert len(calls) == 1 and capsys.readouterr().err == ""
+
+
+def test_a_damaged_shipped_verdict_is_a_clear_error_and_a_sound_one_is_used(verdict_setup):
+    from master.cosim import ConfigError
+    from master.experiment import fast_check
+
+    config, checkpoints, cached, shipped, calls = verdict_setup
+    shipped.write_text(DAMAGED["not_an_object"])
+    with pytest.raises(ConfigError, match=re.escape(f"the shipped fast-check verdict {shipped} is damaged (not a "
+                                                    "JSON object); reinstall rhi")):
+        fast_check.verdicts(config, checkpoints)
+    shipped.write_text(json.dumps(GOOD_VERDICT))
+    assert fast_check.verdicts(config, checkpoints)["conv"] == GOOD_VERDICT and not calls and not cached.exists()
+
+
+def test_every_shipped_verdict_is_sound():
+    from master.experiment import fast_check
+
+    shipped = sorted(fast_check.SHIPPED.glob("fast-check-*.json"))
+    assert shipped and all(fast_check.verdict_problem(path.read_text()) is None for path in shipped)

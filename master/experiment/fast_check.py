@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from master.cosim import ConfigError
 from master.experiment.decoders import SHIPPED, cache_folder, check_cache_folder, decoder_component
 from master.experiment.measures import end_of_trial, measures
 from master.experiment.parallel import JOB_THREADS, Workers, run_jobs
@@ -74,6 +75,59 @@ def check(config: dict, kind: str, checkpoint: str, progress: int | None = None)
             "drift_exact_cm": drifts[False].tolist(), "drift_fast_cm": drifts[True].tolist()}
 
 
+# A verdict as check() writes it: each field and its type(s).
+VERDICT_FIELDS = {"fast": (bool,), "reason": (str,), "relative_error": (int, float), "bound": (int, float),
+                  "trials": (list,), "drift_exact_cm": (list,), "drift_fast_cm": (list,)}
+
+
+def verdict_problem(text: str) -> str | None:
+    """What makes ``text`` not a verdict as :func:`check` writes it (None: it is one)."""
+    try:
+        verdict = json.loads(text)
+    except (ValueError, RecursionError):
+        return "not valid JSON"
+    if not isinstance(verdict, dict):
+        return "not a JSON object"
+    for field, types in VERDICT_FIELDS.items():
+        value = verdict.get(field)
+        if not isinstance(value, types) or (bool not in types and isinstance(value, bool)):
+            return f"{field} is {'missing' if field not in verdict else 'not a ' + types[0].__name__}"
+    numbers = [verdict["relative_error"], verdict["bound"], *verdict["drift_exact_cm"], *verdict["drift_fast_cm"]]
+    if not all(isinstance(n, (int, float)) and not isinstance(n, bool) for n in numbers) or \
+            not all(isinstance(t, str) for t in verdict["trials"]):
+        return "a list holds a value of the wrong type"
+    if verdict["fast"] != (verdict["relative_error"] <= verdict["bound"]):
+        return "fast disagrees with relative_error and bound"
+    return None
+
+
+def stored_verdict(cached: Path, shipped: Path) -> dict | None:
+    """The stored verdict: the cache's, else the shipped one, else None (to be checked). A damaged one in
+    the cache counts as missing, with a note on stderr (the check runs again and rewrites it); a damaged
+    shipped one is a ConfigError (the installation is damaged). A damaged cached one beside a sound shipped
+    one is replaced by the shipped one's copy."""
+    damaged = False
+    for path in (cached, shipped):
+        if not path.is_file():
+            continue
+        try:
+            text = path.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as error:
+            problem = f"unreadable ({getattr(error, 'strerror', None) or error})"
+        else:
+            problem = verdict_problem(text)
+        if problem is None:
+            if damaged:
+                atomic_write(cached, text)
+            return json.loads(text)
+        if path == shipped:
+            raise ConfigError(f"the shipped fast-check verdict {path} is damaged ({problem}); reinstall rhi")
+        damaged = True
+        print(f"rhi: note: the fast-check verdict {path} is damaged ({problem}); "
+              f"{'using the shipped one' if shipped.is_file() else 'checking again'}", file=sys.stderr)
+    return None
+
+
 def verdicts(config: dict, checkpoints: dict[str, str], workers: Workers | None = None,
              progress: bool = False) -> dict[str, dict]:
     """Per decoder: whether it runs fast, and why. ``[decoder] fast = false`` runs every decoder exact;
@@ -84,9 +138,9 @@ def verdicts(config: dict, checkpoints: dict[str, str], workers: Workers | None 
     found, missing = {}, []
     for kind, checkpoint in checkpoints.items():
         name = f"fast-check-{kind}-{verdict_key(checkpoint, config)}.json"
-        stored = next((folder / name for folder in (cache_folder(), SHIPPED) if (folder / name).is_file()), None)
-        if stored:
-            found[kind] = json.loads(stored.read_text())
+        stored = stored_verdict(cache_folder() / name, SHIPPED / name)
+        if stored is not None:
+            found[kind] = stored
         else:
             missing.append((kind, cache_folder() / name))
     if missing:
