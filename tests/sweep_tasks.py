@@ -28,6 +28,14 @@ def fake_outcome(config: dict, decoder: str, condition: str, stimulation: str, i
             "gamma_final": float(np.exp(-delay))}
 
 
+def faulty_outcome(config: dict, decoder: str, condition: str, stimulation: str, index: int) -> dict:
+    """fake_outcome, but a fault on demand: every trial whose rubber hand lies right of the real one fails
+    (a configuration the checks accept, unlike a hand out of reach, which is refused before any trial runs)."""
+    if config["conditions"][condition] > 0:
+        raise ValueError(f"a fault on demand: offset {config['conditions'][condition]} m > 0")
+    return fake_outcome(config, decoder, condition, stimulation, index)
+
+
 def slow_outcome(config: dict, decoder: str, condition: str, stimulation: str, index: int) -> dict:
     time.sleep(SLOW_TRIAL_S)
     return fake_outcome(config, decoder, condition, stimulation, index)

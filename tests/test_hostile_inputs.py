@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import socketserver
 
 import pytest
 
@@ -178,3 +179,42 @@ def test_every_shipped_verdict_is_sound():
 
     shipped = sorted(fast_check.SHIPPED.glob("fast-check-*.json"))
     assert shipped and all(fast_check.verdict_problem(path.read_text()) is None for path in shipped)
+
+
+# ======================================================================================================
+# A listener that is not a Dask scheduler: refused within the limit, in one line
+# ======================================================================================================
+class AnswersAtOnce(socketserver.BaseRequestHandler):
+    """Speaks first, as a Dask scheduler does, but HTTP (dask would read its first 8 bytes as a length)."""
+
+    def handle(self):
+        self.request.sendall(b"HTTP/1.0 200 OK\r\nContent-Type: text/html\r\n\r\n<html>hello</html>\r\n")
+
+
+@pytest.mark.parametrize("server", ["http.server", "answers_at_once"])
+def test_an_http_listener_as_scheduler_is_refused_within_the_limit(tmp_path, server):
+    import http.server
+    import threading
+    import time
+
+    from master.sweeps.runner import CONNECT_TIMEOUT_S
+    from tests.test_sweep import sweep_file
+
+    handler = http.server.SimpleHTTPRequestHandler if server == "http.server" else AnswersAtOnce
+    listener = socketserver.ThreadingTCPServer(("127.0.0.1", 0), handler)
+    listener.daemon_threads = True
+    threading.Thread(target=listener.serve_forever, daemon=True).start()
+    (tmp_path / "work").mkdir()
+    sweep_file(tmp_path / "work" / "s.toml", grid={"conditions.left": [-0.1]})
+    began = time.monotonic()
+    try:
+        done = rhi(tmp_path, "sweep", "--config", "s.toml", "--scheduler",
+                   f"tcp://127.0.0.1:{listener.server_address[1]}", "--out", "out", timeout=60)
+    finally:
+        listener.shutdown()
+        listener.server_close()
+    took = time.monotonic() - began
+    refused(done, "cannot reach the Dask scheduler at tcp://127.0.0.1:")
+    assert ("it answers HTTP" in done.stderr) == (server == "answers_at_once")  # http.server waits to be asked
+    assert took < CONNECT_TIMEOUT_S + 10  # the limit, plus the command's start-up
+    assert sorted(os.listdir(tmp_path / "work")) == ["s.toml"]

@@ -224,14 +224,15 @@ def test_killed_sweep_resumes_and_runs_each_trial_once(tmp_path):
 
 
 def test_failing_point_is_listed_and_the_rest_complete(dask_cluster, tmp_path):
-    # offset 1.0 m puts the rubber hand out of the arm's reach: those trials fail when they run
-    path = sweep_file(tmp_path / "s.toml", grid={"conditions.left": [-0.15, 1.0]}, conditions=("left", "center"))
+    # faulty_outcome fails a rubber hand right of the real one (offset > 0) when the trial runs
+    path = sweep_file(tmp_path / "s.toml", grid={"conditions.left": [-0.15, 0.3]}, conditions=("left", "center"),
+                      task="faulty_outcome")
     result = subprocess.run(command("--config", path, "--scheduler", dask_cluster, "--out", tmp_path / "out"),
                             env=ENV, cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert result.returncode == 1
     listed = [line for line in result.stderr.splitlines() if line.startswith("rhi sweep: failed:")]
     assert len(listed) == 2
-    assert all("point 1 (conditions.left=1.0) conv/left/sync" in line and "out of reach" in line for line in listed)
+    assert all("point 1 (conditions.left=0.3) conv/left/sync" in line and "a fault on demand" in line for line in listed)
     done = records(tmp_path / "out")
     assert sorted(r["status"] for r in done.values()) == ["failed"] * 2 + ["ok"] * 6
     rows = {(r["point"], r["condition"]): r for r in csv.DictReader(open(tmp_path / "out" / "summary.csv"))}

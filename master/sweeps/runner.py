@@ -68,21 +68,56 @@ def dask_client(scheduler: str | None, workers: int | None, debug: bool):
 CONNECT_TIMEOUT_S = 15.0  # --scheduler: a scheduler that has not answered by then is refused
 
 
+PROBE_S = 3.0  # of CONNECT_TIMEOUT_S: how long the probe waits for a tcp:// scheduler's first bytes
+# A Dask listener speaks first on a new connection: its handshake, 8 bytes (little-endian uint64: the bytes
+# to follow) and a small msgpack message (a few hundred bytes). Dask allocates what those 8 bytes announce.
+MAX_HANDSHAKE_BYTES = 2**20
+
+
+def probe(scheduler: str, timeout: float) -> str | None:
+    """Why the tcp:// listener at ``scheduler`` is not a Dask scheduler, from the first bytes it sends: an
+    HTTP server's answer, or a first message larger than MAX_HANDSHAKE_BYTES (which dask would try to
+    allocate). None when it looks like one, sends nothing within ``timeout``, or cannot be reached (dask's
+    own attempt then says why)."""
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    try:
+        scheme, location = parse_address(scheduler)
+        if scheme != "tcp":
+            return None
+        host, port = parse_host_port(location)
+        with socket.create_connection((host, port), timeout=timeout) as peer:
+            peer.settimeout(timeout)
+            head = peer.recv(8, socket.MSG_WAITALL)
+    except (OSError, ValueError, TypeError):
+        return None
+    if head.startswith(b"HTTP/") or head[:4].upper() in (b"<!DO", b"<HTM"):
+        return "it answers HTTP: a web server (a Dask dashboard?), not a Dask scheduler's port"
+    if len(head) == 8 and int.from_bytes(head, "little") > MAX_HANDSHAKE_BYTES:
+        return (f"it does not speak Dask's protocol (its first message would be {int.from_bytes(head, 'little')} "
+                f"bytes; a Dask handshake is under {MAX_HANDSHAKE_BYTES})")
+    return None
+
+
 def connect(client_class, scheduler: str):
     """A Client on ``scheduler``, or a ConfigError within CONNECT_TIMEOUT_S seconds naming why: refused,
-    not a Dask scheduler (a listener that never answers, an HTTP server), a scheme dask cannot use. The
-    attempt runs in a daemon thread, since dask's own timeout does not cover a peer that stays silent."""
+    not a Dask scheduler (a listener that never answers, an HTTP server: :func:`probe`), a scheme dask cannot
+    use. The attempt runs in a daemon thread, since dask's own timeout does not cover a peer that stays silent."""
+    began = time.monotonic()
+    problem = probe(scheduler, PROBE_S)
+    if problem:
+        raise ConfigError(f"cannot reach the Dask scheduler at {scheduler}: {problem}")
     outcome = {}
 
     def attempt():
         try:
-            outcome["client"] = client_class(scheduler, timeout=f"{CONNECT_TIMEOUT_S - 3:g}s")
+            outcome["client"] = client_class(scheduler, timeout=f"{CONNECT_TIMEOUT_S - PROBE_S - 3:g}s")
         except BaseException as error:  # noqa: BLE001: reported below, in one line
             outcome["error"] = error
 
     thread = threading.Thread(target=attempt, name="rhi-dask-connect", daemon=True)
     thread.start()
-    thread.join(CONNECT_TIMEOUT_S)
+    thread.join(max(CONNECT_TIMEOUT_S - (time.monotonic() - began), 1.0))
     if "client" in outcome:
         return outcome["client"]
     error = outcome.get("error")
