@@ -39,3 +39,15 @@ def faulty_outcome(config: dict, decoder: str, condition: str, stimulation: str,
 def slow_outcome(config: dict, decoder: str, condition: str, stimulation: str, index: int) -> dict:
     time.sleep(SLOW_TRIAL_S)
     return fake_outcome(config, decoder, condition, stimulation, index)
+
+
+def stuck_outcome(config: dict, decoder: str, condition: str, stimulation: str, index: int) -> dict:
+    """Touches $RHI_TEST_STUCK_MARKER, then holds the GIL in native code for a minute (libc's sleep through
+    ctypes.PyDLL, which keeps the GIL), as a native call that never returns would: no Python thread of the
+    worker runs meanwhile, so only the kernel can end it."""
+    import ctypes
+    import os
+
+    open(os.environ["RHI_TEST_STUCK_MARKER"], "w").close()
+    ctypes.PyDLL(None).sleep(60)
+    return fake_outcome(config, decoder, condition, stimulation, index)

@@ -14,7 +14,7 @@ import socketserver
 
 import pytest
 
-from tests.test_hostile_files import REPO, refused, rhi, snapshot
+from tests.test_hostile_files import ENV, REPO, refused, rhi, snapshot
 
 
 def load(overrides: dict, model: str = "paper"):
@@ -218,3 +218,53 @@ def test_an_http_listener_as_scheduler_is_refused_within_the_limit(tmp_path, ser
     assert ("it answers HTTP" in done.stderr) == (server == "answers_at_once")  # http.server waits to be asked
     assert took < CONNECT_TIMEOUT_S + 10  # the limit, plus the command's start-up
     assert sorted(os.listdir(tmp_path / "work")) == ["s.toml"]
+
+
+# ======================================================================================================
+# The local pool's workers die with rhi sweep
+# ======================================================================================================
+def test_the_local_pool_s_workers_die_with_a_killed_sweep(tmp_path):
+    """A worker stuck in native code holding the GIL (Dask's own watch on its parent cannot run) still dies
+    when rhi sweep is SIGKILLed: every process started under it is gone within a few seconds."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    import psutil
+
+    from tests.test_sweep import sweep_file
+
+    for name in ("work", "tmp", "cache"):
+        (tmp_path / name).mkdir()
+    sweep_file(tmp_path / "work" / "s.toml", grid={"conditions.left": [-0.1]}, task="stuck_outcome", trials=1,
+               workers=1)
+    marker = tmp_path / "stuck"
+    env = {**ENV, "TMPDIR": str(tmp_path / "tmp"), "RHI_CACHE": str(tmp_path / "cache"),
+           "RHI_TEST_STUCK_MARKER": str(marker)}
+    sweep = subprocess.Popen([sys.executable, "-m", "master", "sweep", "--config", "s.toml", "--out", "out"],
+                             cwd=tmp_path / "work", env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    descendants = []
+    try:
+        deadline = time.monotonic() + 60
+        while not marker.exists() and time.monotonic() < deadline and sweep.poll() is None:
+            time.sleep(0.1)
+        assert marker.exists(), "the trial never started"
+        descendants = psutil.Process(sweep.pid).children(recursive=True)
+        assert descendants, "no worker process under rhi sweep"
+        sweep.send_signal(signal.SIGKILL)
+        sweep.wait()
+        deadline = time.monotonic() + 5
+        alive = descendants
+        while alive and time.monotonic() < deadline:
+            time.sleep(0.05)
+            alive = [p for p in descendants if p.is_running() and p.status() != psutil.STATUS_ZOMBIE]
+        assert not alive, f"ran on after rhi sweep was killed: {[' '.join(p.cmdline())[:80] for p in alive]}"
+    finally:
+        for process in descendants:
+            try:
+                process.kill()
+            except psutil.Error:
+                pass
+        if sweep.poll() is None:
+            sweep.kill()

@@ -16,6 +16,8 @@ import sys
 
 import numpy as np
 
+from master.outputs.processes import die_with_parent
+
 
 def fmpy_run(request: dict) -> dict:
     """FMPy's SSP master (``fmpy.ssp.simulation.simulate_ssp``), its algorithm unchanged.
@@ -97,19 +99,6 @@ def libcosim_run(request: dict) -> dict:
             for name, value in zip(names, values):
                 rows[f"{component}.{name}"].append(value)
     return {"time": np.array(times), **{key: np.array(value) for key, value in rows.items()}}
-
-
-def die_with_parent() -> None:
-    """Be killed when the parent (rhi run-system) dies, even by SIGKILL: Linux's PR_SET_PDEATHSIG; a parent
-    gone already (this process adopted) ends it now."""
-    import ctypes
-    import signal
-
-    parent = os.getppid()
-    if sys.platform.startswith("linux"):
-        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL, 0, 0, 0)  # 1: PR_SET_PDEATHSIG
-    if os.getppid() != parent:
-        os._exit(1)
 
 
 def main(path: str) -> int:

@@ -25,6 +25,7 @@ from pathlib import Path
 from master.cosim import ConfigError
 from master.experiment.runner import failed_record
 from master.outputs.files import atomic_write
+from master.sweeps import lifeline
 from master.sweeps.plan import DEFAULT_TASK, Sweep, TrialSpec
 
 # Dask's settings for workers whose tasks are long, single-threaded and CPU-bound (docs/sweeps.md): no
@@ -58,9 +59,10 @@ def dask_client(scheduler: str | None, workers: int | None, debug: bool):
     quiet = False if debug else logging.ERROR
     # Only this machine: listen on loopback; the scheduler's small HTTP server on any free port. The
     # nannies hand the settings in force when they start to their workers.
-    with dask.config.set(WORKER_SETTINGS), \
+    # Each worker dies with this process, even by SIGKILL (master.sweeps.lifeline, a worker preload).
+    with dask.config.set({**WORKER_SETTINGS, lifeline.PARENT_KEY: os.getpid()}), \
             LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
-                         host="127.0.0.1", dashboard_address=None, silence_logs=quiet,
+                         host="127.0.0.1", dashboard_address=None, silence_logs=quiet, preload=[lifeline.__name__],
                          scheduler_kwargs={"dashboard_address": "127.0.0.1:0"}) as cluster, Client(cluster) as client:
         yield client
 
