@@ -523,6 +523,7 @@ def test_docs_safety_states_the_code_s_limits():
     from components.vision import checkpoint
     from master.experiment import config
     from master.export import ssp_package
+    from master.outputs import files
     from master.sweeps import plan, runner
 
     page = (REPO / "docs" / "safety.md").read_text()
@@ -531,7 +532,8 @@ def test_docs_safety_states_the_code_s_limits():
     assert values == [str(v) for v in (
         LIMITS.members, LIMITS.member_bytes, LIMITS.total_bytes, f"{LIMITS.ratio:g}", checkpoint.MAX_HIDDEN,
         checkpoint.MAX_CHANNELS, checkpoint.MAX_STAGES, checkpoint.MAX_RESOLUTION, config.MAX_CONFIG_BYTES,
-        config.MAX_DEPTH, plan.MAX_POINTS, ssp_package.MAX_STEPS, f"{runner.CONNECT_TIMEOUT_S:g}")]
+        config.MAX_DEPTH, plan.MAX_POINTS, ssp_package.MAX_STEPS, f"{runner.CONNECT_TIMEOUT_S:g}",
+        f"{runner.PROBE_S:g}", runner.MAX_HANDSHAKE_BYTES, config.MAX_THREADS, files.NAME_MARGIN)]
     assert f"over {LIMITS.ratio_floor} bytes" in table and "task" in page and "rhi --version" in page
     assert all(key in page for key in config.INFINITE_KEYS)
 
