@@ -299,24 +299,38 @@ def test_a_sweep_json_that_is_not_rhi_s_object_is_refused_in_one_line(tmp_path, 
 
 
 def test_force_removes_only_the_older_sweep_s_own_files(tmp_path):
-    from master.sweeps.runner import execute  # noqa: F401 (the record format is execute's)
+    """Only what the older sweep's manifest lists, unchanged since: a file of yours, or one you edited, stays;
+    one the new sweep would write over is refused, naming it, before anything is removed."""
+    from master.cosim import ConfigError
+    from master.sweeps.folder import sweep_folder
 
     out = tmp_path / "out"
     first = sweep_of(tmp_path, "first", {"conditions.left": [-0.1, -0.2]})
-    prepare(out, first)
-    ours = out / "trials" / f"{first.trials[0].id}.json"
-    ours.write_text(json.dumps({"id": first.trials[0].id, "point": 0, "parameters": {}, "decoder": "conv",
-                                "condition": "left", "stimulation": "sync", "trial": 0, "seed": 1}))
-    (out / "figures").mkdir()
-    for name in ("figures/conditions.left.png", "index.csv", "summary.csv"):
-        (out / name).write_text("rhi's")
+    with sweep_folder(out, first, False) as (_, manifest):  # as rhi sweep writes: each file, then it is listed
+        (out / "figures").mkdir()
+        written = [f"trials/{trial.id}.json" for trial in first.trials[:2]]
+        for name in written + ["figures/conditions.left.png", "index.csv", "summary.csv"]:
+            (out / name).write_text(json.dumps({"id": Path(name).stem}) if name.startswith("trials") else "rhi's")
+            manifest.add(name)
+        manifest.save()
+    edited = out / written[1]
+    edited.write_text(edited.read_text() + "\n")  # edited since: not rhi's any more
     mine = {"figures/loss.png": "mine", "trials/notes.json": '{"id": "notes"}', "trials/x.json": "{}"}
     for name, text in mine.items():
         (out / name).write_text(text)
-    prepare(out, sweep_of(tmp_path, "second", {"conditions.right": [0.1, 0.2]}), force=True)
-    assert all((out / name).read_text() == text for name, text in mine.items())
-    assert not ours.exists() and not (out / "figures" / "conditions.left.png").exists()
+    second = sweep_of(tmp_path, "second", {"conditions.right": [0.1, 0.2]})
+    (out / "summary.csv").write_text("my own summary")  # edited, and the new sweep writes summary.csv
+    before = snapshot(out)
+    with pytest.raises(ConfigError, match=r"summary.csv would be written over but is not what rhi sweep wrote there"):
+        prepare(out, second, force=True)
+    assert snapshot(out) == before  # refused before anything was removed
+    (out / "summary.csv").unlink()
+    prepare(out, second, force=True)
+    assert all((out / name).read_text() == text for name, text in mine.items()) and edited.exists()
+    assert not (out / written[0]).exists() and not (out / "figures" / "conditions.left.png").exists()
     assert not (out / "index.csv").exists() and json.loads((out / "sweep.json").read_text())["command"] == "rhi sweep"
+    listed = json.loads((out / ".rhi-manifest.json").read_text())["files"]
+    assert sorted(listed) == ["sweep.json"]  # the new sweep's, as written so far
 
 
 @pytest.mark.parametrize("link", ["figures", "trials", "summary.csv"])
@@ -339,12 +353,16 @@ def test_a_link_where_a_sweep_writes_is_refused_and_what_it_leads_to_is_untouche
 def test_experiment_force_never_removes_a_folder_where_an_output_file_belongs(tmp_path):
     from master.cosim import ConfigError
     from master.outputs.files import check_output
+    from master.outputs.manifest import Manifest
 
     out = tmp_path / "out"
     (out / "trials.csv").mkdir(parents=True)
     (out / "trials.csv" / "mine.txt").write_text("mine")
     (out / "run.json").write_text('{"command": "rhi experiment", "figures": []}')
-    with pytest.raises(ConfigError, match=r"not an earlier rhi experiment output \(it holds trials.csv\)"):
+    manifest = Manifest(out, "rhi experiment", folders={"trials.csv"})  # even a manifest naming the folder
+    manifest.add("run.json")
+    manifest.save()
+    with pytest.raises(ConfigError, match=r"not an earlier rhi experiment output \(it holds trials.csv/mine.txt\)"):
         check_output(out, force=True)
     assert (out / "trials.csv" / "mine.txt").read_text() == "mine"
 
@@ -555,8 +573,11 @@ def test_an_output_folder_that_is_a_mount_point_is_written_in_place(tmp_path, mo
     out = tmp_path / "volume"
     out.mkdir()
     if earlier:  # an earlier output of ours, replaced with --force
+        from master.outputs.manifest import Manifest
+
         (out / "run.json").write_text('{"command": "rhi experiment", "figures": []}')
         (out / "summary.csv").write_text("old")
+        Manifest.of(out, "rhi experiment").save()
     real_replace, real_ismount = os.replace, os.path.ismount
 
     def replace(source, target):
@@ -570,7 +591,7 @@ def test_an_output_folder_that_is_a_mount_point_is_written_in_place(tmp_path, mo
         assert staging.parent == out  # on the volume's own file system
         (staging / "summary.csv").write_text("new")
         (staging / "run.json").write_text('{"command": "rhi experiment", "figures": []}')
-    assert sorted(p.name for p in out.iterdir()) == ["run.json", "summary.csv"]
+    assert sorted(p.name for p in out.iterdir()) == [".rhi-manifest.json", "run.json", "summary.csv"]
     assert (out / "summary.csv").read_text() == "new"
     assert not list(tmp_path.glob(".volume.*"))  # nothing left beside it
 

@@ -268,3 +268,45 @@ def test_the_local_pool_s_workers_die_with_a_killed_sweep(tmp_path):
                 pass
         if sweep.poll() is None:
             sweep.kill()
+
+
+# ======================================================================================================
+# The manifest: rhi removes or writes over only files it can prove it wrote
+# ======================================================================================================
+def test_an_experiment_output_is_published_with_a_manifest_of_every_file(tmp_path):
+    import hashlib
+
+    from master.outputs import files
+
+    out = tmp_path / "run"
+    with files.output_folder(out, force=False) as staging:
+        (staging / "summary.csv").write_text("a,b\n1,2\n")
+        (staging / "figures").mkdir()
+        (staging / "figures" / "a.png").write_bytes(b"\x89PNG")
+    manifest = json.loads((out / ".rhi-manifest.json").read_text())
+    assert manifest["command"] == "rhi experiment" and manifest["folders"] == ["figures"]
+    assert manifest["files"] == {name: {"bytes": (out / name).stat().st_size,
+                                        "sha256": hashlib.sha256((out / name).read_bytes()).hexdigest()}
+                                 for name in ("figures/a.png", "summary.csv")}
+    assert files.foreign_entries(out) == []  # all of it proven: --force may replace it
+    (out / "figures" / "a.png").write_bytes(b"\x89PNG edited")
+    (out / "figures" / "b.png").write_bytes(b"mine")
+    assert files.foreign_entries(out) == ["figures/a.png (changed since rhi wrote it)", "figures/b.png"]
+
+
+def test_an_older_output_without_a_manifest_is_never_replaced(tmp_path):
+    (tmp_path / "work" / "results").mkdir(parents=True)
+    (tmp_path / "work" / "results" / "run.json").write_text('{"command": "rhi experiment", "figures": []}')
+    before = snapshot(tmp_path / "work")
+    done = rhi(tmp_path, "experiment", "--quick", "--out", "results", "--force")
+    refused(done, "output folder results is not an earlier rhi experiment output (it holds run.json)")
+    assert snapshot(tmp_path / "work") == before
+
+
+def test_a_phenomenon_report_file_rhi_did_not_write_is_never_written_over(tmp_path):
+    (tmp_path / "work" / "out").mkdir(parents=True)
+    (tmp_path / "work" / "out" / "distance.csv").write_text("my own table\n")
+    before = snapshot(tmp_path / "work")
+    done = rhi(tmp_path, "phenomenon", "distance", "--out", "out", "--force")
+    refused(done, "output folder out: distance.csv would be written over but is not what rhi phenomenon wrote there")
+    assert snapshot(tmp_path / "work") == before

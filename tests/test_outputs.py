@@ -93,6 +93,8 @@ def test_trials_csv_formats_every_number_as_csv_writer_and_format_would():
 
 def test_staging_refuses_foreign_content_and_publishes_whole(tmp_path):
     """--force replaces an earlier output of rhi experiment, never a folder holding anything else."""
+    from master.outputs.manifest import Manifest
+
     out = tmp_path / "run"
     out.mkdir()
     (out / "notes.txt").write_text("mine")
@@ -106,10 +108,11 @@ def test_staging_refuses_foreign_content_and_publishes_whole(tmp_path):
     (out / "run.json").write_text('{"command": "rhi experiment", "figures": ["a.png"]}')
     (out / "figures").mkdir()
     (out / "figures" / "a.png").write_bytes(b"png")
+    Manifest.of(out, files.OUTPUT_COMMAND).save()  # as an earlier run wrote it
     with files.output_folder(out, force=True) as staging:
         (staging / "summary.csv").write_text("x\n")
         assert (out / "run.json").exists()  # untouched until the run is complete
-    assert [p.name for p in out.iterdir()] == ["summary.csv"]
+    assert sorted(p.name for p in out.iterdir()) == [".rhi-manifest.json", "summary.csv"]
     assert [p.name for p in tmp_path.iterdir()] == ["run"]
 
 

@@ -44,6 +44,7 @@ def test_the_working_folder_and_those_above_it_are_refused_even_with_force(tmp_p
 
 def test_force_replaces_only_rhi_s_own_output(tmp_path):
     from master.outputs import files
+    from master.outputs.manifest import Manifest
 
     foreign = tmp_path / "foreign"
     foreign.mkdir()
@@ -55,13 +56,19 @@ def test_force_replaces_only_rhi_s_own_output(tmp_path):
     (ours / "run.json").write_text('{"command": "rhi experiment", "figures": ["a.png"]}')
     (ours / "figures").mkdir()
     (ours / "figures" / "a.png").write_text("png")
-    (ours / "figures" / "notes.txt").write_text("mine")  # added by the user: not ours any more
+    Manifest.of(ours, files.OUTPUT_COMMAND).save()  # as the earlier run wrote it
+    (ours / "figures" / "notes.txt").write_text("mine")  # added by the user: not ours
     with pytest.raises(ConfigError, match=r"it holds figures/notes\.txt"):
         files.check_output(ours, force=True)
     (ours / "figures" / "notes.txt").unlink()
+    (ours / "run.json").write_text('{"command": "rhi experiment", "edited": true}')  # edited by the user
+    with pytest.raises(ConfigError, match=r"it holds run\.json \(changed since rhi wrote it\)"):
+        files.check_output(ours, force=True)
+    (ours / "run.json").write_text('{"command": "rhi experiment", "figures": ["a.png"]}')
     with files.output_folder(ours, force=True) as staging:
         (staging / "summary.csv").write_text("new\n")
-    assert sorted(os.listdir(ours)) == ["summary.csv"] and sorted(os.listdir(tmp_path)) == ["foreign", "ours"]
+    assert sorted(os.listdir(ours)) == [".rhi-manifest.json", "summary.csv"]
+    assert sorted(os.listdir(tmp_path)) == ["foreign", "ours"]
 
 
 # -- a concurrent run: the lock, and publish's re-check ----------------------------------------------

@@ -4,6 +4,7 @@ The trials run tests/sweep_tasks.py stand-ins, whose exact results the tests com
 """
 import argparse
 import csv
+import hashlib
 import json
 import os
 import signal
@@ -106,11 +107,11 @@ def dask_cluster(tmp_path_factory):
 
 def test_grid_points_ids_and_validation(tmp_path):
     path = sweep_file(tmp_path / "s.toml", grid={"stimulations.sync.delay_max": [0.1, 0.5],
-                                                 "conditions.left": [-0.15, -0.3, -0.45]})
+                                                 "conditions.left": [-0.15, -0.3, -0.4]})
     sweep = sweeps.load(path)
     # the last key varies fastest, as in the file
     assert [tuple(p.values()) for p in sweep.points] == [
-        (0.1, -0.15), (0.1, -0.3), (0.1, -0.45), (0.5, -0.15), (0.5, -0.3), (0.5, -0.45)]
+        (0.1, -0.15), (0.1, -0.3), (0.1, -0.4), (0.5, -0.15), (0.5, -0.3), (0.5, -0.4)]
     assert sweep.keys == ["stimulations.sync.delay_max", "conditions.left"]
     assert sweep.configs[4]["stimulations"]["sync"]["delay_max"] == 0.5
     assert sweep.configs[4]["conditions"]["left"] == -0.3
@@ -221,6 +222,13 @@ def test_killed_sweep_resumes_and_runs_each_trial_once(tmp_path):
     assert {key: record["outcome"] for key, record in after.items()} == truth
     index = list(csv.DictReader(open(out / "index.csv")))
     assert sorted(row["id"] for row in index) == sorted(truth)  # each trial exactly once
+    # the manifest lists what rhi wrote, each file's sha256 as hashlib computes it: at least the rerun's
+    # records (those of the killed run only if it listed them before it died) and the tables
+    listed = json.loads((out / ".rhi-manifest.json").read_text())["files"]
+    rerun_records = {f"trials/{p.name}" for p in (out / "trials").glob("*.json") if p not in stamps}
+    assert rerun_records | {"sweep.json", "index.csv", "summary.csv"} <= set(listed)
+    assert all(hashlib.sha256((out / name).read_bytes()).hexdigest() == entry["sha256"] and
+               (out / name).stat().st_size == entry["bytes"] for name, entry in listed.items())
 
 
 def test_failing_point_is_listed_and_the_rest_complete(dask_cluster, tmp_path):

@@ -53,6 +53,7 @@ def run_phenomenon(args) -> int:
     for model in models:  # every model's points checked before anything runs or is written
         plan.load(path, model, trials.get(model))
     check_folder(Path(args.out))
+    own = report_manifest(Path(args.out), args.name)
     Path(args.out).mkdir(parents=True, exist_ok=True)
     folders, status = {}, 0
     for model in models:
@@ -61,7 +62,32 @@ def run_phenomenon(args) -> int:
             config=str(path), out=str(folders[model]), scheduler=args.scheduler, force=args.force, debug=args.debug,
             model=model, trials=trials.get(model))))
     written = report(args.name, path, Path(args.out), folders, trials)
+    for name in written:
+        own.add(name)
+    own.save()
     print(f"rhi phenomenon {args.name}: wrote {', '.join(str(Path(args.out) / name) for name in written)} "
           f"({time.perf_counter() - started:.0f} s)")
     print((Path(args.out) / written[0]).read_text(), end="")
     return status
+
+
+COMMAND = "rhi phenomenon"  # the manifest's "command" in DIR: the report's files are rhi phenomenon's
+
+
+def report_manifest(out: Path, name: str):
+    """DIR's manifest (master.outputs.manifest), checked before anything runs: the report's files NAME.csv and
+    NAME.png, when there, must be the ones rhi phenomenon wrote, unchanged; else a ConfigError naming them."""
+    from master.cosim import ConfigError
+    from master.outputs.manifest import NAME, Manifest
+    from master.phenomena import FILES
+
+    own = Manifest.read(out, COMMAND) or Manifest(out, COMMAND)
+    stem = FILES[name].removesuffix(".toml")
+    blocking = [file for file in (f"{stem}.csv", f"{stem}.png")
+                if ((out / file).exists() or (out / file).is_symlink()) and not own.proven(file)]
+    if blocking:
+        raise ConfigError(f"output folder {out}: {', '.join(blocking)} would be written over but "
+                          f"{'is' if len(blocking) == 1 else 'are'} not what rhi phenomenon wrote there (not in its "
+                          f"{NAME}, or changed since): move {'it' if len(blocking) == 1 else 'them'} or choose "
+                          "another --out")
+    return own

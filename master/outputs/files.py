@@ -102,43 +102,27 @@ def package_versions() -> dict:
     return versions
 
 
-# What `rhi experiment` writes into DIR: --force replaces a folder holding nothing else, never another one.
-OUTPUT_ENTRIES = ("summary.csv", "trials.csv", "run.json", "figures")
-OUTPUT_COMMAND = "rhi experiment"  # run.json's "command"
-OUTPUT_COMMANDS = {OUTPUT_COMMAND: OUTPUT_ENTRIES, "rhi reach": OUTPUT_ENTRIES + ("goals.csv",),  # what each writes
-                   "rhi phenomenon moving-hand": ("moving_hand.csv", "moving_hand.png", "run.json"),
-                   "rhi phenomenon reach-after": ("reach_after.csv", "run.json")}
+OUTPUT_COMMAND = "rhi experiment"  # run.json's and the manifest's "command": an experiment's output
+# The commands whose output folders --force may replace for one another (each an output_folder run)
+OUTPUT_COMMANDS = (OUTPUT_COMMAND, "rhi reach", "rhi phenomenon moving-hand", "rhi phenomenon reach-after")
 STAGING_MARK = ".rhi-staging"  # inside a staging folder until it is published: ours, and safe to clean
 _ACTIVE: dict[Path, "OutputLock"] = {}  # staging folder -> its lock, while this process writes them
 
 
 def foreign_entries(folder: Path) -> list[str]:
-    """What in ``folder`` an earlier `rhi experiment` (or `rhi reach`) did not write (empty: the folder is one of
-    its outputs).
+    """What in ``folder`` an earlier `rhi experiment` (or another of :data:`OUTPUT_COMMANDS`) cannot be shown to
+    have written (empty: all of it is one of their outputs, as its manifest lists it, unchanged;
+    master.outputs.manifest). Without that manifest: every entry."""
+    from master.outputs.manifest import Manifest
 
-    Its own output holds run.json with ``"command": "rhi experiment"``, otherwise only the files summary.csv
-    and trials.csv and the folder figures/, and figures/ only the files run.json lists; none of them a link
-    (`rhi reach`: the same, and goals.csv; :data:`OUTPUT_COMMANDS`).
-    """
     try:
         names = sorted(entry.name for entry in folder.iterdir())
     except OSError:
         return ["(an unreadable folder)"]
-    try:
-        run = json.loads((folder / "run.json").read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        run = None
-    if not isinstance(run, dict) or run.get("command") not in OUTPUT_COMMANDS:
+    manifest = Manifest.read(folder, OUTPUT_COMMANDS)
+    if manifest is None:
         return names or ["nothing"]
-    entries = OUTPUT_COMMANDS[run["command"]]
-    foreign = [name for name in names if name not in entries or (folder / name).is_symlink()
-               or not ((folder / name).is_dir() if name == "figures" else (folder / name).is_file())]
-    figures = folder / "figures"
-    if figures.is_dir() and not figures.is_symlink():
-        listed = set(run.get("figures") or [])
-        foreign += [f"figures/{entry.name}" for entry in sorted(figures.iterdir())
-                    if entry.name not in listed or entry.is_symlink() or not entry.is_file()]
-    return foreign
+    return manifest.unproven()
 
 
 # What rhi adds to an output's name for what it makes beside it, the longest of them: its staging folder
@@ -304,6 +288,9 @@ def output_folder(out: str | os.PathLike, force: bool):
         _ACTIVE[staging] = lock
         try:
             yield staging
+            from master.outputs.manifest import Manifest
+
+            Manifest.of(staging, staged_command(staging)).save()  # the last file: what the run wrote, listed
             publish(staging, path, replacing=existed, force=force)
         except BaseException:
             shutil.rmtree(staging, ignore_errors=True)
@@ -312,6 +299,15 @@ def output_folder(out: str | os.PathLike, force: bool):
             _ACTIVE.pop(staging, None)
     finally:
         lock.release()
+
+
+def staged_command(staging: Path) -> str:
+    """The command a staging folder's run.json names, if one of OUTPUT_COMMANDS; else OUTPUT_COMMAND."""
+    try:
+        command = json.loads((staging / "run.json").read_text(encoding="utf-8")).get("command")
+    except (OSError, ValueError, AttributeError):
+        command = None
+    return command if command in OUTPUT_COMMANDS else OUTPUT_COMMAND
 
 
 def _make_staging(out: Path) -> Path:

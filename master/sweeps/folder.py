@@ -3,7 +3,8 @@
 DIR holds sweep.json (the plan's fingerprint, points and configurations), trials/ID.json (one file
 per finished trial, written atomically as it arrives), index.csv, summary.csv and figures/.
 A DIR holding a different sweep is refused unless ``force``, which keeps only the trials the new
-sweep shares with it and removes only what the older sweep wrote (its manifest, sweep.json, says what);
+sweep shares with it and removes only what the older sweep wrote (its .rhi-manifest.json lists each file
+rhi wrote, with its sha256: master.outputs.manifest);
 a DIR whose sweep.json rhi did not write, or holding a link where a sweep writes, is refused even with
 ``force``.
 """
@@ -17,11 +18,11 @@ from pathlib import Path
 
 from master.cosim import ConfigError
 from master.outputs.files import atomic_write, check_name_length, package_versions
+from master.outputs.manifest import NAME as MANIFEST, Manifest
 from master.sweeps.plan import Sweep
 
 COMMAND = "rhi sweep"  # sweep.json's "command": the folder is a sweep's output
 OUTPUTS = ("sweep.json", "trials", "figures", "index.csv", "summary.csv")  # what a sweep writes into DIR
-RECORD_KEYS = {"id", "point", "parameters", "decoder", "condition", "stimulation", "trial", "seed"}
 
 
 @contextmanager
@@ -57,7 +58,8 @@ def sweep_folder(out: Path, sweep: Sweep, force: bool):
 
 
 def _prepared(out: Path, sweep: Sweep, force: bool, manifest: Path, lock):
-    """The locked DIR checked and started over if need be; yields its records (see :func:`sweep_folder`)."""
+    """The locked DIR checked and started over if need be; yields its records and the list of the files rhi
+    wrote there (its Manifest, to be added to as the sweep writes; see :func:`sweep_folder`)."""
     try:
         fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
@@ -67,11 +69,12 @@ def _prepared(out: Path, sweep: Sweep, force: bool, manifest: Path, lock):
     if previous is not None and previous != sweep.fingerprint and not force:
         raise ConfigError(f"output folder {out} holds a different sweep (its file or the defaults changed); "
                           "use another --out, or --force to replace it")
+    own = Manifest.read(out, COMMAND) or Manifest(out, COMMAND)
     if previous != sweep.fingerprint:
-        start_over(out, sweep, old or {})
+        start_over(out, sweep, old or {}, own)
     for leftover in (out / "trials").glob(".*.tmp"):  # a write cut short by a kill; its trial reruns
         leftover.unlink()
-    yield read_records(out, sweep)
+    yield read_records(out, sweep), own
 
 
 def check_folder(out: Path) -> None:
@@ -108,44 +111,36 @@ def read_manifest(path: Path) -> dict | None:
     return manifest
 
 
-def is_record(path: Path) -> bool:
-    """Whether ``trials/ID.json`` is a trial record as :func:`master.sweeps.runner.execute` writes it."""
-    if path.is_symlink() or not path.is_file():
-        return False
-    try:
-        record = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError, RecursionError):
-        return False
-    return isinstance(record, dict) and record.get("id") == path.stem and RECORD_KEYS <= record.keys()
+def written_by(sweep: Sweep) -> list[str]:
+    """The files a run of ``sweep`` writes over, relative to DIR: its tables and its plots."""
+    return ["index.csv", "summary.csv", *(f"figures/{key}.png" for key in sweep.keys if "/" not in key)]
 
 
-def start_over(out: Path, sweep: Sweep, old: dict) -> None:
-    """Write the new manifest; drop the files the older sweep of ``old`` (its manifest) wrote, except the
-    trials this one shares: its trial records, its tables and its plots (figures/KEY.png of its swept
-    keys). Nothing else is removed: a file rhi cannot show it wrote stays."""
-    (out / "trials").mkdir(exist_ok=True)
-    planned = {trial.id for trial in sweep.trials}
-    for path in (out / "trials").glob("*.json"):
-        if path.stem not in planned and is_record(path):
-            path.unlink()
+def start_over(out: Path, sweep: Sweep, old: dict, own: Manifest) -> None:
+    """Write the new sweep.json; drop what the older sweep of ``old`` (its sweep.json) wrote, except the
+    trials this one shares: only the files its manifest ``own`` lists, unchanged since. A file the new
+    sweep would write over that rhi cannot show it wrote (yours, or edited) is refused, naming it, before
+    anything is removed; any other file stays."""
     if old:
-        for name in ("index.csv", "summary.csv"):
-            if (out / name).is_file() and not (out / name).is_symlink():
-                (out / name).unlink()
-        figures = out / "figures"
-        if figures.is_dir() and not figures.is_symlink():
-            for key in old.get("swept_keys", []):
-                plot = figures / f"{key}.png"
-                if isinstance(key, str) and "/" not in key and plot.is_file() and not plot.is_symlink():
-                    plot.unlink()
-            if not any(figures.iterdir()):
-                figures.rmdir()
+        blocking = [name for name in written_by(sweep) if ((out / name).exists() or (out / name).is_symlink())
+                    and not own.proven(name)]
+        if blocking:
+            raise ConfigError(f"output folder {out}: {', '.join(blocking[:5])} would be written over but "
+                              f"{'is' if len(blocking) == 1 else 'are'} not what rhi sweep wrote there (not in its "
+                              f"{MANIFEST}, or changed since); --force replaces only rhi's own files: move "
+                              f"{'it' if len(blocking) == 1 else 'them'} or choose another --out")
+        planned = {f"trials/{trial.id}.json" for trial in sweep.trials}
+        own.remove_proven(keep=planned | {"sweep.json"})
+    (out / "trials").mkdir(exist_ok=True)
     manifest = {"command": COMMAND, "fingerprint": sweep.fingerprint, "task": sweep.task, "swept_keys": sweep.keys,
                 "points": [{"point": n, "parameters": p, "configuration": c}
                            for n, (p, c) in enumerate(zip(sweep.points, sweep.configs))],
                 "trials_planned": len(sweep.trials), "tasks_planned": len(sweep.chunks),
                 "lockstep_batches": sweep.batched, "versions": package_versions()}
     atomic_write(out / "sweep.json", json.dumps(manifest, indent=1, sort_keys=True) + "\n")
+    own.folders.add("trials")
+    own.add("sweep.json")
+    own.save()
 
 
 def read_records(out: Path, sweep: Sweep) -> dict[str, dict]:

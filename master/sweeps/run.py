@@ -8,7 +8,7 @@ from contextlib import nullcontext
 from pathlib import Path
 
 from master.outputs.files import atomic_write
-from master.sweeps.folder import sweep_folder
+from master.sweeps.folder import sweep_folder, written_by
 from master.sweeps.plan import Sweep
 from master.sweeps.plots import plot_sweep
 from master.sweeps.runner import check_decoders, check_workers, dask_client, execute, prepare_decoders
@@ -28,19 +28,22 @@ def run_into(sweep: Sweep, task, out: Path, scheduler: str | None = None, force:
     from tqdm import tqdm
 
     check_decoders(sweep)
-    with sweep_folder(out, sweep, force) as records:
+    with sweep_folder(out, sweep, force) as (records, manifest):
         done = {key for key, record in records.items() if record["status"] == "ok"}
         bar = None
         counts, last_index = {"ok": len(done), "failed": 0}, [time.monotonic()]
 
         def arrived(record):
             records[record["id"]] = record
+            manifest.add(f"trials/{record['id']}.json")
             counts["ok" if record["status"] == "ok" else "failed"] += 1
             bar.set_postfix(completed=counts["ok"], failed=counts["failed"],
                             remaining=len(sweep.trials) - counts["ok"] - counts["failed"], refresh=False)
             bar.update(1)
             if time.monotonic() - last_index[0] > INDEX_EVERY_S:
                 atomic_write(out / "index.csv", index_rows(sweep, records))
+                manifest.add("index.csv")
+                manifest.save()  # the files written so far, listed as the index is
                 last_index[0] = time.monotonic()
 
         try:
@@ -56,6 +59,13 @@ def run_into(sweep: Sweep, task, out: Path, scheduler: str | None = None, force:
             if bar is not None:
                 bar.close()
             summary = write_tables(out, sweep, records)
+            for name in ("index.csv", "summary.csv"):
+                manifest.add(name)
+            manifest.save()
         if plots:
             plot_sweep(sweep.keys, summary, out / "figures")
+            for name in written_by(sweep):
+                if name.startswith("figures/"):
+                    manifest.add(name)
+            manifest.save()
     return records, counts["ok"] - len(done)
