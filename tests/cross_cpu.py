@@ -46,7 +46,7 @@ def mode_outcomes(mode: str) -> list[dict]:
 
 def table(rows: list[dict]) -> str:
     """The CSV text: a comment naming the CPU, then KEYS + COLUMNS, floats in full (repr) precision."""
-    from master.outputs.files import cpu_description
+    from master.outputs.provenance import cpu_description
 
     cpu = cpu_description()
     text = io.StringIO()

@@ -2,8 +2,11 @@
 stuck with its signals blocked), exported as FMUs, and tiny decoder checkpoints, made once per module."""
 from __future__ import annotations
 
+import hashlib
 import os
 import shutil
+import subprocess
+import sys
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -90,3 +93,67 @@ def make_resources(folder: Path) -> Resources:
         for item in old.infolist():
             new.writestr(item, b"not a shared library\n" * 400 if item.filename.endswith(".so") else old.read(item))
     return Resources(folder, checkpoints["conv"], checkpoints["vae"], fmus)
+
+
+def snapshot(folder: Path) -> dict:
+    """Every entry under ``folder``, hidden ones too: relative path -> (kind, size, content hash) or the link."""
+    found = {}
+    for path in sorted(folder.rglob("*")):
+        key = str(path.relative_to(folder))
+        if path.is_symlink():
+            found[key] = ("link", os.readlink(path))
+        elif path.is_dir():
+            found[key] = ("folder",)
+        else:
+            found[key] = ("file", path.stat().st_size, hashlib.sha256(path.read_bytes()).hexdigest())
+    return found
+
+
+def rhi(root: Path, *args, timeout=60):
+    """``rhi ARGS`` with cwd root/work, TMPDIR root/tmp and RHI_CACHE root/cache."""
+    for name in ("work", "tmp", "cache"):
+        (root / name).mkdir(parents=True, exist_ok=True)
+    env = {**ENV, "TMPDIR": str(root / "tmp"), "RHI_CACHE": str(root / "cache")}
+    return subprocess.run([sys.executable, "-m", "master", *map(str, args)], cwd=root / "work", env=env,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def refused(done, says: str) -> None:
+    """Exit status 2, one line on stderr holding ``says``, no traceback."""
+    shown = f"status {done.returncode}, stderr {done.stderr[-800:]!r}"
+    assert done.returncode == 2, shown
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and says in lines[0] and "Traceback" not in done.stderr, shown
+
+
+def tiny_checkpoint(path: Path, **changes) -> Path:
+    """A decoder checkpoint of the tiny preset at 16 px, untrained (weights as built), metadata ``changes``d."""
+    from components.vision import checkpoint
+    from components.vision.networks import build, preset, sizes_dict
+
+    model = build("conv", "tiny", 16)
+    metadata = {"kind": "conv", "preset": "tiny", "sizes": sizes_dict(preset("tiny")), "resolution": 16,
+                "rest_pose": [147.7, -91.2], "half_ranges": [30.0, 30.0], "data_hash": "x", "validation_mse": 0.1}
+    for key, value in changes.items():
+        if key.startswith("sizes."):
+            metadata["sizes"][key[6:]] = value
+        else:
+            metadata[key] = value
+    with open(path, "wb") as file:
+        checkpoint.write(file, model, metadata)
+    return path
+
+
+CONV_ONLY = '[experiment]\ndecoders = ["conv"]\n'
+
+
+def experiment(*args, config="conv_only.toml", ckpt=True, steps="20"):
+    """`rhi experiment --quick` with the tiny conv decoder, conv only, a few steps."""
+    return (["experiment", "--quick", "--config", config] + (["--conv-checkpoint", "{conv}"] if ckpt else [])
+            + (["--steps", steps] if steps else []) + list(args))
+
+
+def expand(argument: str, resources: Resources) -> str:
+    names = {"{conv}": resources.conv, "{vae}": resources.vae,
+             **{f"{{fmu:{name}}}": path for name, path in resources.fmus.items()}}
+    return names.get(argument, argument)

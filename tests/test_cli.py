@@ -53,7 +53,7 @@ BAD_INPUT = {
     "run-system": (["{tmp}/bad.toml", "--out", "{tmp}/out.csv"], "bad.toml is not an SSP package: it is not a zip"),
     "sweep": (["--config", "{tmp}/missing.toml", "--out", "{tmp}/out"], "missing.toml does not exist"),
     "fit": (["--data", "{tmp}/missing.csv", "--config", "{tmp}/bad.toml", "--out", "{tmp}/out"], "missing.csv does not exist"),
-    "bench": (["--threads", "-2"], "--threads -2 must be a positive number"),
+    "bench": (["--threads", "-2"], "--threads -2 must be 0 (all cores) to 1024 threads"),
     "reach": (["--config", "{tmp}/bad.toml", "--out", "{tmp}/out"], "unknown config key brain.sigma_p"),
 }
 

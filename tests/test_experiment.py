@@ -37,7 +37,7 @@ def quick_run(tmp_path_factory, cache):
 
 
 def test_quick_run_writes_the_contract(quick_run):
-    assert sorted(p.name for p in quick_run.iterdir()) == ["figures", "run.json", "summary.csv", "trials.csv"]
+    assert sorted(p.name for p in quick_run.iterdir()) == [".rhi-manifest.json", "figures", "run.json", "summary.csv", "trials.csv"]
     with open(quick_run / "summary.csv") as file:
         rows = list(csv.DictReader(file))
     assert list(rows[0]) == SUMMARY_COLUMNS
@@ -244,4 +244,4 @@ def test_a_failing_trial_is_left_out_and_the_rest_are_written(quick_run, cache, 
         if key[3] == 0:  # rerun in a smaller batch: other float32 sums, as tests/test_batching.py derives
             for name, column in trial.items():
                 np.testing.assert_allclose(column, native[key][name][:21], rtol=1e-5, atol=1e-9, err_msg=f"{key} {name}")
-    assert sorted(p.name for p in out.iterdir()) == ["figures", "run.json", "summary.csv", "trials.csv"]
+    assert sorted(p.name for p in out.iterdir()) == [".rhi-manifest.json", "figures", "run.json", "summary.csv", "trials.csv"]

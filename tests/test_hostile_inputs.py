@@ -14,7 +14,8 @@ import socketserver
 
 import pytest
 
-from tests.test_hostile_files import ENV, REPO, refused, rhi, snapshot
+from master.cosim import ConfigError
+from tests.faults import ENV, REPO, refused, rhi, snapshot
 
 
 def load(overrides: dict, model: str = "paper"):
@@ -69,7 +70,7 @@ def test_a_checkpoint_named_for_a_decoder_that_does_not_run_must_exist(tmp_path)
                                                                                                    "s.toml"]])
 def test_an_output_name_over_the_file_system_s_limit_is_refused_naming_it(tmp_path, command):
     from master.outputs.files import NAME_MARGIN
-    from tests.test_sweep import sweep_file
+    from tests.sweep_files import sweep_file
 
     (tmp_path / "work").mkdir()
     sweep_file(tmp_path / "work" / "s.toml", grid={"conditions.left": [-0.1]})
@@ -198,7 +199,7 @@ def test_an_http_listener_as_scheduler_is_refused_within_the_limit(tmp_path, ser
     import time
 
     from master.sweeps.runner import CONNECT_TIMEOUT_S
-    from tests.test_sweep import sweep_file
+    from tests.sweep_files import sweep_file
 
     handler = http.server.SimpleHTTPRequestHandler if server == "http.server" else AnswersAtOnce
     listener = socketserver.ThreadingTCPServer(("127.0.0.1", 0), handler)
@@ -233,7 +234,7 @@ def test_the_local_pool_s_workers_die_with_a_killed_sweep(tmp_path):
 
     import psutil
 
-    from tests.test_sweep import sweep_file
+    from tests.sweep_files import sweep_file
 
     for name in ("work", "tmp", "cache"):
         (tmp_path / name).mkdir()
@@ -310,3 +311,69 @@ def test_a_phenomenon_report_file_rhi_did_not_write_is_never_written_over(tmp_pa
     done = rhi(tmp_path, "phenomenon", "distance", "--out", "out", "--force")
     refused(done, "output folder out: distance.csv would be written over but is not what rhi phenomenon wrote there")
     assert snapshot(tmp_path / "work") == before
+
+
+# -- the docs page states the limits the code applies -------------------------------------------------
+def test_docs_safety_states_the_code_s_limits():
+    from components.archives import LIMITS
+    from components.vision import checkpoint
+    from master.experiment import config
+    from master.export import ssp_package
+    from master.outputs import files
+    from master.sweeps import plan, runner
+
+    page = (REPO / "docs" / "safety.md").read_text()
+    table = page.partition("<!-- limits table")[2].split("\n\n")[0]
+    values = [line.split("|")[2].strip().split()[0] for line in table.splitlines() if line.startswith("| ")][1:]
+    assert values == [str(v) for v in (
+        LIMITS.members, LIMITS.member_bytes, LIMITS.total_bytes, f"{LIMITS.ratio:g}", checkpoint.MAX_HIDDEN,
+        checkpoint.MAX_CHANNELS, checkpoint.MAX_STAGES, checkpoint.MAX_RESOLUTION, config.MAX_CONFIG_BYTES,
+        config.MAX_DEPTH, plan.MAX_POINTS, ssp_package.MAX_STEPS, f"{runner.CONNECT_TIMEOUT_S:g}",
+        f"{runner.PROBE_S:g}", runner.MAX_HANDSHAKE_BYTES, config.MAX_THREADS, files.NAME_MARGIN)]
+    assert f"over {LIMITS.ratio_floor} bytes" in table and "task" in page and "rhi --version" in page
+    assert all(key in page for key in config.INFINITE_KEYS)
+
+
+def test_rhi_version_prints_the_installed_version(tmp_path):
+    from importlib import metadata
+
+    done = rhi(tmp_path, "--version")
+    assert done.returncode == 0 and done.stdout.strip() == f"rhi {metadata.version('rhi')}"
+
+
+# -- late validation ----------------------------------------------------------------------------------
+@pytest.mark.parametrize("key, value, says", [
+    ("experiment.resolution", 12, r"\[train\]: .*resolution = 12 does not fit"),
+    ("train.preset", "huge", r"\[train\]: train setting preset = 'huge' is unknown"),
+    ("body.substeps", 0, r"body\.substeps: body\.substeps = 0 is outside its range \[1, 10000\]"),
+    ("stimulus.period", 0.0, r"stimulus\.period: stimulus\.period = 0\.0 is outside its range"),
+])
+def test_settings_are_checked_before_the_staging_folder_and_training(tmp_path, monkeypatch, key, value, says):
+    from master.experiment import config as configuration
+    from master.experiment.publish import run_into
+
+    import tempfile
+
+    def no_staging(*args, **kwargs):
+        raise AssertionError("a staging folder was made before the settings were checked")
+
+    monkeypatch.setenv("RHI_CACHE", str(tmp_path / "cache"))
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(tempfile, "mkdtemp", no_staging)
+    with pytest.raises((ConfigError, ValueError), match=says):
+        run_into("out", configuration.load(overrides={key: value}, quick=True))
+    assert os.listdir(tmp_path) == []  # no cache made, nothing trained, no staging
+
+
+def test_a_bad_checkpoint_is_found_before_the_other_decoder_is_trained(tmp_path, monkeypatch):
+    from components.vision.checkpoint import CheckpointError
+    from master.experiment import config as configuration
+    from master.experiment.publish import run_into
+
+    monkeypatch.setenv("RHI_CACHE", str(tmp_path / "cache"))
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "vae.pt").write_text("not a checkpoint")
+    config = configuration.load(overrides={"decoder.vae_checkpoint": str(tmp_path / "vae.pt")}, quick=True)
+    with pytest.raises(CheckpointError, match="not a decoder checkpoint"):
+        run_into("out", config)
+    assert sorted(os.listdir(tmp_path)) == ["vae.pt"]  # no cache made, no conv trained, no staging

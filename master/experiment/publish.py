@@ -18,7 +18,8 @@ from master.experiment.parallel import Workers, call
 from master.experiment.measures import end_of_trial
 from master.experiment.protocol import plan, rubber_pose
 from master.outputs import figures, tables
-from master.outputs.files import atomic_write, check_output, output_folder, package_versions
+from master.outputs.files import atomic_write, check_output, output_folder
+from master.outputs.provenance import package_versions
 from master.outputs.animation import frames, gif_bytes
 
 

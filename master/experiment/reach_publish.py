@@ -14,7 +14,8 @@ from master.experiment.decoders import check_decoders, ensure_checkpoints
 from master.experiment.parallel import JOB_THREADS, Workers, run_jobs
 from master.experiment.runner import bar_positions, step_bar, without_failures
 from master.outputs import tables
-from master.outputs.files import atomic_write, check_output, output_folder, package_versions
+from master.outputs.files import atomic_write, check_output, output_folder
+from master.outputs.provenance import package_versions
 
 # The released agent's reaching logs (thomasroodnl/active-inference-rhi, active-inference-agent/model_operation/
 # operation_logs/reach_results, 40 runs per file set): the runs whose last logged cartesian_distance is under

@@ -24,7 +24,8 @@ from master.fit.calibration import calibrate
 from master.fit.data import Data, read_data
 from master.fit.plan import FitPlan, draw_prior, read_plan, simulation_seed
 from master.fit.simulate import Pool, participants_sweep, simulate, statistics, with_noise
-from master.outputs.files import atomic_write, package_versions
+from master.outputs.files import atomic_write
+from master.outputs.provenance import package_versions
 from master.sweeps.plan import canonical_hash
 
 COMMAND = "rhi fit"

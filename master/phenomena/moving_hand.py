@@ -27,7 +27,8 @@ from master.experiment.decoders import check_decoders, decoder_component, ensure
 from master.experiment.parallel import JOB_THREADS, Workers, run_jobs
 from master.experiment.protocol import rubber_pose
 from master.outputs import tables
-from master.outputs.files import atomic_write, output_folder, package_versions
+from master.outputs.files import atomic_write, output_folder
+from master.outputs.provenance import package_versions
 
 NAME = "moving-hand"
 HUMAN_TABLE = "moving_hand"  # its human references in human.toml

@@ -26,7 +26,8 @@ from master.experiment.decoders import check_decoders, decoder_component, ensure
 from master.experiment.parallel import JOB_THREADS, Workers, run_jobs
 from master.experiment.protocol import plan
 from master.outputs import tables
-from master.outputs.files import atomic_write, output_folder, package_versions
+from master.outputs.files import atomic_write, output_folder
+from master.outputs.provenance import package_versions
 
 NAME = "reach-after"
 COLUMNS = ["decoder", "condition", "stimulation", "n_trials", "drift_at_release_cm_mean", "endpoint_bias_cm_mean",

@@ -17,7 +17,8 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from master.cosim import ConfigError
-from master.outputs.files import atomic_write, check_name_length, package_versions
+from master.outputs.files import atomic_write, check_name_length
+from master.outputs.provenance import package_versions
 from master.outputs.manifest import NAME as MANIFEST, Manifest
 from master.sweeps.plan import Sweep
 

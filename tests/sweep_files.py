@@ -1,0 +1,90 @@
+"""Sweep files and their checks for the sweep tests: stand-in sweeps (tests/sweep_tasks.py), the experiment's
+own lockstep sweeps at quick size, and the truth each is compared with, computed here."""
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+
+from tests.sweep_tasks import fake_outcome
+
+REPO = Path(__file__).resolve().parents[1]
+ENV = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
+
+
+def sweep_file(path, grid=None, points=None, task="fake_outcome", trials=2, conditions=("left", "right"),
+               workers=2, extra=""):
+    lines = ["[experiment]", 'decoders = ["conv"]', f"conditions = {json.dumps(list(conditions))}",
+             'stimulations = ["sync"]', extra, "[sweep]", f"trials = {trials}", f"workers = {workers}",
+             f'task = "tests.sweep_tasks:{task}"']
+    if grid is not None:
+        lines += ["[sweep.grid]", *(f'"{key}" = {json.dumps(values)}' for key, values in grid.items())]
+    for point in points or []:
+        lines += ["[[sweep.points]]", *(f'"{key}" = {json.dumps(value)}' for key, value in point.items())]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def args(config, out, scheduler=None, force=False):
+    return argparse.Namespace(config=str(config), out=str(out), scheduler=scheduler, force=force, debug=False)
+
+
+def records(out):
+    return {path.stem: json.loads(path.read_text()) for path in (Path(out) / "trials").glob("*.json")}
+
+
+def expected(sweep):
+    """Every trial's outcome, computed here without Dask: the independent truth."""
+    return {t.id: fake_outcome(sweep.configs[t.point], t.decoder, t.condition, t.stimulation, t.index)
+            for t in sweep.trials}
+
+
+def command(*arguments):
+    return [sys.executable, "-m", "master", "sweep", *map(str, arguments)]
+
+
+def batched_file(path, checkpoints, grid=None, batch=None, workers=2, conditions=("left", "right"), trials=2):
+    """A sweep of the default task at quick size: 30 steps of 0.1 s (touches at 2 s), the named decoders."""
+    lines = ["[experiment]", 'decoders = ["conv", "vae"]', f"conditions = {json.dumps(list(conditions))}",
+             "steps = 30", "step_size = 0.1", "[body]", "substeps = 40", "[decoder]",
+             *(f'{kind}_checkpoint = "{checkpoint}"' for kind, checkpoint in checkpoints.items()),
+             "[sweep]", "quick = true", f"trials = {trials}", f"workers = {workers}",
+             *([f"batch = {batch}"] if batch else [])]
+    if grid:
+        lines += ["[sweep.grid]", *(f'"{key}" = {json.dumps(values)}' for key, values in grid.items())]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def lockstep_truth(sweep) -> dict:
+    """Every ok trial's drift, force and gamma from run_batch on its chunk's trials, here, on one core."""
+    from master.experiment import make_trial, measures, run_batch
+    from master.experiment.decoders import checkpoint_path, decoder_component
+    from master.experiment.measures import end_of_trial
+
+    truth = {}
+    for chunk in sweep.chunks:
+        members = [sweep.trials[position] for position in chunk]
+        config, kind = sweep.configs[members[0].point], members[0].decoder
+        trials = [make_trial(config, t.decoder, t.condition, t.stimulation, t.index) for t in members]
+        result = single_core(run_batch, decoder_component(kind, checkpoint_path(kind, config), config), trials,
+                             config)
+        final = end_of_trial(result.times, measures(result))
+        for column, trial in enumerate(members):
+            truth[trial.id] = {"drift_cm": float(final["drift_cm"][column]),
+                               "force_n": float(final["force_x_n"][column]),
+                               "gamma_final": float(final["gamma"][column])}
+    return truth
+
+
+def single_core(function, *arguments):
+    """``function(*arguments)`` in this process on one core, like a sweep worker; then as before."""
+    import torch
+
+    cores, threads = os.sched_getaffinity(0), torch.get_num_threads()
+    os.sched_setaffinity(0, {min(cores)})
+    try:
+        return function(*arguments)
+    finally:
+        os.sched_setaffinity(0, cores)
+        torch.set_num_threads(threads)
