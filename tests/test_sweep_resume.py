@@ -141,7 +141,7 @@ def test_chunks_are_fixed_by_the_file_alone(tmp_path):
     assert more.chunks == sweep.chunks and [t.id for t in more.trials] == [t.id for t in sweep.trials]
     # a widened grid keeps the chunks, and so the ids, of the points it shares
     wider = sweeps.load(batched_file(tmp_path / "g.toml", checkpoints,
-                                     grid={"conditions.left": [-0.15, -0.3, -0.45]}, batch=3))
+                                     grid={"conditions.left": [-0.15, -0.3, -0.4]}, batch=3))
     assert {t.id for t in sweep.trials} < {t.id for t in wider.trials}
     # another task runs trials one by one: chunks of one; sweep.batch is refused for it
     single = sweeps.load(sweep_file(tmp_path / "f.toml", trials=3))
