@@ -165,3 +165,12 @@ def jacobian_pair(kind: str, path: str, config: dict) -> np.ndarray:
     """dg/d(shoulder) and dg/d(elbow) at the rest pose: (2, R, R), 1/deg."""
     model = loaded(path, config["experiment"]["resolution"], config["camera"]["blur"])
     return jacobian_images(model, np.array([kinematics.REST_POSE]))[0]
+
+
+def per_decoder(config: dict, function, workers: Workers) -> tuple[dict[str, str], dict]:
+    """Each decoder's checkpoint (trained if need be), then ``function(config, kind, checkpoint)`` for each decoder
+    of the protocol, side by side on ``workers``: (checkpoints, {kind: result})."""
+    checkpoints, _ = ensure_checkpoints(config, progress=True, workers=workers)
+    kinds = config["experiment"]["decoders"]
+    results = run_jobs(function, [(config, kind, checkpoints[kind]) for kind in kinds], workers=workers)
+    return checkpoints, dict(zip(kinds, results))

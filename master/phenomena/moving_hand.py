@@ -23,8 +23,8 @@ from components.brain.turning_points import TurningPoints
 from master.cosim import ConfigError, System, simulate
 from master.experiment import config as configuration
 from master.experiment import wiring
-from master.experiment.decoders import check_decoders, decoder_component, ensure_checkpoints
-from master.experiment.parallel import JOB_THREADS, Workers, run_jobs
+from master.experiment.decoders import check_decoders, decoder_component, per_decoder
+from master.experiment.parallel import JOB_THREADS, Workers
 from master.experiment.protocol import rubber_pose
 from master.outputs import tables
 from master.outputs.files import atomic_write, output_folder
@@ -166,10 +166,7 @@ def run_into(out, config: dict, force: bool = False) -> list[str]:
     started = time.perf_counter()
     check_decoders(config)
     with output_folder(out, force) as staging, Workers() as workers:
-        checkpoints, _ = ensure_checkpoints(config, progress=True, workers=workers)
-        kinds = config["experiment"]["decoders"]
-        results = run_jobs(decoder_delays, [(config, kind, checkpoints[kind]) for kind in kinds], workers=workers)
-        found = dict(zip(kinds, results))
+        checkpoints, found = per_decoder(config, decoder_delays, workers)
         atomic_write(staging / "moving_hand.csv", tables.csv_text(COLUMNS, rows(config, found)))
         figure(config, found, staging / "moving_hand.png")
         atomic_write(staging / "run.json", json.dumps({

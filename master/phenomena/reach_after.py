@@ -22,8 +22,8 @@ from components.brain.goal import GoalOnset
 from master.cosim import ConfigError, System, simulate
 from master.experiment import config as configuration
 from master.experiment import wiring
-from master.experiment.decoders import check_decoders, decoder_component, ensure_checkpoints, loaded
-from master.experiment.parallel import JOB_THREADS, Workers, run_jobs
+from master.experiment.decoders import check_decoders, decoder_component, loaded, per_decoder
+from master.experiment.parallel import JOB_THREADS, Workers
 from master.experiment.protocol import plan
 from master.outputs import tables
 from master.outputs.files import atomic_write, output_folder
@@ -136,9 +136,8 @@ def run_into(out, config: dict, force: bool = False) -> list[str]:
     started = time.perf_counter()
     check_decoders(config)
     with output_folder(out, force) as staging, Workers() as workers:
-        checkpoints, _ = ensure_checkpoints(config, progress=True, workers=workers)
-        kinds = config["experiment"]["decoders"]
-        found = run_jobs(decoder_trials, [(config, kind, checkpoints[kind]) for kind in kinds], workers=workers)
+        checkpoints, by_kind = per_decoder(config, decoder_trials, workers)
+        found = list(by_kind.values())
         atomic_write(staging / "reach_after.csv", tables.csv_text(COLUMNS, rows(found)))
         atomic_write(staging / "run.json", json.dumps({
             "schema_version": tables.SCHEMA_VERSION, "command": f"rhi phenomenon {NAME}", "model": "paper",
