@@ -26,6 +26,7 @@ from components.brain.body_inference import hazard_predict, participants, poster
     timing_likelihood_ratio
 from components.brain.causal_inference import observe_events
 from components.brain.integrator import STABILITY_LIMIT, _require_finite, _trials, action_rate, action_update
+from components.brain.goal import goal_inputs
 from components.component import Component, ComponentError, StepFailure
 from components.variables import Variable
 
@@ -103,11 +104,7 @@ class CausalBrain(Component):
                      description="the paper's visual error, read only when pixel_weight > 0"),
             Variable("visual_stiffness", "input", start=0.0, unit="1/s", min=0.0,
                      description="the pixel term's stiffness, for the stability guard"),
-            Variable("goal_drive", "input", start=(0.0, 0.0), unit="deg/s", **joint,
-                     description="a reach goal's pull on mu, unweighted by gamma (0: no goal; docs/reach.md)"),
-            Variable("goal_error", "input", start=0.0, unit="1", min=0.0, description="the goal's free-energy term"),
-            Variable("goal_stiffness", "input", start=0.0, unit="1/s", min=0.0,
-                     description="the goal term's stiffness, for the stability guard (0: no goal)"),
+            *goal_inputs(),
             Variable("visual_time", "input", start=-np.inf, unit="s", description="last visual touch event"),
             Variable("tactile_time", "input", start=-np.inf, unit="s", description="last tactile event"),
             Variable("mu", unit="deg", **joint, **state, description="belief of the joint angles"),

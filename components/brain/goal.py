@@ -36,6 +36,18 @@ def body_space_goal_error(mu, goal_pose, goal_variance, precision_ratio):
     return 0.5 * precision_ratio * ((goal_pose - mu) ** 2 / goal_variance).sum(axis=1)
 
 
+def goal_inputs() -> list[Variable]:
+    """The three inputs by which a brain reads a reach goal's term (a :class:`GoalAttractor`, a goal decoder or a
+    :class:`GoalOnset`): its pull on mu, its free-energy term and its stiffness; all 0 without a goal."""
+    return [
+        Variable("goal_drive", "input", start=(0.0, 0.0), unit="deg/s", type="Array", shape=(2,),
+                 description="a reach goal's pull on mu, unweighted by gamma (0: no goal; docs/reach.md)"),
+        Variable("goal_error", "input", start=0.0, unit="1", min=0.0, description="the goal's free-energy term (0: no goal)"),
+        Variable("goal_stiffness", "input", start=0.0, unit="1/s", min=0.0,
+                 description="the goal term's stiffness, for the stability guard (0: no goal)"),
+    ]
+
+
 class GoalAttractor(Component):
     """Belief and goal pose in, the goal's pull on the belief out (body space)."""
 

@@ -59,6 +59,7 @@ from __future__ import annotations
 import numpy as np
 
 from components.brain.causal_inference import observe_events, spatial_likelihood, update_gamma
+from components.brain.goal import goal_inputs
 from components.component import Component, ComponentError, StepFailure
 from components.variables import Variable
 
@@ -178,12 +179,7 @@ class Brain(Component):
                      description="1/2 e^T Sigma_v^-1 e from the decoder, e = s_v - g(mu), at this step's mu"),
             Variable("visual_stiffness", "input", start=0.0, unit="1/s", min=0.0,
                      description="largest eigenvalue of J^T J / Sigma_v, for the stability guard"),
-            Variable("goal_drive", "input", start=(0.0, 0.0), unit="deg/s", **joint,
-                     description="a reach goal's pull on mu, unweighted by gamma (0: no goal; docs/reach.md)"),
-            Variable("goal_error", "input", start=0.0, unit="1", min=0.0,
-                     description="the goal's free-energy term (0: no goal)"),
-            Variable("goal_stiffness", "input", start=0.0, unit="1/s", min=0.0,
-                     description="the goal term's stiffness, for the stability guard (0: no goal)"),
+            *goal_inputs(),
             Variable("seen_hand", "input", start=(np.nan, np.nan), unit="m", **joint,
                      description="the seen (rubber) hand (x, y); read only when spatial_sd is finite"),
             Variable("hand_x", "input", start=np.nan, unit="m",
