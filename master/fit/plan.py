@@ -33,7 +33,7 @@ FIT_KEYS = ("model", "quick", "simulations", "calibration", "seed", "trials_per_
             "workers", "measures", "posterior_samples", "calibration_samples", "predictive_draws",
             "predictive_participants", "noise", "estimator", "parameters")
 ESTIMATOR_DEFAULTS = {"density": "maf", "hidden_features": 32, "transforms": 3, "batch_size": 64,
-                      "max_epochs": 500, "learning_rate": 5e-4, "threads": 2}
+                      "max_epochs": 500, "learning_rate": 5e-4, "threads": 2, "ensemble": 1}
 DENSITIES = ("maf", "nsf", "mdn")
 WHOLE = {"simulations": 1000, "calibration": 100, "seed": 0, "trials_per_cell": 1, "participants_per_batch": 10,
          "posterior_samples": 1000, "calibration_samples": 99, "predictive_draws": 10, "predictive_participants": 8}

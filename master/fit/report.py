@@ -194,8 +194,10 @@ def results_markdown(out: Path) -> str:
               f"| simulations' wall time | {simulations['wall_s_now']:.0f} s "
               f"({simulations['trials_per_s_now']} trials/s) |",
               f"| workers' CPU time per trial | {simulations['cpu_s_per_trial']:.3f} s |",
-              f"| training | {estimator['seconds']:.1f} s, {estimator['epochs']} epochs, {estimator['density']} "
-              f"({estimator['hidden_features']} hidden, {estimator['transforms']} transforms), "
+              f"| training | {estimator['seconds']:.1f} s, "
+              + (f"{estimator['epochs']} epochs" if estimator.get("ensemble", 1) == 1 else
+                 f"an ensemble of {estimator['ensemble']} ({', '.join(map(str, estimator['members']))} epochs)")
+              + f", {estimator['density']} ({estimator['hidden_features']} hidden, {estimator['transforms']} transforms), "
               f"{estimator['torch_threads']} torch threads |",
               f"| posterior of a participant ({run['settings']['posterior_samples']} samples) | "
               f"{timing['mean']:.3f} s mean, {timing['max']:.3f} s max |",

@@ -40,7 +40,9 @@ def fingerprint(plan: FitPlan, sweep_fingerprint: str) -> str:
     observed values, so that new participants of the same design reuse them)."""
     return canonical_hash({"simulations": sweep_fingerprint, "parameters": [p.describe() for p in plan.parameters],
                            "settings": {k: v for k, v in plan.settings.items() if k not in AFTER_TRAINING},
-                           "measures": plan.measures, "noise": plan.noise, "estimator": plan.estimator})
+                           "measures": plan.measures, "noise": plan.noise,
+                           # a single estimator, as before ensembles existed: fits made then keep their identity
+                           "estimator": {k: v for k, v in plan.estimator.items() if (k, v) != ("ensemble", 1)}})
 
 
 def prepare_folder(out: Path, identity: str) -> None:
@@ -108,8 +110,8 @@ def _fit(data: Data, plan: FitPlan, drawn: np.ndarray, sweep, out: Path, pool, l
         raise ConfigError(f"only {len(train_rows)} of {settings['simulations']} simulated participants succeeded "
                           f"(see {out / 'simulations' / 'index.csv'}); narrow the priors")
     theta, x_train = drawn[train_rows], x[train_rows]
-    estimator, training = load_or_train(plan, theta, x_train, out / "estimator.pt", identity)
-    posterior = inference.posterior(plan.parameters, estimator)
+    estimators, training = load_or_train(plan, theta, x_train, out / "estimator.pt", identity)
+    posterior = inference.posterior(plan.parameters, estimators)
 
     timing = []
     samples = []
@@ -143,26 +145,33 @@ def _fit(data: Data, plan: FitPlan, drawn: np.ndarray, sweep, out: Path, pool, l
 
 
 def load_or_train(plan: FitPlan, theta, x, path: Path, identity: str):
-    """The estimator saved in ``path`` when it was trained on this very training set with these settings,
-    else trained now and saved (weights only: torch.load(weights_only=True) reads it back)."""
+    """The estimators (``fit.estimator.ensemble`` of them) saved in ``path`` when they were trained on this very
+    training set with these settings, else trained now and saved (weights only: torch.load(weights_only=True)
+    reads them back). Member k is trained from the seed ``simulation_seed(seed, k, "estimator")``."""
     import torch
 
     from master.fit import inference
 
     trained_on = canonical_hash({"fit": identity, "theta": theta.tolist(), "x": x.tolist()})
-    seed = simulation_seed(plan.settings["seed"], 0, "estimator") % 2**62
+    seeds = [simulation_seed(plan.settings["seed"], k, "estimator") % 2**62 for k in range(plan.estimator["ensemble"])]
     if path.is_file() and not path.is_symlink():
         try:
             saved = torch.load(path, weights_only=True)
         except Exception:  # noqa: BLE001: a damaged or foreign file is trained over
             saved = None
-        if isinstance(saved, dict) and saved.get("trained_on") == trained_on:
-            estimator = inference.rebuild(plan.parameters, theta, x, plan.estimator, saved["state"], seed)
-            return estimator, json.loads(saved["summary"])
-    estimator, summary = inference.train(plan.parameters, theta, x, plan.estimator, seed)
-    state = {"state": estimator.state_dict(), "trained_on": trained_on, "summary": json.dumps(summary)}
+        if isinstance(saved, dict) and saved.get("trained_on") == trained_on and len(saved.get("states", ())) == len(seeds):
+            estimators = [inference.rebuild(plan.parameters, theta, x, plan.estimator, state, seed)
+                          for state, seed in zip(saved["states"], seeds)]
+            return estimators, json.loads(saved["summary"])
+    trained = [inference.train(plan.parameters, theta, x, plan.estimator, seed) for seed in seeds]
+    estimators = [estimator.eval() for estimator, _ in trained]
+    summary = {**trained[0][1], "seconds": round(sum(part["seconds"] for _, part in trained), 3),
+               "members": [part["epochs"] for _, part in trained] if len(trained) > 1 else None}
+    summary = {key: value for key, value in summary.items() if value is not None}
+    state = {"states": [estimator.state_dict() for estimator in estimators], "trained_on": trained_on,
+             "summary": json.dumps(summary)}
     atomic_write(path, lambda file: torch.save(state, file))
-    return estimator.eval(), summary
+    return estimators, summary
 
 
 def held_out_csv(data: Data, plan: FitPlan, x: np.ndarray, rows) -> str:
