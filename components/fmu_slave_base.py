@@ -57,9 +57,13 @@ class ComponentSlaveBase(Fmi2Slave):
         self.component.enter_initialization_mode()
 
     def exit_initialization_mode(self):
-        self.component.exit_initialization_mode()
-        if self.component.last_reason:
-            raise RuntimeError(self.component.last_reason)
+        try:
+            self.component.exit_initialization_mode()
+            if self.component.last_reason:
+                raise RuntimeError(self.component.last_reason)
+        except Exception as error:  # the reason as one line in the log (pythonfmu's own is the exception's repr)
+            self.log(str(error), Fmi2Status.error)
+            raise
 
     def do_step(self, current_time, step_size):
         try:

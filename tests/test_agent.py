@@ -19,6 +19,7 @@ from components.body.plant import ArmPlant
 from components.body.contract import BODY_CONTRACT
 from components.fmu import extracted, guard_library
 from master.cosim import System, simulate
+from master.cosim.loop import tick_times
 from master.experiment import config as configuration
 from master.experiment import wiring
 from master.experiment.decoders import decoder_component
@@ -139,55 +140,70 @@ def test_the_agent_fmu_is_valid_and_declares_the_agent(agent_fmu, quick):
     assert {"resources/decoder.pt", f"resources/{MANIFEST}"} <= set(names)
 
 
-def drive_by_hand(fmu_path, trial, config, steps):
-    """The agent FMU under fmpy's FMU2Slave, the body a native ArmPlant, stepped by hand in the experiment's
-    order (agent, then body with the new action): every output of the agent per step."""
+def open_fmu(fmu_path, callbacks=None, logging=False):
+    """An FMU instance under fmpy's FMU2Slave (``callbacks``: fmpy's default logger, or one's own), its value
+    references by name, and its model description."""
     description = read_model_description(str(fmu_path))
-    ref = {v.name: v.valueReference for v in description.modelVariables}
     unzipped = extracted(str(fmu_path))
     guard_library(unzipped, description.coSimulation.modelIdentifier)
     saved = list(sys.path)
     fmu = FMU2Slave(guid=description.guid, unzipDirectory=unzipped,
                     modelIdentifier=description.coSimulation.modelIdentifier, instanceName="agent")
-    fmu.instantiate()
+    fmu.instantiate(callbacks=callbacks, loggingOn=logging)
     sys.path[:] = saved  # a pythonfmu FMU prepends its resources to sys.path
-    body = ArmPlant()
-    body.instantiate(1)
-    for path, value in wiring.parameters([trial], config).items():
-        if path.startswith("body."):
-            body.set(path[5:], value)
-    low, high = split_seed(trial.seed)
+    return fmu, {v.name: v.valueReference for v in description.modelVariables}, description
+
+
+def drive_by_hand(fmu_path, steps, reals=(), integers=(), body=()):
+    """The agent FMU under fmpy's FMU2Slave, the body a native ArmPlant, stepped by hand in the experiment's
+    order (agent, then body with the new action) at this master's communication points (``simulate``'s tick
+    grid, whose steps differ from 0.02 s in the last bit): every output of the agent per step, and the body's hand
+    (``body.hand_x``, ``body.hand_y``). ``reals``, ``integers``: the FMU's parameters ``{name: value}``;
+    ``body``: the ArmPlant's ``{variable: value}``."""
+    fmu, ref, description = open_fmu(fmu_path)
+    plant = ArmPlant()
+    plant.instantiate(1)
+    for name, value in dict(body).items():
+        plant.set(name, value)
     fmu.setupExperiment(startTime=0.0)
-    fmu.setReal([ref["offset_x"], ref["delay_min"], ref["delay_max"], ref["period"]],
-                [trial.offset_x, trial.delay_min, trial.delay_max, config["stimulus"]["period"]])
-    fmu.setInteger([ref["seed"], ref["seed_high"]], [low, high])
-    body.setup_experiment(0.0, None)
-    body.enter_initialization_mode()
+    for setter, values in ((fmu.setReal, dict(reals)), (fmu.setInteger, dict(integers))):
+        if values:
+            setter([ref[n] for n in values], list(values.values()))
+    plant.setup_experiment(0.0, None)
+    plant.enter_initialization_mode()
     fmu.enterInitializationMode()
-    feed = lambda: fmu.setReal([ref[n] for n in LINKS], [float(body.values[n][0]) for n in LINKS])
-    act = lambda: [body.set(n, np.array(fmu.getReal([ref[n]]))) for n in ("u_shoulder", "u_elbow")]
+    inputs = [v.name for v in description.modelVariables if v.causality == "input"]
+    feed = lambda: fmu.setReal([ref[n] for n in inputs], [float(plant.values[n][0]) for n in inputs])
+    act = lambda: [plant.set(n, np.array(fmu.getReal([ref[n]]))) for n in ("u_shoulder", "u_elbow")]
     feed()
     fmu.exitInitializationMode()
     act()
-    body.exit_initialization_mode()
+    plant.exit_initialization_mode()
     outputs = [v.name for v in description.modelVariables if v.causality == "output"]
     rows = []
+    ticks = tick_times(0.0, steps * 0.02, steps).tolist()  # this master's communication points
     for tick in range(steps):
+        t, h = ticks[tick], ticks[tick + 1] - ticks[tick]
         feed()
-        fmu.doStep(tick * 0.02, 0.02)
+        fmu.doStep(t, h)
         act()
-        body.do_step(tick * 0.02, 0.02)
-        rows.append(fmu.getReal([ref[n] for n in outputs]))
+        plant.do_step(t, h)
+        rows.append(fmu.getReal([ref[n] for n in outputs]) + [plant.values[n][0] for n in ("hand_x", "hand_y")])
     fmu.terminate()
     fmu.freeInstance()
-    return dict(zip(outputs, np.array(rows).T))
+    return dict(zip(outputs + ["body.hand_x", "body.hand_y"], np.array(rows).T))
 
 
 def test_the_agent_fmu_stepped_by_fmpy_by_hand_is_the_native_trial(agent_fmu, quick):
     config = with_steps(quick, STEPS)
     trial = make_trial(config, "conv", "left", "sync", 0)
     native = wiring.run_batch(decoder_component("conv", config["decoder"]["conv_checkpoint"], config), [trial], config)
-    by_hand = drive_by_hand(agent_fmu, trial, config, STEPS)
+    low, high = split_seed(trial.seed)
+    body = {p[5:]: v for p, v in wiring.parameters([trial], config).items() if p.startswith("body.")}
+    by_hand = drive_by_hand(agent_fmu, STEPS, reals={"offset_x": trial.offset_x, "delay_min": trial.delay_min,
+                                                     "delay_max": trial.delay_max,
+                                                     "period": config["stimulus"]["period"]},
+                            integers={"seed": low, "seed_high": high}, body=body)
     expected = {"mu_shoulder": native.values["brain.mu"][1:, 0, 0], "mu_elbow": native.values["brain.mu"][1:, 0, 1],
                 "gamma": native.values["brain.gamma"][1:, 0], "u_elbow": native.values["brain.u_elbow"][1:, 0],
                 "free_energy": native.values["brain.free_energy"][1:, 0],
@@ -231,32 +247,70 @@ def test_rhi_export_agent_writes_a_valid_fmu_and_refuses_in_one_line(quick, tmp_
     assert sorted(p.name for p in tmp_path.iterdir()) == ["A.fmu", "folder.fmu"]  # nothing half-written
 
 
-def test_the_documented_table_of_ports_is_the_agents_declarations(quick):
-    """docs/fmi.md's generated table of the agent FMU's ports, row by row, against the agent's declared variables."""
+def check_port_table(name, agent):
+    """docs/fmi.md's generated table ``name`` of an agent FMU's ports, row by row, against ``agent``'s declarations."""
     import math
 
     from docs_tables import block
 
-    rows = [line for line in block("fmi.md", "agent-ports").splitlines() if line.startswith("| ")][1:]  # no header
-    agent = Agent(quick["decoder"]["conv_checkpoint"], "conv", quick)
+    rows = [line for line in block("fmi.md", name).splitlines() if line.startswith("| ")][1:]  # no header
 
     def number(v, kind):
         return {"−∞": -math.inf, "∞": math.inf}[v] if v in ("−∞", "∞") else (int(v) if kind == "Integer" else float(v))
 
     assert [row.split("|")[1].strip().strip("`") for row in rows] == list(agent.variables)
     for row in rows:
-        name, causality, kind, unit, bounds, start, meaning = (cell.strip() for cell in row.split("|")[1:-1])
-        variable = agent.variables[name.strip("`")]
+        port, causality, kind, unit, bounds, start, meaning = (cell.strip() for cell in row.split("|")[1:-1])
+        variable = agent.variables[port.strip("`")]
         assert (causality, kind, unit, meaning) == (variable.causality, variable.type, variable.unit or "1",
-                                                    variable.description), name
+                                                    variable.description), port
         low, high = (number(v.strip(), kind) for v in bounds.strip("[]").split(","))
-        assert low == (-math.inf if variable.min is None else variable.min), name
-        assert high == (math.inf if variable.max is None else variable.max), name
+        assert low == (-math.inf if variable.min is None else variable.min), port
+        assert high == (math.inf if variable.max is None else variable.max), port
         if variable.causality == "output":
             assert start == ""
         else:
             value = {"NaN": math.nan, "∞": math.inf}.get(start) if start in ("NaN", "∞") else float(start)
-            assert value == variable.start or (math.isnan(value) and math.isnan(variable.start)), name
+            close = value == variable.start or math.isclose(value, variable.start, rel_tol=5e-6)  # %g: 6 digits
+            assert close or (math.isnan(value) and math.isnan(variable.start)), port
+
+
+def test_the_documented_table_of_ports_is_the_agents_declarations(quick):
+    """docs/fmi.md's generated table of the agent FMU's ports, row by row, against the agent's declared variables."""
+    check_port_table("agent-ports", Agent(quick["decoder"]["conv_checkpoint"], "conv", quick))
+
+
+# The illusion agent FMU's ports (name, causality, type, unit) as they were before the reach agent: an FMU built
+# by an earlier rhi keeps working, and a master wired to them too.
+ILLUSION_PORTS = (
+    [[name, "parameter", "Real", unit] for name, unit in (("offset_x", "m"), ("offset_y", "m"), ("period", "s"),
+                                                          ("delay_min", "s"), ("delay_max", "s"))]
+    + [["seed", "parameter", "Integer", "1"], ["seed_high", "parameter", "Integer", "1"]]
+    + [[name, "parameter", "Real", unit] for name, unit in (
+        ("ball_distance", "m"), ("stop_time", "s"), ("ball_radius", "m"), ("visual_variance", "1"),
+        ("proprioceptive_variance", "deg2"), ("gamma0", "1"), ("sync_sd", "s"), ("async_density", "1/s"),
+        ("decay_rate", "1/s3"), ("action_limit", "deg/s"), ("spatial_sd", "m"), ("action_time_constant", "s"))]
+    + [[name, "input", "Real", unit] for name, unit in (("hand_x", "m"), ("hand_y", "m"), ("q_shoulder", "deg"),
+                                                        ("q_elbow", "deg"))]
+    + [[name, "output", "Real", unit] for name, unit in (
+        ("u_shoulder", "deg/s"), ("u_elbow", "deg/s"), ("mu_shoulder", "deg"), ("mu_elbow", "deg"), ("gamma", "1"),
+        ("free_energy", "1"), ("action_rate_shoulder", "deg/s2"), ("action_rate_elbow", "deg/s2"),
+        ("visual_time", "s"), ("tactile_time", "s"), ("visual_error", "1"), ("ball_x", "m"), ("ball_y", "m"),
+        ("perceived_hand_x", "m"), ("perceived_hand_y", "m"))])
+
+
+def test_the_illusion_agent_keeps_its_ports_and_its_connections(agent_fmu, quick):
+    from master.export.agent_fmu import ports
+
+    agent = Agent(quick["decoder"]["conv_checkpoint"], "conv", quick)
+    assert ports(agent) == ILLUSION_PORTS
+    assert agent.connections() == agent_connections() == [
+        ("body.hand_x", "agent.hand_x"), ("body.hand_y", "agent.hand_y"), ("body.q_shoulder", "agent.q_shoulder"),
+        ("body.q_elbow", "agent.q_elbow"), ("agent.u_shoulder", "body.u_shoulder"), ("agent.u_elbow", "body.u_elbow")]
+    with zipfile.ZipFile(agent_fmu) as archive:
+        manifest = json.loads(archive.read(f"resources/{MANIFEST}"))
+    assert manifest["task"] == "illusion" and manifest["ports"] == ILLUSION_PORTS
+    assert read_model_description(str(agent_fmu)).coSimulation.modelIdentifier == "RubberHandAgent"
 
 
 def test_an_agent_without_a_body_or_with_a_bad_delay_law_fails_naming_why(quick):

@@ -75,8 +75,8 @@ def build_parser() -> argparse.ArgumentParser:
     export.set_defaults(run=lambda args: __import__("master.commands.export_body", fromlist=["_"]).run_export(args))
 
     module = "master.commands.export_agent"
-    agent = commands.add_parser("export-agent", help="export the agent (stimulus, rubber arm, camera, decoder, brain) "
-                                                     "as an FMI 2.0 FMU")
+    agent = commands.add_parser("export-agent", help="export the agent (stimulus, rubber arm, camera, decoder, brain; "
+                                                     "--task reach: the reach's) as an FMI 2.0 FMU")
     __import__(module, fromlist=["_"]).add_common(agent)
     agent.add_argument("--out", metavar="FILE.fmu", required=True)
     agent.set_defaults(run=lambda args: __import__(module, fromlist=["_"]).run_export_agent(args))
@@ -88,7 +88,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="the body to export with it: native (default, the pymunk plant), kinematic, kinematic-c")
     system.add_argument("--body", metavar="FMU", help="a body FMU of one's own (the body contract) instead")
     system.add_argument("--trial", metavar="C/S/I", help="the trial the SSD binds, CONDITION/STIMULATION/INDEX "
-                                                        "(default: the protocol's first, e.g. left/sync/0)")
+                                                        "(default: the protocol's first, e.g. left/sync/0; --task "
+                                                        "reach: BAND/INDEX, default the plan's first, e.g. near/0)")
     system.add_argument("--out", metavar="FILE.ssp", required=True)
     system.set_defaults(run=lambda args: __import__(module, fromlist=["_"]).run_export_system(args))
 
@@ -96,7 +97,8 @@ def build_parser() -> argparse.ArgumentParser:
     run_system.add_argument("ssp", metavar="FILE.ssp")
     run_system.add_argument("--master", choices=("fmpy", "libcosim"), default="libcosim")
     run_system.add_argument("--trial", metavar="NAME", help="the agent's parameter file resources/trials/NAME.ssv "
-                                                            "instead of the bound one (e.g. conv_right_sync_0)")
+                                                            "instead of the bound one (e.g. conv_right_sync_0, or "
+                                                            "a reach's conv_near_1)")
     run_system.add_argument("--steps", type=int, metavar="N", help="steps (default: the SSD's stop time)")
     run_system.add_argument("--out", metavar="FILE.csv", required=True, help="every connector, one row per step")
     run_system.set_defaults(run=lambda args: __import__(module, fromlist=["_"]).run_run_system(args))

@@ -4,12 +4,14 @@ from __future__ import annotations
 import os
 import time
 
-from master.experiment import config as configuration
-
 
 def add_common(parser) -> None:
-    """The options export-agent and export-system share: the configuration and the decoder."""
-    parser.add_argument("--config", metavar="FILE", help="TOML file overriding master/defaults.toml")
+    """The options export-agent and export-system share: the task, the configuration and the decoder."""
+    parser.add_argument("--task", default="illusion",
+                        help="illusion (default: the experiment's agent) or reach (the free arm reaching to a seen "
+                             "goal, docs/reach.md; its configuration is rhi reach's)")
+    parser.add_argument("--config", metavar="FILE", help="TOML file overriding master/defaults.toml (and, for "
+                                                         "--task reach, master/reach.toml)")
     parser.add_argument("--quick", action="store_true", help="the --quick settings (a 32 px tiny decoder)")
     parser.add_argument("--decoder", metavar="KIND", help="conv or vae (default: the configuration's first)")
     parser.add_argument("--checkpoint", metavar="CKPT", help="a trained decoder of that kind (default: the "
@@ -17,15 +19,17 @@ def add_common(parser) -> None:
 
 
 def load(args) -> dict:
-    """The configuration: defaults, --quick, --config, and --checkpoint for the --decoder it belongs to."""
+    """The task's configuration: defaults (and master/reach.toml for the reach), --quick, --config, and
+    --checkpoint for the --decoder it belongs to."""
     from master.cosim import ConfigError
+    from master.export.tasks import task
 
     if args.checkpoint and not args.decoder:
         raise ConfigError("--checkpoint needs --decoder (conv or vae): the kind of decoder it holds")
     overrides = {f"decoder.{args.decoder}_checkpoint": args.checkpoint} if args.checkpoint else {}
     if args.decoder not in (None, "conv", "vae"):
         raise ConfigError(f"--decoder {args.decoder!r} is not one of conv, vae")
-    return configuration.load(args.config, overrides, quick=args.quick)
+    return task(args.task).load(args.config, overrides, args.quick)
 
 
 def run_export_agent(args) -> int:
@@ -33,7 +37,7 @@ def run_export_agent(args) -> int:
     from master.export.agent_fmu import export_agent
 
     started = time.perf_counter()
-    path, checkpoint = export_agent(args.out, load(args), args.decoder)
+    path, checkpoint = export_agent(args.out, load(args), args.decoder, args.task)
     print(f"wrote {path} ({os.path.getsize(path) / 1024:.0f} KiB, decoder {checkpoint}) "
           f"in {time.perf_counter() - started:.1f} s")
     return 0
@@ -44,7 +48,8 @@ def run_export_system(args) -> int:
     from master.export.system import export_system
 
     started = time.perf_counter()
-    path = export_system(args.out, load(args), args.decoder, args.body_variant or "native", args.body, args.trial)
+    path = export_system(args.out, load(args), args.decoder, args.body_variant or "native", args.body, args.trial,
+                         args.task)
     print(f"wrote {path} ({os.path.getsize(path) / 1024:.0f} KiB: SystemStructure.ssd, the agent and body FMUs, a "
           f"parameter file per trial) in {time.perf_counter() - started:.1f} s")
     return 0
@@ -52,7 +57,7 @@ def run_export_system(args) -> int:
 
 def run_run_system(args) -> int:
     """The ``rhi run-system`` command: args.ssp, .master, .trial, .steps, .out."""
-    from master.export.system import final_drift_cm, run_ssp, write_csv
+    from master.export.system import final_drift_cm, final_goal_distance_cm, run_ssp, write_csv
     from master.outputs.files import check_output_file
 
     started = time.perf_counter()
@@ -61,6 +66,8 @@ def run_run_system(args) -> int:
     write_csv(args.out, values)
     print(f"wrote {args.out} ({len(values['time'])} steps under {args.master}) in "
           f"{time.perf_counter() - started:.1f} s")
-    if {"agent.mu_shoulder", "body.q_shoulder"} <= set(values):
+    if {"agent.goal_hand_x", "body.hand_x"} <= set(values):  # the reach
+        print(f"final distance to the goal: {final_goal_distance_cm(values):.6f} cm")
+    elif {"agent.mu_shoulder", "body.q_shoulder"} <= set(values):
         print(f"final drift: {final_drift_cm(values):.6f} cm")
     return 0

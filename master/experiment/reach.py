@@ -131,8 +131,25 @@ def check_range(band: str, values) -> None:
         raise ConfigError(f"reach.ranges.{band} = {values!r}: need 0 <= low <= high (deg from rest)")
     if high > min(HALF_RANGES):
         raise ConfigError(f"reach.ranges.{band} = {values!r}: goals up to {high:g} deg from rest leave the joint "
-                          f"ranges the decoders know (shoulder rest ± {HALF_RANGES[0]:g} deg, elbow rest ± "
-                          f"{HALF_RANGES[1]:g} deg)")
+                          f"ranges the decoders know ({known_ranges()})")
+
+
+def known_ranges() -> str:
+    """The joint ranges the decoders are trained on, in words: rest ± HALF_RANGES per joint."""
+    return f"shoulder rest ± {HALF_RANGES[0]:g} deg, elbow rest ± {HALF_RANGES[1]:g} deg"
+
+
+def goal_problem(shoulder, elbow, names=("goal_shoulder", "goal_elbow")) -> str | None:
+    """Why a goal pose (absolute joint angles, deg) cannot be reached to, or None: each joint finite and
+    within rest ± HALF_RANGES, the ranges :func:`check_range` keeps a band's goals in."""
+    for name, value, rest, half in zip(names, (shoulder, elbow), kinematics.REST_POSE, HALF_RANGES):
+        value = np.asarray(value, dtype=float).reshape(-1)
+        bad = ~(np.abs(value - rest) <= half)  # NaN too
+        if bad.any():
+            far = float(value[bad][0])
+            return (f"{name} = {far:g} deg is {abs(far - rest):g} deg from rest ({rest:g} deg): it leaves the joint "
+                    f"ranges the decoders know ({known_ranges()})")
+    return None
 
 
 # -- goals ---------------------------------------------------------------------------------------------------
@@ -195,6 +212,22 @@ def links(kind: str, view: bool, pixel_decoder: bool) -> list[tuple[str, str]]:
                           ("brain.u_shoulder", "body.u_shoulder"), ("brain.u_elbow", "body.u_elbow")]
 
 
+def pixel_decoder_seen(config: dict) -> bool:
+    """Whether a decoder reads the camera's image of the real arm (when it is seen): the paper model's always,
+    the causal model's when its pixel term weighs."""
+    return configuration.model_name(config) != "causal" or config["causal"]["pixel_weight"] > 0
+
+
+def connections(config: dict) -> list[tuple[str, str]]:
+    """The reach system's connections under ``config``, in step order: :func:`links`, and the causal model's
+    seen pose (camera -> pose encoder -> brain)."""
+    given = links(attractor(config), view(config), pixel_decoder_seen(config))
+    if configuration.model_name(config) == "causal":
+        given += [("camera.image", "pose_encoder.image"), ("pose_encoder.pose", "brain.seen_pose"),
+                  ("pose_encoder.pose_variance", "brain.seen_pose_variance")]
+    return given
+
+
 def encoder_file(kind: str, config: dict) -> str:
     """The pose encoder of decoder ``kind`` (the causal model's setting, else the shipped one)."""
     from master.experiment.pose_encoders import encoder_path, shipped_path
@@ -216,7 +249,6 @@ def build_system(kind: str, path: str, config: dict, threads: int = 1) -> System
 
     resolution, causal = config["experiment"]["resolution"], configuration.model_name(config) == "causal"
     goal_term, seen = attractor(config), view(config)
-    pixel_decoder = not causal or config["causal"]["pixel_weight"] > 0
     model = loaded(path, resolution, config["camera"]["blur"])
     check_kind(kind, path, model)
 
@@ -236,34 +268,24 @@ def build_system(kind: str, path: str, config: dict, threads: int = 1) -> System
                               threads=threads), GoalAttractor()]
     if seen:
         parts += [JointPose("arm_pose"), Camera("camera", resolution=resolution)]
-        if pixel_decoder:
+        if pixel_decoder_seen(config):
             parts.append(decoder("decoder"))
     if causal:
         from components.brain.causal_brain import CausalBrain
         from components.vision.pose_encoder import PoseEncoder, load_encoder
         parts += [PoseEncoder(load_encoder(encoder_file(kind, config)), resolution=resolution, threads=threads),
                   CausalBrain()]
-        connections = links(goal_term, seen, pixel_decoder) + [
-            ("camera.image", "pose_encoder.image"), ("pose_encoder.pose", "brain.seen_pose"),
-            ("pose_encoder.pose_variance", "brain.seen_pose_variance")]
     else:
         from components.brain.integrator import Brain
         parts.append(Brain())
-        connections = links(goal_term, seen, pixel_decoder)
     parts.append(ArmPlant())
-    return System(parts, connections)
+    return System(parts, connections(config))
 
 
 def parameters(trials: list[ReachTrial], config: dict, system: System) -> dict:
     """Every parameter of the reach system: the experiment's sources for the brain, body, cameras and decoders
     (:data:`master.experiment.wiring.PARAMETER_SOURCES`), the goal per trial, and the goal's precision."""
-    given = {}
-    for path, source in wiring.PARAMETER_SOURCES.items():
-        name = path.split(".")[0]
-        if name not in ("brain", "body", "camera", "decoder") or path in wiring.CONSTRUCTED:
-            continue
-        given[path] = wiring.DERIVED[path]() if path in wiring.DERIVED else \
-            config[wiring.config_key(source).split(".")[0]][wiring.config_key(source).split(".")[1]]
+    given = wiring.shared_parameters(config, ("brain", "body", "camera", "decoder"))
     for key in ("blur", "ball_radius"):
         given[f"goal_camera.{key}"] = config["camera"][key]
     given["goal.shoulder"] = np.array([t.goal_pose[0] for t in trials])
@@ -280,11 +302,13 @@ def parameters(trials: list[ReachTrial], config: dict, system: System) -> dict:
             and path.partition(".")[2] in system.components[path.split(".")[0]].variables}
 
 
-def run_batch(kind: str, path: str, trials: list[ReachTrial], config: dict, threads: int = 1, progress=None):
-    """Run ``trials`` (all of decoder ``kind``) in lockstep; returns the master's Result."""
+def run_batch(kind: str, path: str, trials: list[ReachTrial], config: dict, threads: int = 1, progress=None,
+              extra=()):
+    """Run ``trials`` (all of decoder ``kind``) in lockstep; returns the master's Result (RECORD, the goal's
+    hand and the ``extra`` paths recorded)."""
     experiment = config["experiment"]
     system = build_system(kind, path, config, threads)
-    record = RECORD + (["goal.hand"] if "goal" in system.components else [])
+    record = RECORD + (["goal.hand"] if "goal" in system.components else []) + list(extra)
     return simulate(system, stop_time=experiment["steps"] * experiment["step_size"],
                     step_size=experiment["step_size"], scheme=experiment["scheme"], batch_size=len(trials),
                     parameters=parameters(trials, config, system), record=record, progress=progress)

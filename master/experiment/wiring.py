@@ -140,6 +140,20 @@ def parameters(trials: list[Trial], config: dict) -> dict:
     return given
 
 
+def shared_parameters(config: dict, names) -> dict:
+    """The parameters of the components ``names`` that are the same for every trial, as PARAMETER_SOURCES
+    says: the derived ones and the plain configuration keys, not the per-trial nor the CONSTRUCTED ones."""
+    given = {}
+    for path, source in PARAMETER_SOURCES.items():
+        if path.split(".")[0] in names and path not in CONSTRUCTED and path not in PER_TRIAL:
+            if path in DERIVED:
+                given[path] = DERIVED[path]()
+            else:
+                table, name = config_key(source).split(".")
+                given[path] = config[table][name]
+    return given
+
+
 def batchable_keys(config: dict) -> set[str]:
     """The configuration keys that may differ between the trials of one lockstep batch: the float keys that
     set a component parameter as they are (PARAMETER_SOURCES, and the causal model's), each applied per trial.

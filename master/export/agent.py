@@ -5,8 +5,8 @@
 by a :class:`master.cosim.Session` one communication step per :meth:`Agent.step`. Its ports are
 scalars, so that it can be an FMI 2.0 FMU (``master/export/agent_fmu.py``):
 
-- inputs: what the body feeds the brain in ``wiring.CONNECTIONS`` (the sensed joint angles, and the
-  felt hand that only the spatial extension reads), named as the brain names them;
+- inputs: what the body feeds the inside (the sensed joint angles, and the felt hand that only the
+  spatial extension reads), one port per body output, named as the body contract and the brain name it;
 - outputs: what the brain feeds the body (the action), then :data:`OBSERVED` (mu, gamma, the event
   times, ...) and the perceived hand (forward kinematics of mu, the drift's first term);
 - parameters: every scalar parameter of the inner components that the experiment sets per trial or
@@ -15,12 +15,14 @@ scalars, so that it can be an FMI 2.0 FMU (``master/export/agent_fmu.py``):
 
 Units, ranges and descriptions come from the inner components' declared variables: one source of
 truth. With the body after the agent, Gauss-Seidel, ``System([agent, body])`` is the experiment's
-system, step for step (tests/test_agent.py checks it bitwise).
+system, step for step (tests/test_agent.py checks it bitwise). A task of its own is a subclass that
+chooses the whole system (:meth:`Agent.whole_system`), the parameters and how they reach the inside
+(:class:`master.export.reach_agent.ReachAgent`, the free arm reaching to a seen goal).
 
 Example::
 
     agent = Agent("conv.pt", "conv", config.load())
-    system = System([agent, ArmPlant()], agent_connections())
+    system = System([agent, ArmPlant()], agent.connections())
 """
 from __future__ import annotations
 
@@ -83,9 +85,8 @@ def join_seed(low, high) -> np.ndarray:
     return (high << 32) | (low & 0xFFFFFFFF)
 
 
-def inner_system(decoder, config: dict) -> System:
-    """The experiment's system without its body: its components in order, the connections among them."""
-    whole = wiring.build_system(decoder, config)
+def without_body(whole: System) -> System:
+    """``whole`` less its body: the other components in order, the connections among them."""
     return System([c for name, c in whole.components.items() if name != BODY],
                   [c for c in whole.connections if not touches_body(c)])
 
@@ -95,21 +96,33 @@ def touches_body(connection) -> bool:
     return BODY in (connection.source.partition(".")[0], connection.target.partition(".")[0])
 
 
-def body_links() -> list[tuple[str, str]]:
-    """The experiment's connections between the body and the rest: (source, target) paths, as in
-    ``wiring.CONNECTIONS``, their order kept."""
-    return [(source, target) for source, target in wiring.CONNECTIONS if touches_body(Connection(source, target))]
+def body_links(connections=None) -> list[tuple[str, str]]:
+    """The connections between the body and the rest: (source, target) paths, their order kept.
+
+    Parameters
+    ----------
+    connections : iterable, optional
+        ``(source, target)`` pairs or :class:`~master.cosim.Connection` objects of a whole system
+        (default: the experiment's, ``wiring.CONNECTIONS``).
+    """
+    pairs = [(c.source, c.target) if isinstance(c, Connection) else tuple(c)
+             for c in (wiring.CONNECTIONS if connections is None else connections)]
+    return [(source, target) for source, target in pairs if touches_body(Connection(source, target))]
 
 
-def agent_connections(agent: str = "agent", body: str = BODY) -> list[tuple[str, str]]:
-    """The connections of the two-component system agent + body: each of :func:`body_links` with the
-    brain's end renamed to the agent's port of the same name."""
-    links = []
-    for source, target in body_links():
+def agent_connections(agent: str = "agent", body: str = BODY, links=None) -> list[tuple[str, str]]:
+    """The connections of the two-component system agent + body: each of :func:`body_links` (of ``links``,
+    default the experiment's) with the inner end renamed to the agent's port, each once: a body output
+    feeds the agent's input of its name (which feeds every inner input it fed), an agent output of the
+    inner source's name feeds the body's input."""
+    connections = []
+    for source, target in body_links(links):
         (source_name, source_var), (_, target_var) = source.split("."), target.split(".")
-        links.append((f"{body}.{source_var}", f"{agent}.{target_var}") if source_name == BODY
-                     else (f"{agent}.{source_var}", f"{body}.{target_var}"))
-    return links
+        link = ((f"{body}.{source_var}", f"{agent}.{source_var}") if source_name == BODY
+                else (f"{agent}.{source_var}", f"{body}.{target_var}"))
+        if link not in connections:
+            connections.append(link)
+    return connections
 
 
 def parameter_paths(system: System) -> list[str]:
@@ -153,25 +166,44 @@ class Agent(Component):
         The component's name.
     """
 
-    def __init__(self, checkpoint: str, kind: str, config: dict, name: str = "agent"):
-        from master.experiment.decoders import decoder_component  # torch only when an agent is built
+    task = "illusion"
+    summary = "the rubber-hand agent (stimulus, rubber arm, camera, {kind} decoder at {resolution} px, brain)"
+    observed = OBSERVED  # (FMI name, inner path, element or None[, the description, {} the inner one's])
+    perceived = "drift = perceived_hand_x - the real hand's x"
 
+    def __init__(self, checkpoint: str, kind: str, config: dict, name: str = "agent"):
         self.checkpoint, self.kind, self.config = checkpoint, kind, config
+        whole = self.whole_system()
         # A terminated component cannot start again: each inner session gets new components (the decoder's
         # model is loaded once per process, decoders.loaded).
-        self._build = lambda: inner_system(decoder_component(kind, checkpoint, config), config)
-        self._system = self._build()
-        self.inputs = {target.split(".")[1]: target for source, target in body_links() if source.startswith(BODY + ".")}
-        self.actions = {source.split(".")[1]: source for source, target in body_links() if target.startswith(BODY + ".")}
+        self._build = lambda: without_body(self.whole_system())
+        self._system = without_body(whole)
+        self.links = body_links(whole.connections)
+        self.inputs = {}  # port -> the inner inputs the body output of its name feeds
+        for source, target in self.links:
+            if source.startswith(BODY + "."):
+                self.inputs.setdefault(source.split(".")[1], []).append(target)
+        self.actions = {source.split(".")[1]: source for source, target in self.links if target.startswith(BODY + ".")}
         self.parameters = {path.split(".")[1]: path for path in parameter_paths(self._system)}
         super().__init__(name, self._declare())
         self._session = None
         self._used = None  # the parameter values the session was built with
 
+    def whole_system(self) -> System:
+        """The task's whole system, its body included, with new components: here the experiment's."""
+        from master.experiment.decoders import decoder_component  # torch only when an agent is built
+
+        return wiring.build_system(decoder_component(self.kind, self.checkpoint, self.config), self.config)
+
+    def connections(self, body: str = BODY) -> list[tuple[str, str]]:
+        """The connections of ``System([self, body])``: :func:`agent_connections` of this agent's links."""
+        return agent_connections(self.name, body, self.links)
+
     def _inner(self, path: str) -> Variable:
         return self._system.variable(path)
 
-    def _declare(self) -> list[Variable]:
+    def parameter_variables(self) -> list[Variable]:
+        """The agent's parameters, declared as the inner variables they set are (the seed as two Integers)."""
         variables = []
         for name, path in self.parameters.items():
             inner = self._inner(path)
@@ -186,23 +218,28 @@ class Agent(Component):
                 continue
             variables.append(Variable(name, "parameter", inner.type, start=configured(path, inner, self.config),
                                       unit=inner.unit, min=inner.min, max=inner.max, description=inner.description))
-        for name, path in self.inputs.items():
-            inner = self._inner(path)
+        return variables
+
+    def _declare(self) -> list[Variable]:
+        variables = self.parameter_variables()
+        for name, paths in self.inputs.items():  # declared as the brain declares it, if the brain reads it
+            inner = self._inner(next((p for p in paths if p.startswith("brain.")), paths[0]))
             variables.append(Variable(name, "input", inner.type, start=inner.start, unit=inner.unit,
                                       description=inner.description))
         for name, path in self.actions.items():
             inner = self._inner(path)
             variables.append(Variable(name, "output", inner.type, start=None, unit=inner.unit, min=inner.min,
                                       max=inner.max, description=inner.description, depends_on=()))
-        for name, path, element in OBSERVED:
+        for name, path, element, *template in self.observed:
             inner = self._inner(path)
             label = "" if element is None else f" [{(JOINTS if inner.unit.startswith('deg') else AXES)[element]}]"
+            description = (template[0] if template else "{}").format(inner.description) + label
             variables.append(Variable(name, "output", start=None, unit=inner.unit, min=inner.min, max=inner.max,
-                                      description=inner.description + label, depends_on=()))
+                                      description=description, depends_on=()))
         for axis, name in zip(AXES, PERCEIVED):
             variables.append(Variable(name, "output", start=None, unit="m", depends_on=(),
-                                      description=f"{axis} of the perceived hand, the forward kinematics of mu (drift = "
-                                                  f"perceived_hand_x - the real hand's x)"))
+                                      description=f"{axis} of the perceived hand, the forward kinematics of mu "
+                                                  f"({self.perceived})"))
         return variables
 
     # -- the inner session ----------------------------------------------------------------------
@@ -252,8 +289,9 @@ class Agent(Component):
 
     def step(self, t, h):
         session = self._session
-        for name, path in self.inputs.items():
-            session.set(path, self.values[name])
+        for name, paths in self.inputs.items():
+            for path in paths:
+                session.set(path, self.values[name])
         try:
             session.step(h, start=t)
         except SimulationError as error:
@@ -264,7 +302,7 @@ class Agent(Component):
         get = self._session.get
         for name, path in self.actions.items():
             self.values[name] = np.array(get(path), copy=True)
-        for name, path, element in OBSERVED:
+        for name, path, element, *_ in self.observed:
             value = get(path)
             self.values[name] = np.array(value if element is None else value[:, element], copy=True)
         mu = get("brain.mu")

@@ -1,12 +1,14 @@
-"""``rhi export-agent``: the agent as one FMI 2.0 co-simulation FMU, built with pythonfmu.
+"""``rhi export-agent``: the agent of a task as one FMI 2.0 co-simulation FMU, built with pythonfmu.
 
 The FMU holds the slave script ``master/export/agent_slave.py``, the decoder checkpoint and
-``rhi_agent.json`` (the decoder's kind, the configuration, the ports) in its resources. It runs in a
-Python that has the rhi package installed (the slave imports it; see agent_slave.py).
+``rhi_agent.json`` (the task, the decoder's kind, the configuration, the ports) in its resources. It runs
+in a Python that has the rhi package installed (the slave imports it; see agent_slave.py). The tasks
+(``master/export/tasks.py``): ``illusion``, the experiment's agent (master/export/agent.py), and ``reach``, the free
+arm reaching to a seen goal (master/export/reach_agent.py).
 
 Example::
 
-    build_agent_fmu("Agent.fmu", "conv", config.load())   # or: rhi export-agent --out Agent.fmu
+    build_agent_fmu("Agent.fmu", "conv", config.load(), checkpoint)   # or: rhi export-agent --out Agent.fmu
 """
 from __future__ import annotations
 
@@ -19,7 +21,6 @@ from pathlib import Path
 from master.cosim import ConfigError
 from master.export.fmu_files import build_with_pythonfmu, built_beside, check_target, staged_script
 
-MODEL_NAME = "RubberHandAgent"  # the FMI model identifier, which names the FMU's library
 MANIFEST = "rhi_agent.json"
 CHECKPOINT = "decoder.pt"
 SLAVE = Path(__file__).with_name("agent_slave.py")
@@ -28,6 +29,16 @@ SLAVE = Path(__file__).with_name("agent_slave.py")
 def ports(agent) -> list[list[str]]:
     """The agent's ports as ``[name, causality, type, unit]``, in value-reference order."""
     return [[v.name, v.causality, v.type, v.unit] for v in agent.variables.values()]
+
+
+def make_agent(checkpoint: str, kind: str, config: dict, task: str = "illusion", name: str = "agent"):
+    """The agent component of ``task`` (``master.export.tasks``): ``Agent`` or ``ReachAgent``, built as they are."""
+    import importlib
+
+    from master.export.tasks import task as task_named
+
+    module, _, class_name = task_named(task).agent.partition(":")
+    return getattr(importlib.import_module(module), class_name)(checkpoint, kind, config, name=name)
 
 
 def agent_from_resources(resources: str):
@@ -48,23 +59,26 @@ def agent_from_resources(resources: str):
     RuntimeError
         This rhi's agent declares other ports than the FMU's (it was built by another version).
     """
-    from master.export.agent import Agent
+    from master.export.tasks import TASKS
 
     with open(os.path.join(resources, MANIFEST), encoding="utf-8") as file:
         manifest = json.load(file)
-    agent = Agent(os.path.join(resources, CHECKPOINT), manifest["decoder"], manifest["config"])
+    task = manifest.get("task", "illusion")  # an FMU of before the tasks: the illusion's
+    if task not in TASKS:
+        raise RuntimeError(f"this agent FMU was built by another version of rhi: its task {task!r} is not one of "
+                           f"{', '.join(TASKS)}; export the agent again with this one")
+    agent = make_agent(os.path.join(resources, CHECKPOINT), manifest["decoder"], manifest["config"], task)
     if ports(agent) != manifest["ports"]:
         mine = {tuple(p) for p in ports(agent)}
         theirs = {tuple(p) for p in manifest["ports"]}
         differ = sorted(p[0] for p in mine ^ theirs) or ["their order"]
         raise RuntimeError(f"this agent FMU was built by another version of rhi: the installed one declares other "
                            f"ports ({', '.join(differ)}); export the agent again with this one")
-    description = (f"the rubber-hand agent (stimulus, rubber arm, camera, {manifest['decoder']} decoder at "
-                   f"{manifest['config']['experiment']['resolution']} px, brain); rhi {manifest['rhi']}")
-    return agent, MODEL_NAME, description
+    description = agent.summary.format(kind=manifest["decoder"], resolution=manifest["config"]["experiment"]["resolution"])
+    return agent, TASKS[task].model_name, f"{description}; rhi {manifest['rhi']}"
 
 
-def build_agent_fmu(out, kind: str, config: dict, checkpoint: str) -> Path:
+def build_agent_fmu(out, kind: str, config: dict, checkpoint: str, task: str = "illusion") -> Path:
     """Build the agent FMU at ``out`` (a path ending in .fmu), whole or not at all.
 
     Parameters
@@ -78,6 +92,8 @@ def build_agent_fmu(out, kind: str, config: dict, checkpoint: str) -> Path:
         values of the agent's parameters.
     checkpoint : str
         The decoder's checkpoint, copied into the FMU's resources.
+    task : str
+        ``illusion`` or ``reach`` (``master.export.tasks``).
 
     Returns
     -------
@@ -86,15 +102,13 @@ def build_agent_fmu(out, kind: str, config: dict, checkpoint: str) -> Path:
     """
     from importlib import metadata
 
-    from master.export.agent import Agent
-
     out = check_target(out)
-    agent = Agent(checkpoint, kind, config)  # refuses a checkpoint of another kind or camera, before any work
+    agent = make_agent(checkpoint, kind, config, task)  # refuses a checkpoint of another kind or camera first
     try:
         version = metadata.version("rhi")
     except metadata.PackageNotFoundError:
         version = "unknown"
-    manifest = {"decoder": kind, "config": config, "ports": ports(agent), "rhi": version}
+    manifest = {"task": agent.task, "decoder": kind, "config": config, "ports": ports(agent), "rhi": version}
     with tempfile.TemporaryDirectory(prefix="rhi_agent_") as staging:
         staging = Path(staging)
         script = staged_script(SLAVE, staging, "rhi_agent_slave")
@@ -105,7 +119,7 @@ def build_agent_fmu(out, kind: str, config: dict, checkpoint: str) -> Path:
         return built_beside(out, build)
 
 
-def export_agent(out, config: dict, kind: str | None = None) -> tuple[Path, str]:
+def export_agent(out, config: dict, kind: str | None = None, task: str = "illusion") -> tuple[Path, str]:
     """``rhi export-agent``: check everything, train the decoder if it is the default and not cached yet
     (as ``rhi experiment`` does), and build the agent FMU at ``out``.
 
@@ -114,9 +128,12 @@ def export_agent(out, config: dict, kind: str | None = None) -> tuple[Path, str]
     out : path
         The FMU to write (checked before any work).
     config : dict
-        A loaded configuration; ``decoder.<kind>_checkpoint`` names a checkpoint, or the default is used.
+        A loaded configuration (``reach.load`` for the reach); ``decoder.<kind>_checkpoint`` names a
+        checkpoint, or the default is used.
     kind : str, optional
         ``conv`` or ``vae`` (default: the configuration's first decoder).
+    task : str
+        ``illusion`` or ``reach``.
 
     Returns
     -------
@@ -125,13 +142,26 @@ def export_agent(out, config: dict, kind: str | None = None) -> tuple[Path, str]
     """
     from master.experiment.decoders import check_decoders, ensure_checkpoints
     from master.experiment.wiring import check_parameters
+    from master.export.tasks import task as task_named
 
     kind = kind or config["experiment"]["decoders"][0]
     if kind not in ("conv", "vae"):
         raise ConfigError(f"--decoder {kind!r} is not one of conv, vae")
+    task_named(task)  # a known one
     out = check_target(out)
+    if task == "reach":
+        check_carried(config)
     config = {**config, "experiment": {**config["experiment"], "decoders": [kind]}}
     check_parameters(config)
     check_decoders(config)
     checkpoints, _ = ensure_checkpoints(config, progress=False)
-    return build_agent_fmu(out, kind, config, checkpoints[kind]), checkpoints[kind]
+    return build_agent_fmu(out, kind, config, checkpoints[kind], task), checkpoints[kind]
+
+
+def check_carried(config: dict) -> None:
+    """The reach agent FMU carries the decoder only: the goal's term must be the pixel attractor."""
+    from master.experiment import reach
+
+    if reach.attractor(config) != "pixels":
+        raise ConfigError(f"reach.attractor = {config['reach']['attractor']!r} reads the goal with a pose encoder, "
+                          "which the agent FMU does not carry: use \"pixels\" for --task reach")

@@ -3,8 +3,8 @@
 This file is the agent FMU's main script (``master/export/agent_fmu.py`` builds it). Unlike the body
 FMU, it carries no copy of the code: it imports the ``rhi`` package (``master``, ``components``) of
 the Python that loads it, which must have rhi and its dependencies (torch, ...) installed. Its
-resources hold the decoder checkpoint and ``rhi_agent.json``: the decoder's kind, the configuration
-it was built with and the ports it declared; a package whose agent declares other ports is refused
+resources hold the decoder checkpoint and ``rhi_agent.json``: the task (the illusion's agent or the
+reach's), the decoder's kind, the configuration it was built with and the ports it declared; a package whose agent declares other ports is refused
 when the FMU is instantiated. One FMU instance is one trial (batch size 1); the slave base,
 :class:`components.fmu_slave_base.ComponentSlaveBase`, registers the variables and runs the lifecycle.
 pythonfmu takes the class of this file that has ``Fmi2Slave`` deepest among its bases.
@@ -20,7 +20,7 @@ except ImportError as error:
 
 
 class AgentSlave(ComponentSlaveBase):
-    """One trial of the rubber-hand agent, driven through FMI 2.0 co-simulation calls."""
+    """One trial of the agent (the illusion's or the reach's), driven through FMI 2.0 co-simulation calls."""
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)

@@ -1,14 +1,15 @@
-"""An SSP 1.0 package of the experiment: its layout, its parameter sets, and :func:`build_ssp`.
+"""An SSP 1.0 package of the experiment or the reach: its layout, its parameter sets, and :func:`build_ssp`.
 
 The package::
 
     SystemStructure.ssd            the system: components agent and body, their connectors and connections
-                                   (wiring.CONNECTIONS between body and brain), the step size and stop time
+                                   (the task's links between body and brain), the step size and stop time
     resources/agent.fmu            the agent FMU (agent_fmu.py)
     resources/body.fmu             the body FMU (body.py / c_body.py, or the user's)
-    resources/body.ssv             the body's parameters (the experiment's [body] keys it declares)
+    resources/body.ssv             the body's parameters (the task's [body] keys it declares)
     resources/trials/<decoder>_<condition>_<stimulation>_<index>.ssv
                                    the agent's parameters for each trial of the protocol, its seed included
+                                   (the reach: <decoder>_<band>_<index>.ssv, each goal of the reach plan)
 
 One parameter file per trial, not per condition: each trial has its own seed (protocol.trial_seed),
 so a set per condition could not reproduce the experiment's trials; and libcosim applies only the
@@ -25,8 +26,8 @@ import numpy as np
 
 from master.cosim import ConfigError
 from master.experiment import wiring
-from master.experiment.protocol import Trial, plan
-from master.export.agent import SEED, SEED_HIGH, SEED_LOW, agent_connections, exposed, split_seed
+from master.export.agent import agent_connections
+from master.export.tasks import task as task_named, trial_name  # noqa: F401 (trial_name, for its users)
 from master.outputs.files import atomic_write, check_output_file
 
 NS = {"ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
@@ -51,11 +52,6 @@ for _prefix, _uri in NS.items():
 def qualified(tag: str) -> str:
     prefix, _, name = tag.partition(":")
     return f"{{{NS[prefix]}}}{name}"
-
-
-def trial_name(trial: Trial) -> str:
-    """``conv_left_sync_0``: a trial's parameter file, without folder and suffix."""
-    return f"{trial.decoder}_{trial.condition}_{trial.stimulation}_{trial.index}"
 
 
 def format_value(kind: str, value) -> str:
@@ -95,26 +91,12 @@ def parameter_set(name: str, values: dict[str, tuple[str, object]], starts: dict
     return b'<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="utf-8") + b"\n"
 
 
-def agent_parameters(trial: Trial, config: dict, declared: dict) -> dict:
-    """The agent FMU's parameters for ``trial``: ``{name: (type, value)}`` from ``wiring.parameters``
-    (the experiment's own values), the seed split into two Integers."""
-    given = wiring.parameters([trial], config)
-    values = {}
-    for path, value in given.items():
-        name = path.partition(".")[2]
-        if path == SEED:
-            low, high = split_seed(int(value[0]))
-            values[SEED_LOW], values[SEED_HIGH] = ("Integer", low), ("Integer", high)
-        elif exposed(path) and declared.get(name, ("",))[0] == "parameter":
-            values[name] = (declared[name][1], np.asarray(value).reshape(-1)[0])
-    return values
-
-
-def body_parameters(trial: Trial, config: dict, declared: dict) -> dict:
-    """The body FMU's parameters: the experiment's ``body.*`` values that the body declares (as run_batch)."""
+def body_parameters(config: dict, declared: dict) -> dict:
+    """The body FMU's parameters: the configuration's ``body.*`` values that the body declares (as run_batch);
+    the same for every trial."""
     return {path.partition(".")[2]: (declared[path.partition(".")[2]][1], np.asarray(value).reshape(-1)[0])
-            for path, value in wiring.parameters([trial], config).items()
-            if path.startswith(BODY + ".") and path.partition(".")[2] in declared}
+            for path, value in wiring.shared_parameters(config, (BODY,)).items()
+            if path.partition(".")[2] in declared}
 
 
 def declared_variables(fmu: str) -> dict[str, tuple[str, str]]:
@@ -130,12 +112,14 @@ def start_values(fmu: str) -> dict[str, float]:
             if v.type == "Real" and v.start is not None}
 
 
-def system_description(agent: dict, body: dict, bound: str, step_size: float, stop_time: float, name: str) -> bytes:
+def system_description(agent: dict, body: dict, bound: str, step_size: float, stop_time: float, name: str,
+                       description: str = "the rubber-hand agent and a body", links=None) -> bytes:
     """SystemStructure.ssd: the agent and body components (every input and output a connector), their
-    connections (:func:`~master.export.agent.agent_connections`), the bound parameter files and the
-    default experiment (libcosim's fixed-step algorithm annotation carries the step size)."""
+    connections (:func:`~master.export.agent.agent_connections` of the body's ``links``, default the
+    experiment's), the bound parameter files and the default experiment (libcosim's fixed-step algorithm
+    annotation carries the step size)."""
     root = ET.Element(qualified("ssd:SystemStructureDescription"), {"version": "1.0", "name": name, "generationTool": "rhi"})
-    system = ET.SubElement(root, qualified("ssd:System"), {"name": name, "description": "the rubber-hand agent and a body"})
+    system = ET.SubElement(root, qualified("ssd:System"), {"name": name, "description": description})
     elements = ET.SubElement(system, qualified("ssd:Elements"))
     for component, declared, parameters in ((AGENT, agent, f"{TRIALS}/{bound}.ssv"), (BODY, body, BODY_PARAMETERS)):
         element = ET.SubElement(elements, qualified("ssd:Component"),
@@ -149,7 +133,7 @@ def system_description(agent: dict, body: dict, bound: str, step_size: float, st
         ET.SubElement(bindings, qualified("ssd:ParameterBinding"), {"type": "application/x-ssp-parameter-set",
                                                              "source": parameters})
     connections = ET.SubElement(system, qualified("ssd:Connections"))
-    for source, target in agent_connections(AGENT, BODY):
+    for source, target in agent_connections(AGENT, BODY, links):
         (start, start_connector), (end, end_connector) = source.split("."), target.split(".")
         ET.SubElement(connections, qualified("ssd:Connection"), {"startElement": start, "startConnector": start_connector,
                                                          "endElement": end, "endConnector": end_connector})
@@ -162,7 +146,7 @@ def system_description(agent: dict, body: dict, bound: str, step_size: float, st
     return b'<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="utf-8") + b"\n"
 
 
-def build_ssp(out, agent_fmu: str, body_fmu: str, config: dict, kind: str, bound: Trial | None = None) -> Path:
+def build_ssp(out, agent_fmu: str, body_fmu: str, config: dict, kind: str, bound=None, task: str = "illusion") -> Path:
     """Write the SSP package at ``out`` (a path ending in .ssp), whole or not at all.
 
     Parameters
@@ -170,14 +154,16 @@ def build_ssp(out, agent_fmu: str, body_fmu: str, config: dict, kind: str, bound
     out : path
         The package to write.
     agent_fmu, body_fmu : str
-        The FMUs (agent_fmu.build_agent_fmu; a body meeting the body contract).
+        The FMUs (agent_fmu.build_agent_fmu of ``task``; a body meeting the body contract).
     config : dict
-        The configuration: the protocol (one parameter file per trial of decoder ``kind``), the step
-        size and number of steps.
+        The task's configuration: the protocol or the reach plan (one parameter file per trial or goal of
+        decoder ``kind``), the step size and number of steps, the body's keys.
     kind : str
         The decoder the agent FMU carries.
-    bound : Trial, optional
-        The trial the SSD binds (default: the protocol's first of ``kind``).
+    bound : Trial or ReachTrial, optional
+        The trial the SSD binds (default: the task's first of ``kind``).
+    task : str
+        ``illusion`` or ``reach`` (``master.export.tasks``).
 
     Returns
     -------
@@ -185,25 +171,28 @@ def build_ssp(out, agent_fmu: str, body_fmu: str, config: dict, kind: str, bound
         ``out``.
     """
     out = check_output_file(out, "SSP file", ".ssp")
-    trials = [t for t in plan(config) if t.decoder == kind]
+    task = task_named(task)
+    trials = task.trials(config, kind)
     bound = bound or trials[0]
     if bound not in trials:
         trials.append(bound)
     agent, body, agent_starts = declared_variables(agent_fmu), declared_variables(body_fmu), start_values(agent_fmu)
     experiment = config["experiment"]
-    ssd = system_description(agent, body, trial_name(bound), experiment["step_size"],
-                             experiment["steps"] * experiment["step_size"], "RubberHandIllusion")
+    ssd = system_description(agent, body, task.trial_name(bound), experiment["step_size"],
+                             experiment["steps"] * experiment["step_size"], task.system_name, task.system_description,
+                             task.links(config))
 
     def write(file):
         with zipfile.ZipFile(file, "w", zipfile.ZIP_DEFLATED) as archive:
             archive.writestr(SSD, ssd)
             archive.write(agent_fmu, SOURCES[AGENT])
             archive.write(body_fmu, SOURCES[BODY])
-            archive.writestr(BODY_PARAMETERS, parameter_set("body", body_parameters(bound, config, body),
+            archive.writestr(BODY_PARAMETERS, parameter_set("body", body_parameters(config, body),
                                                             start_values(body_fmu)))
             for trial in trials:
-                archive.writestr(f"{TRIALS}/{trial_name(trial)}.ssv", parameter_set(
-                    trial_name(trial), agent_parameters(trial, config, agent), agent_starts))
+                name = task.trial_name(trial)
+                archive.writestr(f"{TRIALS}/{name}.ssv", parameter_set(
+                    name, task.agent_values(trial, config, agent, agent_starts), agent_starts))
 
     atomic_write(out, write)
     return out

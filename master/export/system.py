@@ -1,4 +1,5 @@
-"""``rhi export-system`` and ``rhi run-system``: the experiment as an SSP 1.0 package of agent and body FMUs.
+"""``rhi export-system`` and ``rhi run-system``: the experiment (or the reach) as an SSP 1.0 package of agent and
+body FMUs.
 
 :func:`export_system` builds the package (:mod:`master.export.ssp_package`); :func:`run_ssp` checks it
 (:mod:`master.export.ssp_check`) and runs it, unchanged, under FMPy's SSP master (``fmpy.ssp``) or libcosim
@@ -18,7 +19,6 @@ import numpy as np
 
 from components.body import kinematics
 from master.cosim import ConfigError, SimulationError
-from master.experiment.protocol import Trial
 from master.export.ssp_check import Package, read_ssp, trial_parameters
 from master.export.ssp_package import AGENT, BODY, MASTERS, MAX_STEPS, build_ssp
 from master.outputs.files import atomic_write, check_output_file
@@ -128,31 +128,24 @@ def final_drift_cm(values: dict, agent: str = AGENT, body: str = BODY) -> float:
     return float(100.0 * (perceived - real))
 
 
-def parse_trial(text: str, config: dict, kind: str) -> Trial:
-    """``left/sync/0`` -> the protocol's trial of decoder ``kind`` (ConfigError naming what is unknown)."""
-    from master.experiment.protocol import make_trial
-
-    parts = text.split("/")
-    if len(parts) != 3 or not parts[2].isdigit():
-        raise ConfigError(f"--trial {text!r} must be CONDITION/STIMULATION/INDEX, e.g. left/sync/0")
-    condition, stimulation, index = parts[0], parts[1], int(parts[2])
-    for table, value in (("conditions", condition), ("stimulations", stimulation)):
-        if value not in config[table]:
-            raise ConfigError(f"--trial {text!r}: no {table[:-1]} {value!r} (have: {', '.join(config[table])})")
-    return make_trial(config, kind, condition, stimulation, index)
+def final_goal_distance_cm(values: dict, agent: str = AGENT, body: str = BODY) -> float:
+    """The hand's distance to the goal's after the last step (cm), as ``master.experiment.reach.measures``
+    computes it: the body's hand and the reach agent's goal hand."""
+    return float(100.0 * np.hypot(values[f"{body}.hand_x"][-1] - values[f"{agent}.goal_hand_x"][-1],
+                                  values[f"{body}.hand_y"][-1] - values[f"{agent}.goal_hand_y"][-1]))
 
 
 def export_system(out, config: dict, kind: str | None = None, variant: str = "native", body: str | None = None,
-                  trial: str | None = None) -> Path:
-    """``rhi export-system``: the agent FMU, a body FMU (``variant`` exported, or the user's ``body``, checked
-    against the body contract) and the SSP package around them, at ``out``; everything checked first.
+                  trial: str | None = None, task: str = "illusion") -> Path:
+    """``rhi export-system``: the agent FMU of ``task``, a body FMU (``variant`` exported, or the user's ``body``,
+    checked against the body contract) and the SSP package around them, at ``out``; everything checked first.
 
     Parameters
     ----------
     out : path
         The .ssp to write.
     config : dict
-        A loaded configuration (protocol, step size, steps, parameters, decoder).
+        A loaded configuration of the task (protocol or reach plan, step size, steps, parameters, decoder).
     kind : str, optional
         The decoder (default: the configuration's first).
     variant : str
@@ -160,7 +153,10 @@ def export_system(out, config: dict, kind: str | None = None, variant: str = "na
     body : str, optional
         A body FMU of one's own.
     trial : str, optional
-        ``CONDITION/STIMULATION/INDEX``: the trial the SSD binds (default: the protocol's first).
+        ``CONDITION/STIMULATION/INDEX`` (the reach: ``BAND/INDEX``): the trial the SSD binds (default: the
+        protocol's first, or the reach plan's).
+    task : str
+        ``illusion`` or ``reach`` (``master.export.tasks``).
 
     Returns
     -------
@@ -171,10 +167,11 @@ def export_system(out, config: dict, kind: str | None = None, variant: str = "na
     from components.fmu import check_contract
     from master.export.agent_fmu import export_agent
     from master.export.body import VARIANT_NAMES, export_body
+    from master.export.tasks import task as task_named
 
     out = check_output_file(out, "SSP file", ".ssp")
     kind = kind or config["experiment"]["decoders"][0]
-    bound = parse_trial(trial, config, kind) if trial else None
+    bound = task_named(task).parse_trial(trial, config, kind) if trial else None
     if body is not None:
         problems = check_contract(body, BODY_CONTRACT)
         if problems:
@@ -183,9 +180,9 @@ def export_system(out, config: dict, kind: str | None = None, variant: str = "na
     elif variant not in VARIANT_NAMES:
         raise ConfigError(f"--body-variant {variant!r} is not one of {', '.join(VARIANT_NAMES)}")
     with tempfile.TemporaryDirectory(prefix="rhi_system_") as folder:
-        agent, _ = export_agent(Path(folder) / "Agent.fmu", config, kind)
+        agent, _ = export_agent(Path(folder) / "Agent.fmu", config, kind, task)
         body = body or str(export_body(Path(folder) / "Body.fmu", variant))
-        return build_ssp(out, str(agent), body, config, kind, bound)
+        return build_ssp(out, str(agent), body, config, kind, bound, task)
 
 
 def write_csv(out, values: dict) -> Path:

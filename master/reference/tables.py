@@ -176,13 +176,14 @@ def port_rows(variables) -> list[list[str]]:
 PORTS = ["port", "causality", "type", "unit", "range", "start", "meaning"]
 
 
-def agent_ports() -> str:
-    from master.experiment import config
+def agent_ports(task: str = "illusion") -> str:
+    """The ports of ``task``'s agent (``master.export.tasks``), under the task's default configuration."""
     from master.experiment.decoders import checkpoint_path
-    from master.export.agent import Agent
+    from master.export.agent_fmu import make_agent
+    from master.export.tasks import TASKS
 
-    defaults = config.load()
-    agent = Agent(checkpoint_path("conv", defaults, must_exist=True), "conv", defaults)
+    defaults = TASKS[task].load(None, {}, False)
+    agent = make_agent(checkpoint_path("conv", defaults, must_exist=True), "conv", defaults, task)
     return markdown(PORTS, port_rows(agent.variables.values()))
 
 
@@ -207,4 +208,5 @@ def worker_command() -> str:
 
 TABLES = {"configuration-keys": configuration_keys, "paper-preset": paper_preset, "summary-columns": summary_columns,
           "trials-columns": trials_columns, "sweep-columns": sweep_columns, "phenomenon-columns": phenomenon_columns,
-          "agent-ports": agent_ports, "body-ports": body_ports, "worker-command": worker_command}
+          "agent-ports": agent_ports, "reach-agent-ports": lambda: agent_ports("reach"), "body-ports": body_ports,
+          "worker-command": worker_command}
