@@ -74,11 +74,7 @@ def test_the_output_column_tables_are_the_shipped_files_headers():
     assert names("configuration.md", "summary-columns") == header(DOCS / "summary.csv")
     assert names("configuration.md", "summary-columns") == header(DOCS / "paper" / "summary.csv")
     documented = names("sweeps.md", "phenomenon-columns")
-    earlier = (DOCS / "phenomena.md").read_text().split("earlier-format tables")[1].split("(")[0]
     for table in sorted((DOCS / "phenomena").glob("*.csv")):
-        if header(table)[0] != "model":  # a table of the earlier format, which the page names as such
-            assert f"`{table.name}`" in earlier, table.name
-            continue
         assert [documented[0], *documented[2:]] == [header(table)[0], *header(table)[2:]], table.name
     sweep = header(DOCS / "sweeps" / "paper_visual_variance" / "summary.csv")
     documented = block("sweeps.md", "sweep-columns").split("`summary.csv`:")[1]

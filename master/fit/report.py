@@ -192,7 +192,8 @@ def results_markdown(out: Path) -> str:
               f"(L = {run['calibration']['samples_per_participant']}) |",
               f"| failed simulated participants | {simulations['failed_participants']} |",
               f"| simulations' wall time | {simulations['wall_s_now']:.0f} s "
-              f"({simulations['trials_per_s_now']} trials/s) |",
+              + (f"({simulations['trials_per_s_now']} trials/s) |" if simulations['trials_per_s_now'] is not None
+                 else "(none run: an earlier run's simulations) |"),
               f"| workers' CPU time per trial | {simulations['cpu_s_per_trial']:.3f} s |",
               f"| training | {estimator['seconds']:.1f} s, "
               + (f"{estimator['epochs']} epochs" if estimator.get("ensemble", 1) == 1 else
