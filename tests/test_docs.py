@@ -97,3 +97,13 @@ def test_an_unknown_output_column_is_refused_until_it_is_documented(monkeypatch)
     monkeypatch.setattr(tables, "SUMMARY_COLUMNS", [*tables.SUMMARY_COLUMNS, "new_thing_kg"])
     with pytest.raises(KeyError, match="new_thing_kg"):
         reference.summary_columns()
+
+
+def test_the_fit_pages_tables_are_made_from_the_shipped_fits():
+    from master.fit.report import results_markdown
+
+    page = (DOCS / "fit.md").read_text()
+    for folder in ("recovery", "recovery_ensemble", "human/kocur2022"):
+        tables = results_markdown(DOCS / "fit" / folder)
+        first = tables.split("\n\n")[0]  # the ensemble's page shows its calibration table only
+        assert (tables if folder != "recovery_ensemble" else first) in page, folder

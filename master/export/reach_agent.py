@@ -56,17 +56,9 @@ REACH_OBSERVED = OBSERVED[:3] + (
 class ReachAgent(Agent):
     """The reach agent (goal arm, goal camera, goal decoder or encoder, brain) as one component with scalar ports.
 
-    Parameters
-    ----------
-    checkpoint : str
-        The decoder's checkpoint file.
-    kind : str
-        ``conv`` or ``vae``: the decoder's kind (checked against the checkpoint).
-    config : dict
-        A loaded reach configuration (``master.experiment.reach.load``): the resolution, the camera's blur,
-        the decoder's mode, the goal's term and view, and the start values of the parameters.
-    name : str
-        The component's name.
+    Its parameters are :class:`Agent`'s, but ``config`` is a reach configuration
+    (``master.experiment.reach.load``): the resolution, the camera's blur, the decoder's mode, the goal's term
+    and view, and the start values of the parameters.
     """
 
     task = "reach"
