@@ -11,7 +11,6 @@ import subprocess
 import sys
 import zipfile
 
-import numpy as np
 import pytest
 from fmpy.ssp.ssd import read_ssd
 
@@ -22,9 +21,12 @@ from master.experiment.protocol import make_trial, plan
 from master.export.agent import agent_connections, join_seed
 from master.export.body import build_fmu
 from master.export.ssp_check import read_ssp, trial_parameters
-from master.export.ssp_package import BODY_PARAMETERS, SSD, TRIALS, build_ssp, trial_name
+from master.export.ssp_package import BODY_PARAMETERS, SSD, TRIALS, build_ssp
 from master.export.system import final_drift_cm, run_ssp
+from master.export.tasks import TASKS
 from tests.test_agent import agent_fmu, quick  # noqa: F401 (fixtures)
+
+trial_name = TASKS["illusion"].trial_name  # conv_left_sync_0: a trial's parameter file
 
 LIBCOSIM = importlib.util.find_spec("libcosimpy") is not None
 STEPS, PERIOD = 250, 0.5  # 5 s with a touch every 0.5 s: the drift is under way; small enough for a test

@@ -27,7 +27,7 @@ import numpy as np
 from master.cosim import ConfigError
 from master.experiment import wiring
 from master.export.agent import agent_connections
-from master.export.tasks import task as task_named, trial_name  # noqa: F401 (trial_name, for its users)
+from master.export.tasks import task as task_named
 from master.outputs.files import atomic_write, check_output_file
 
 NS = {"ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",

@@ -20,11 +20,6 @@ from master.experiment.protocol import Trial, make_trial, plan
 from master.export.agent import SEED, SEED_HIGH, SEED_LOW, body_links, exposed, split_seed
 
 
-def trial_name(trial: Trial) -> str:
-    """``conv_left_sync_0``: a trial's parameter file, without folder and suffix."""
-    return f"{trial.decoder}_{trial.condition}_{trial.stimulation}_{trial.index}"
-
-
 def agent_parameters(trial: Trial, config: dict, declared: dict) -> dict:
     """The agent FMU's parameters for ``trial``: ``{name: (type, value)}`` from ``wiring.parameters``
     (the experiment's own values), the seed split into two Integers."""
@@ -55,7 +50,8 @@ class Illusion:
         return [t for t in plan(config) if t.decoder == kind]
 
     def trial_name(self, trial: Trial) -> str:
-        return trial_name(trial)
+        """``conv_left_sync_0``: a trial's parameter file, without folder and suffix."""
+        return f"{trial.decoder}_{trial.condition}_{trial.stimulation}_{trial.index}"
 
     def parse_trial(self, text: str, config: dict, kind: str) -> Trial:
         """``left/sync/0`` -> the protocol's trial of decoder ``kind`` (ConfigError naming what is unknown)."""

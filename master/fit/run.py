@@ -165,9 +165,9 @@ def load_or_train(plan: FitPlan, theta, x, path: Path, identity: str):
             return estimators, json.loads(saved["summary"])
     trained = [inference.train(plan.parameters, theta, x, plan.estimator, seed) for seed in seeds]
     estimators = [estimator.eval() for estimator, _ in trained]
-    summary = {**trained[0][1], "seconds": round(sum(part["seconds"] for _, part in trained), 3),
-               "members": [part["epochs"] for _, part in trained] if len(trained) > 1 else None}
-    summary = {key: value for key, value in summary.items() if value is not None}
+    summary = {**trained[0][1], "seconds": round(sum(part["seconds"] for _, part in trained), 3)}
+    if len(trained) > 1:
+        summary["members"] = [part["epochs"] for _, part in trained]
     state = {"states": [estimator.state_dict() for estimator in estimators], "trained_on": trained_on,
              "summary": json.dumps(summary)}
     atomic_write(path, lambda file: torch.save(state, file))
