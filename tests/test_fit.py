@@ -253,7 +253,9 @@ def test_fit_file_refusals(tmp_path):
                "[experiment]\nsteps", "[stimulus]\nperiod = 2.0\n#"): "a fit simulates one decoder",
            good.replace("high = 2.0", "high = 0.4"): "low must be below high",
            good.replace("simulations = 20", "simulations = 3"): "fit.simulations must be at least 10",
-           good.replace("[fit.noise]\ndrift_cm = 0.01", "[fit.noise]\ndrift = 0.01"): "unknown fit key fit.noise.drift"}
+           good.replace("[fit.noise]\ndrift_cm = 0.01", "[fit.noise]\ndrift = 0.01"): "unknown fit key fit.noise.drift",
+           good.replace("[fit.estimator]", '[fit.estimator]\nspace = "curved"'):
+               "fit.estimator.space = 'curved' is not one of bounded, unconstrained"}
     for text, message in bad.items():
         with pytest.raises(ConfigError, match=message.replace("[", r"\[").replace("(", r"\(")):
             read_plan(write(tmp_path / "bad.toml", text), data)
@@ -306,16 +308,53 @@ def test_an_ensemble_is_the_equal_mixture_of_its_members_and_reloads_as_saved(tm
     assert len(members) == 2 and len(summary["members"]) == 2
     weights = [m.state_dict() for m in members]
     assert any(not torch.equal(weights[0][k], weights[1][k]) for k in weights[0])  # two seeds, two members
-    ensemble = inference.posterior(parameters, members)
+    ensemble = inference.posterior(parameters, members, settings)
     points = torch.tensor([[0.0, 0.0], [1.0, -2.0], [2.5, 2.5]])
     observed = torch.tensor([0.5, -0.5])
     # unnormalised (norm_posterior=False): sbi's correction for mass leaking out of the prior's support is itself
     # estimated by sampling, a random number per call
-    each = torch.stack([inference.posterior(parameters, [m]).log_prob(points, x=observed, norm_posterior=False)
+    each = torch.stack([inference.posterior(parameters, [m], settings).log_prob(points, x=observed, norm_posterior=False)
                         for m in members])
     by_hand = torch.logsumexp(each, dim=0) - np.log(2.0)
     # float32 densities of the same networks, summed in another order: 1e-5 is some 100 float32 ulps of ~1
     assert torch.allclose(ensemble.log_prob(points, x=observed, norm_posterior=False), by_hand, atol=1e-5)
     reloaded, _ = load_or_train(plan, theta, x, tmp_path / "estimator.pt", "identity")
-    assert np.array_equal(inference.sample(inference.posterior(parameters, reloaded), observed.numpy(), 50, 7),
+    assert np.array_equal(inference.sample(inference.posterior(parameters, reloaded, settings), observed.numpy(), 50, 7),
                           inference.sample(ensemble, observed.numpy(), 50, 7))
+
+
+def test_the_unconstrained_space_by_hand():
+    """fit.estimator.space = "unconstrained": a uniform on (a, b) maps by the logit z = log((v - a)/(b - v)) and its
+    density there is the logistic sigma(z)(1 - sigma(z)); a normal bounded below maps by z = log(v - low), density
+    N(v) e^z / (1 - Phi(low)); an unbounded normal is unchanged. Samples come back in the inference space."""
+    import torch
+
+    from master.fit import inference
+    from master.fit.plan import ESTIMATOR_DEFAULTS, Parameter
+
+    parameters = [Parameter("a", "uniform", 0.05, 0.5), Parameter("b", "log-uniform", 5.0, 80.0),
+                  Parameter("c", "normal", 0.0, np.inf, 1.0, 0.5), Parameter("d", "normal", mean=0.0, sd=2.0)]
+    settings = {**ESTIMATOR_DEFAULTS, "space": "unconstrained"}
+    v = np.array([[0.1, np.log(20.0), 1.3, -0.7], [0.45, np.log(6.0), 0.2, 3.0]])
+    z = inference.to_flow(parameters, settings, v).double().numpy()
+    a, b = np.log(5.0), np.log(80.0)
+    expected = np.stack([np.log((v[:, 0] - 0.05) / (0.5 - v[:, 0])), np.log((v[:, 1] - a) / (b - v[:, 1])),
+                         np.log(v[:, 2]), v[:, 3]], axis=1)
+    assert np.allclose(z, expected, rtol=1e-6, atol=1e-6)  # float32 transforms of O(1) values: 1e-6 is ~10 ulps
+    logistic = lambda t: np.log(1.0 / (1.0 + np.exp(-t)) * (1.0 - 1.0 / (1.0 + np.exp(-t))))  # noqa: E731
+    by_hand = (logistic(z[:, 0]) + logistic(z[:, 1])
+               + stats.norm.logpdf(v[:, 2], 1.0, 0.5) + z[:, 2] - stats.norm.logsf(0.0, 1.0, 0.5)
+               + stats.norm.logpdf(v[:, 3], 0.0, 2.0))
+    density = inference.flow_prior(parameters, settings).log_prob(torch.as_tensor(z, dtype=torch.float32))
+    assert np.allclose(density.double().numpy(), by_hand, atol=1e-4)  # float32 sums of four log densities of O(10)
+    bounded = inference.to_flow(parameters, {**ESTIMATOR_DEFAULTS, "space": "bounded"}, v).double().numpy()
+    assert bounded == pytest.approx(v, rel=6e-8)  # the values themselves, rounded to float32 (half an ulp: 6e-8)
+
+    rng = np.random.default_rng(2)   # a tiny estimator trained in that space samples inside every bound
+    theta = inference.torch_prior(parameters).sample((200,)).double().numpy()
+    x = theta + 0.3 * rng.standard_normal(theta.shape)
+    estimator, _ = inference.train(parameters, theta, x, {**settings, "hidden_features": 4, "transforms": 1,
+                                                          "max_epochs": 3, "threads": 1}, seed=0)
+    drawn = inference.sample(inference.posterior(parameters, [estimator], settings), x[0], 500, 3)
+    assert drawn.shape == (500, 4)
+    assert np.all((drawn[:, 0] > 0.05) & (drawn[:, 0] < 0.5) & (drawn[:, 1] > a) & (drawn[:, 1] < b) & (drawn[:, 2] > 0))

@@ -43,6 +43,48 @@ def torch_prior(parameters: list[Parameter]):
     return MultipleIndependent(parts, validate_args=False)
 
 
+def unconstraining(parameters: list[Parameter]):
+    """``fit.estimator.space = "unconstrained"``: the bijection of the inference space onto the whole of R^d.
+
+    Each parameter's support in the inference space (an interval, a half-line or the line) is mapped onto the
+    line by the inverse of torch's ``biject_to`` (a logit for an interval, a log for a half-line): the transform
+    to unconstrained space that Stan and sbi's MCMC use for bounded parameters. A flow has no sharp edges;
+    trained on a bounded support it puts mass beyond the bounds, which sbi rejects ("leakage"), and it draws a
+    posterior that fills the support, the prior itself included, as a bump narrower than it. In the unconstrained
+    space the bounds lie at infinity. Returns a torch transform over (..., parameters) tensors."""
+    from torch.distributions import biject_to, constraints
+    from torch.distributions.transforms import CatTransform, IndependentTransform
+
+    parts = []
+    for parameter in parameters:
+        low, high = (float(parameter.to_inference(bound)) for bound in (parameter.low, parameter.high))
+        if math.isfinite(low) and math.isfinite(high):
+            support = constraints.interval(low, high)
+        elif math.isfinite(low) or math.isfinite(high):
+            support = constraints.greater_than(low) if math.isfinite(low) else constraints.less_than(high)
+        else:
+            support = constraints.real
+        parts.append(biject_to(support).inv)
+    return IndependentTransform(CatTransform(parts, dim=-1, lengths=[1] * len(parts)), 1)
+
+
+def flow_prior(parameters: list[Parameter], settings: dict):
+    """The prior over the space the flow is trained in: :func:`torch_prior`, or its image under
+    :func:`unconstraining` (a torch TransformedDistribution, the Jacobian in its density)."""
+    from torch.distributions import TransformedDistribution
+
+    prior = torch_prior(parameters)
+    return TransformedDistribution(prior, [unconstraining(parameters)]) if settings["space"] == "unconstrained" else prior
+
+
+def to_flow(parameters: list[Parameter], settings: dict, theta: np.ndarray):
+    """(rows, parameters) values of the inference space as a float32 tensor of the flow's space."""
+    import torch
+
+    theta = torch.as_tensor(np.asarray(theta), dtype=torch.float32)
+    return unconstraining(parameters)(theta) if settings["space"] == "unconstrained" else theta
+
+
 def truncated_normal_class():
     import torch
     from torch.distributions import constraints
@@ -100,9 +142,9 @@ def train(parameters: list[Parameter], theta: np.ndarray, x: np.ndarray, setting
     torch.set_num_threads(settings["threads"])
     torch.manual_seed(seed)
     began = time.perf_counter()
-    inference = NPE(prior=torch_prior(parameters), density_estimator=builder(settings), show_progress_bars=False,
-                    tracker=NoTracker())
-    inference.append_simulations(torch.as_tensor(theta, dtype=torch.float32), torch.as_tensor(x, dtype=torch.float32))
+    inference = NPE(prior=flow_prior(parameters, settings), density_estimator=builder(settings),
+                    show_progress_bars=False, tracker=NoTracker())
+    inference.append_simulations(to_flow(parameters, settings, theta), torch.as_tensor(x, dtype=torch.float32))
     estimator = inference.train(training_batch_size=settings["batch_size"], learning_rate=settings["learning_rate"],
                                 max_num_epochs=settings["max_epochs"], show_train_summary=False)
     summary = inference.summary
@@ -139,16 +181,17 @@ def rebuild(parameters: list[Parameter], theta: np.ndarray, x: np.ndarray, setti
 
     torch.set_num_threads(settings["threads"])
     torch.manual_seed(seed)
-    estimator = builder(settings)(torch.as_tensor(theta, dtype=torch.float32), torch.as_tensor(x, dtype=torch.float32))
+    estimator = builder(settings)(to_flow(parameters, settings, theta), torch.as_tensor(x, dtype=torch.float32))
     estimator.load_state_dict(state)
     return estimator.eval()
 
 
-def posterior(parameters: list[Parameter], estimators: list):
-    """The posterior of one trained estimator, or the equal-weight mixture of an ensemble's."""
+def posterior(parameters: list[Parameter], estimators: list, settings: dict):
+    """The posterior of one trained estimator, or the equal-weight mixture of an ensemble's, over the flow's space."""
     from sbi.inference.posteriors import DirectPosterior, EnsemblePosterior
 
-    members = [DirectPosterior(posterior_estimator=estimator, prior=torch_prior(parameters)) for estimator in estimators]
+    prior = flow_prior(parameters, settings)
+    members = [DirectPosterior(posterior_estimator=estimator, prior=prior) for estimator in estimators]
     return members[0] if len(members) == 1 else EnsemblePosterior(members)
 
 
@@ -161,4 +204,7 @@ def sample(posterior_, x: np.ndarray, count: int, seed: int) -> np.ndarray:
     with torch.no_grad():
         samples = posterior_.sample((count,), x=torch.as_tensor(np.asarray(x)[None], dtype=torch.float32),
                                     show_progress_bars=False)
+    prior = posterior_.prior  # the flow's space: back to the inference space where it is unconstrained
+    if isinstance(prior, torch.distributions.TransformedDistribution):
+        samples = torch.distributions.transforms.ComposeTransform(prior.transforms).inv(samples)
     return samples.double().numpy()

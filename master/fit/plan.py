@@ -33,8 +33,8 @@ FIT_KEYS = ("model", "quick", "simulations", "calibration", "seed", "trials_per_
             "workers", "measures", "posterior_samples", "calibration_samples", "predictive_draws",
             "predictive_participants", "noise", "estimator", "parameters")
 ESTIMATOR_DEFAULTS = {"density": "maf", "hidden_features": 32, "transforms": 3, "batch_size": 64,
-                      "max_epochs": 500, "learning_rate": 5e-4, "threads": 2, "ensemble": 1}
-DENSITIES = ("maf", "nsf", "mdn")
+                      "max_epochs": 500, "learning_rate": 5e-4, "threads": 2, "ensemble": 1, "space": "unconstrained"}
+CHOICES = {"density": ("maf", "nsf", "mdn"), "space": ("bounded", "unconstrained")}
 WHOLE = {"simulations": 1000, "calibration": 100, "seed": 0, "trials_per_cell": 1, "participants_per_batch": 10,
          "posterior_samples": 1000, "calibration_samples": 99, "predictive_draws": 10, "predictive_participants": 8}
 MAX_SIMULATIONS = 100_000
@@ -201,8 +201,8 @@ def read_plan(path: str, data: Data, model: str | None = None) -> FitPlan:
             raise configuration.unknown_key(f"fit.estimator.{key}", ESTIMATOR_DEFAULTS, "fit")
         default = ESTIMATOR_DEFAULTS[key]
         if isinstance(default, str):
-            if value not in DENSITIES:
-                raise ConfigError(f"fit.estimator.density = {value!r} is not one of {', '.join(DENSITIES)}")
+            if value not in CHOICES[key]:
+                raise ConfigError(f"fit.estimator.{key} = {value!r} is not one of {', '.join(CHOICES[key])}")
         elif (not isinstance(value, (int, float)) or isinstance(value, bool) or not value > 0
               or (isinstance(default, int) and not isinstance(value, int))):
             raise ConfigError(f"fit.estimator.{key} = {value!r} must be a positive "

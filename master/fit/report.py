@@ -198,7 +198,8 @@ def results_markdown(out: Path) -> str:
               f"| training | {estimator['seconds']:.1f} s, "
               + (f"{estimator['epochs']} epochs" if estimator.get("ensemble", 1) == 1 else
                  f"an ensemble of {estimator['ensemble']} ({', '.join(map(str, estimator['members']))} epochs)")
-              + f", {estimator['density']} ({estimator['hidden_features']} hidden, {estimator['transforms']} transforms), "
+              + f", {estimator['density']} ({estimator['hidden_features']} hidden, {estimator['transforms']} transforms"
+              + (", unconstrained space" if estimator.get("space") == "unconstrained" else "") + "), "
               f"{estimator['torch_threads']} torch threads |",
               f"| posterior of a participant ({run['settings']['posterior_samples']} samples) | "
               f"{timing['mean']:.3f} s mean, {timing['max']:.3f} s max |",

@@ -41,8 +41,10 @@ def fingerprint(plan: FitPlan, sweep_fingerprint: str) -> str:
     return canonical_hash({"simulations": sweep_fingerprint, "parameters": [p.describe() for p in plan.parameters],
                            "settings": {k: v for k, v in plan.settings.items() if k not in AFTER_TRAINING},
                            "measures": plan.measures, "noise": plan.noise,
-                           # a single estimator, as before ensembles existed: fits made then keep their identity
-                           "estimator": {k: v for k, v in plan.estimator.items() if (k, v) != ("ensemble", 1)}})
+                           # a single estimator in the bounded space, as before ensembles and spaces existed: fits
+                           # made then keep their identity
+                           "estimator": {k: v for k, v in plan.estimator.items()
+                                         if (k, v) not in (("ensemble", 1), ("space", "bounded"))}})
 
 
 def prepare_folder(out: Path, identity: str) -> None:
@@ -111,7 +113,7 @@ def _fit(data: Data, plan: FitPlan, drawn: np.ndarray, sweep, out: Path, pool, l
                           f"(see {out / 'simulations' / 'index.csv'}); narrow the priors")
     theta, x_train = drawn[train_rows], x[train_rows]
     estimators, training = load_or_train(plan, theta, x_train, out / "estimator.pt", identity)
-    posterior = inference.posterior(plan.parameters, estimators)
+    posterior = inference.posterior(plan.parameters, estimators, plan.estimator)
 
     timing = []
     samples = []
