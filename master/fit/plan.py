@@ -32,7 +32,8 @@ PRIORS = ("uniform", "log-uniform", "normal")
 FIT_KEYS = ("model", "quick", "simulations", "calibration", "seed", "trials_per_cell", "participants_per_batch",
             "workers", "measures", "posterior_samples", "calibration_samples", "predictive_draws",
             "predictive_participants", "noise", "estimator", "parameters")
-ESTIMATOR_DEFAULTS = {"density": "maf", "hidden_features": 32, "transforms": 3, "batch_size": 64,
+# the flow's size, batch and learning rate are sbi's own defaults (posterior_nn, NPE.train)
+ESTIMATOR_DEFAULTS = {"density": "maf", "hidden_features": 50, "transforms": 5, "batch_size": 200,
                       "max_epochs": 500, "learning_rate": 5e-4, "threads": 2, "ensemble": 1, "space": "unconstrained"}
 CHOICES = {"density": ("maf", "nsf", "mdn"), "space": ("bounded", "unconstrained")}
 WHOLE = {"simulations": 1000, "calibration": 100, "seed": 0, "trials_per_cell": 1, "participants_per_batch": 10,
