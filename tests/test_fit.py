@@ -341,8 +341,7 @@ def test_the_unconstrained_space_by_hand():
     expected = np.stack([np.log((v[:, 0] - 0.05) / (0.5 - v[:, 0])), np.log((v[:, 1] - a) / (b - v[:, 1])),
                          np.log(v[:, 2]), v[:, 3]], axis=1)
     assert np.allclose(z, expected, rtol=1e-6, atol=1e-6)  # float32 transforms of O(1) values: 1e-6 is ~10 ulps
-    logistic = lambda t: np.log(1.0 / (1.0 + np.exp(-t)) * (1.0 - 1.0 / (1.0 + np.exp(-t))))  # noqa: E731
-    by_hand = (logistic(z[:, 0]) + logistic(z[:, 1])
+    by_hand = (stats.logistic.logpdf(z[:, 0]) + stats.logistic.logpdf(z[:, 1])  # sigma(z)(1 - sigma(z))
                + stats.norm.logpdf(v[:, 2], 1.0, 0.5) + z[:, 2] - stats.norm.logsf(0.0, 1.0, 0.5)
                + stats.norm.logpdf(v[:, 3], 0.0, 2.0))
     density = inference.flow_prior(parameters, settings).log_prob(torch.as_tensor(z, dtype=torch.float32))

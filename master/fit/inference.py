@@ -30,7 +30,7 @@ def torch_prior(parameters: list[Parameter]):
 
     parts = []
     for parameter in parameters:
-        low, high = (float(parameter.to_inference(bound)) for bound in (parameter.low, parameter.high))
+        low, high = inference_bounds(parameter)
         if parameter.prior == "normal":
             if math.isfinite(low) or math.isfinite(high):
                 parts.append(TruncatedNormal(parameter.mean, parameter.sd, low, high))
@@ -41,6 +41,11 @@ def torch_prior(parameters: list[Parameter]):
     if len(parts) == 1:  # sbi's MultipleIndependent combines two or more
         return torch.distributions.Independent(parts[0], 1)
     return MultipleIndependent(parts, validate_args=False)
+
+
+def inference_bounds(parameter: Parameter) -> tuple[float, float]:
+    """The parameter's bounds in the inference space (-inf, inf where it has none)."""
+    return tuple(float(parameter.to_inference(bound)) for bound in (parameter.low, parameter.high))
 
 
 def unconstraining(parameters: list[Parameter]):
@@ -57,11 +62,14 @@ def unconstraining(parameters: list[Parameter]):
 
     parts = []
     for parameter in parameters:
-        low, high = (float(parameter.to_inference(bound)) for bound in (parameter.low, parameter.high))
-        if math.isfinite(low) and math.isfinite(high):
+        low, high = inference_bounds(parameter)
+        bounded_below, bounded_above = math.isfinite(low), math.isfinite(high)
+        if bounded_below and bounded_above:
             support = constraints.interval(low, high)
-        elif math.isfinite(low) or math.isfinite(high):
-            support = constraints.greater_than(low) if math.isfinite(low) else constraints.less_than(high)
+        elif bounded_below:
+            support = constraints.greater_than(low)
+        elif bounded_above:
+            support = constraints.less_than(high)
         else:
             support = constraints.real
         parts.append(biject_to(support).inv)
