@@ -31,7 +31,9 @@ import math
 
 import numpy as np
 import pymunk
-from pymunk._chipmunk import lib as chipmunk  # the C calls behind pymunk's properties (see step)
+import pymunk.batch
+from pymunk.batch import BodyFields
+from pymunk._chipmunk import lib as chipmunk  # the C call behind a constraint's impulse (see step)
 
 from components.body.kinematics import FOREARM, REST_HAND, REST_POSE, SHOULDER, UPPER_ARM, forward
 from components.component import Component, ComponentError, StepFailure
@@ -98,6 +100,7 @@ class ArmPlant(Component):
         self.space: pymunk.Space | None = None
         self._arms: list[tuple[pymunk.Body, pymunk.Body]] = []
         self._cells: list[tuple[pymunk.DampedSpring, pymunk.DampedSpring] | None] = []
+        self._body_slots: tuple[np.ndarray, np.ndarray] = (np.zeros(0, int), np.zeros(0, int))
 
     # -- set-up ------------------------------------------------------------------------------
     def publish_initial(self):
@@ -130,7 +133,15 @@ class ArmPlant(Component):
                 self.space.add(*cell)
             self._arms.append((upper, forearm))
             self._cells.append(cell)
+        self._body_slots = self._slots()
         self._publish(np.zeros((self.batch_size, 2)))
+
+    def _slots(self):
+        """(upper arm's, forearm's) positions, per trial, in the space's body order (pymunk's batch calls)."""
+        ids = pymunk.batch.Buffer()
+        pymunk.batch.get_space_bodies(self.space, BodyFields.BODY_ID, ids)
+        slot = {body_id: n for n, body_id in enumerate(memoryview(ids.int_buf()).cast("P"))}
+        return tuple(np.array([slot[arm[part].id] for arm in self._arms]) for part in (0, 1))
 
     def _build_arm(self, trial):
         v = self.values
@@ -165,31 +176,33 @@ class ArmPlant(Component):
             raise StepFailure(f"{self.name}.substeps = {substeps} is too few for servo_gain: a sub-step of "
                               f"{dt:.3g} s exceeds the servo time constant {1 / rate.max():.3g} s; "
                               f"use substeps >= {math.ceil(h * rate.max())}")
-        # The hot loop runs B x substeps times: plain Python floats (numpy scalars are much slower) and
-        # Chipmunk's own getters and setters, without the per-call overhead of pymunk's properties that
-        # wrap them (the same numbers bit for bit, the loop several times faster).
-        get_speed, set_torque = chipmunk.cpBodyGetAngularVelocity, chipmunk.cpBodySetTorque
+        # The hot loop runs substeps times over the whole batch: the bodies' angular velocities read and their
+        # torques written by pymunk's batch calls, one C call each for all trials, the servo law in numpy
+        # (element-wise IEEE arithmetic: the same numbers bit for bit as a per-trial loop, several times faster).
+        want, gain, cap = command.T, v["servo_gain"], v["torque_limit"]
+        upper, forearm = self._body_slots
+        speeds, torques = pymunk.batch.Buffer(), pymunk.batch.Buffer()
+        torque = np.zeros(2 * self.batch_size)
+        torques.set_float_buf(torque)
+        held = [trial for trial, cell in enumerate(self._cells) if cell is not None]
+        springs = [spring._constraint for trial in held for spring in self._cells[trial]]
         get_impulse = chipmunk.cpConstraintGetImpulse
-        servos = [(upper._body, forearm._body, want[0], want[1], k, cap) for (upper, forearm), want, k, cap
-                  in zip(self._arms, command.tolist(), v["servo_gain"].tolist(), v["torque_limit"].tolist())]
-        cells = [(trial, cell[0]._constraint, cell[1]._constraint) for trial, cell in enumerate(self._cells)
-                 if cell is not None]
-        impulses = [[0.0, 0.0] for _ in range(self.batch_size)]
+        impulses = np.zeros((len(held), 2))
         for _ in range(substeps):
-            for upper, forearm, want_shoulder, want_elbow, k, cap in servos:
-                shoulder_speed = get_speed(upper)
-                elbow_speed = get_speed(forearm) - shoulder_speed
-                tau_shoulder = min(max(k * (want_shoulder - shoulder_speed), -cap), cap)
-                tau_elbow = min(max(k * (want_elbow - elbow_speed), -cap), cap)
-                set_torque(upper, tau_shoulder - tau_elbow)  # the elbow motor pushes back on the upper arm
-                set_torque(forearm, tau_elbow)
+            speeds.clear()
+            pymunk.batch.get_space_bodies(self.space, BodyFields.ANGULAR_VELOCITY, speeds)
+            speed = np.frombuffer(speeds.float_buf())
+            tau_shoulder = np.minimum(np.maximum(gain * (want[0] - speed[upper]), -cap), cap)
+            tau_elbow = np.minimum(np.maximum(gain * (want[1] - (speed[forearm] - speed[upper])), -cap), cap)
+            torque[upper] = tau_shoulder - tau_elbow  # the elbow motor pushes back on the upper arm
+            torque[forearm] = tau_elbow
+            pymunk.batch.set_space_bodies(self.space, BodyFields.TORQUE, torques)
             self.space.step(dt)
-            for trial, along_x, along_y in cells:
-                total = impulses[trial]
-                total[0] += get_impulse(along_x)
-                total[1] += get_impulse(along_y)
+            impulses += np.fromiter(map(get_impulse, springs), float, len(springs)).reshape(-1, 2)
+        force = np.zeros((self.batch_size, 2))
+        force[held] = impulses
         # The springs' impulse is what the clamp does to the arm; the arm exerts the opposite.
-        self._publish(-np.array(impulses) / h)
+        self._publish(-force / h)
 
     def _release(self, t):
         """Remove the load cell of every held trial whose ``release_time`` has come (the arm is free from now)."""

@@ -110,24 +110,32 @@ class LinearisedDecoder(Decoder):
         mu, else its mu itself; the new points are evaluated in one decoder call."""
         tolerance = self.values["relinearise_tolerance"]
         stored = np.flatnonzero(~np.isnan(self._points[:, 0]))
-        candidates = np.empty((len(stored) + len(trials), 2))  # the stored points, then this call's new ones
-        candidates[:len(stored)] = self._points[stored]
-        owners = list(stored)  # slot of each candidate; -1 - k for the k-th new point
-        new = []
-        for trial in trials:
-            count = len(owners)
-            distance = np.abs(candidates[:count] - mu[trial]).max(axis=1) if count else np.array([np.inf])
-            nearest = int(distance.argmin())
-            if distance[nearest] <= tolerance[trial]:
-                self._slots[trial] = owners[nearest]
+        # The nearest stored point of every trial at once (in chunks of ~16 MB), then, trial by trial, the nearest
+        # of this call's new points: the stored one wins a tie, as the first of one list, stored then new, would.
+        nearest, distance = np.zeros(len(trials), dtype=np.int64), np.full(len(trials), np.inf)  # inf: none
+        points, chunk = self._points[stored], max(1, 2**20 // max(1, len(stored)))
+        for start in range(0, len(trials), chunk) if len(stored) else ():
+            gap = np.abs(points[None] - mu[trials[start:start + chunk], None]).max(axis=2)
+            closest = gap.argmin(axis=1)
+            nearest[start:start + chunk], distance[start:start + chunk] = stored[closest], gap.min(axis=1)
+        new = np.empty((len(trials), 2))  # this call's new points; the k-th has slot -1 - k until evaluated
+        count = 0
+        for trial, slot, gap in zip(trials, nearest, distance):
+            if count:
+                new_gap = np.abs(new[:count] - mu[trial]).max(axis=1)
+                closest = int(new_gap.argmin())
+                if new_gap[closest] < gap:
+                    slot, gap = -1 - closest, new_gap[closest]
+            if np.isfinite(gap) and gap <= tolerance[trial]:
+                self._slots[trial] = slot
             else:
-                self._slots[trial] = -1 - len(new)
-                candidates[count] = mu[trial]
-                owners.append(-1 - len(new))
-                new.append(mu[trial])
-        if new:
+                self._slots[trial] = -1 - count
+                new[count] = mu[trial]
+                count += 1
+        new = new[:count]
+        if count:
             keep = self._slots[self._slots >= 0]
-            slots = self.linearise(np.array(new), keep)
+            slots = self.linearise(new, keep)
             pending = self._slots < 0
             self._slots[pending] = slots[-1 - self._slots[pending]]
         self.relinearisations[trials] += 1
