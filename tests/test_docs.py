@@ -103,7 +103,7 @@ def test_the_fit_pages_tables_are_made_from_the_shipped_fits():
     from master.fit.report import results_markdown
 
     page = (DOCS / "fit.md").read_text()
-    for folder in ("recovery", "recovery_bounded", "recovery_ensemble", "human/kocur2022"):
+    for folder in ("recovery", "recovery_zscore", "recovery_bounded", "recovery_ensemble", "human/kocur2022"):
         tables = results_markdown(DOCS / "fit" / folder)
         first = tables.split("\n\n")[0]  # the variants' page shows their calibration table only
-        assert (first if folder in ("recovery_bounded", "recovery_ensemble") else tables) in page, folder
+        assert (first if folder in ("recovery_zscore", "recovery_bounded", "recovery_ensemble") else tables) in page, folder

@@ -235,6 +235,23 @@ def test_a_tiny_fit_end_to_end_killed_and_resumed(quick_cache, tmp_path, monkeyp
     assert "holds a different fit" in capsys.readouterr().err
 
 
+def test_a_fit_of_some_of_the_data_s_measures_checks_its_posterior_on_those(quick_cache, tmp_path, monkeypatch):
+    """fit.measures = ["drift_cm"] of data with drift and force: the estimator and the posterior predictive check
+    see the two cells' drifts only."""
+    from master.commands.cli import main
+
+    monkeypatch.setenv("RHI_CACHE", str(quick_cache))
+    write(tmp_path / "fit.toml", FIT.format(steps=8, simulations=10, calibration=0).replace(
+        "[fit]\n", '[fit]\nmeasures = ["drift_cm"]\n'))
+    write(tmp_path / "data.csv", DATA)
+    out = tmp_path / "out"
+    assert main(["fit", "--data", str(tmp_path / "data.csv"), "--config", str(tmp_path / "fit.toml"),
+                 "--out", str(out)]) == 0
+    assert json.loads((out / "run.json").read_text())["statistics"] == ["drift_cm[left/async]", "drift_cm[left/sync]"]
+    predictive = (out / "predictive.csv").read_text()
+    assert "drift_cm[left/sync]" in predictive and "force_n" not in predictive
+
+
 def test_fit_file_refusals(tmp_path):
     from master.fit.plan import read_plan
 
@@ -255,7 +272,9 @@ def test_fit_file_refusals(tmp_path):
            good.replace("simulations = 20", "simulations = 3"): "fit.simulations must be at least 10",
            good.replace("[fit.noise]\ndrift_cm = 0.01", "[fit.noise]\ndrift = 0.01"): "unknown fit key fit.noise.drift",
            good.replace("[fit.estimator]", '[fit.estimator]\nspace = "curved"'):
-               "fit.estimator.space = 'curved' is not one of bounded, unconstrained"}
+               "fit.estimator.space = 'curved' is not one of bounded, unconstrained",
+           good.replace("[fit.estimator]", '[fit.estimator]\nstatistics = "log"'):
+               "fit.estimator.statistics = 'log' is not one of z-score, normal-scores"}
     for text, message in bad.items():
         with pytest.raises(ConfigError, match=message.replace("[", r"\[").replace("(", r"\(")):
             read_plan(write(tmp_path / "bad.toml", text), data)
@@ -308,18 +327,19 @@ def test_an_ensemble_is_the_equal_mixture_of_its_members_and_reloads_as_saved(tm
     assert len(members) == 2 and len(summary["members"]) == 2
     weights = [m.state_dict() for m in members]
     assert any(not torch.equal(weights[0][k], weights[1][k]) for k in weights[0])  # two seeds, two members
-    ensemble = inference.posterior(parameters, members, settings)
+    ensemble = inference.posterior(parameters, members, settings, x)
     points = torch.tensor([[0.0, 0.0], [1.0, -2.0], [2.5, 2.5]])
     observed = torch.tensor([0.5, -0.5])
     # unnormalised (norm_posterior=False): sbi's correction for mass leaking out of the prior's support is itself
     # estimated by sampling, a random number per call
-    each = torch.stack([inference.posterior(parameters, [m], settings).log_prob(points, x=observed, norm_posterior=False)
+    each = torch.stack([inference.posterior(parameters, [m], settings, x).log_prob(points, x=observed,
+                                                                                norm_posterior=False)
                         for m in members])
     by_hand = torch.logsumexp(each, dim=0) - np.log(2.0)
     # float32 densities of the same networks, summed in another order: 1e-5 is some 100 float32 ulps of ~1
     assert torch.allclose(ensemble.log_prob(points, x=observed, norm_posterior=False), by_hand, atol=1e-5)
     reloaded, _ = load_or_train(plan, theta, x, tmp_path / "estimator.pt", "identity")
-    assert np.array_equal(inference.sample(inference.posterior(parameters, reloaded, settings), observed.numpy(), 50, 7),
+    assert np.array_equal(inference.sample(inference.posterior(parameters, reloaded, settings, x), observed.numpy(), 50, 7),
                           inference.sample(ensemble, observed.numpy(), 50, 7))
 
 
@@ -354,6 +374,40 @@ def test_the_unconstrained_space_by_hand():
     x = theta + 0.3 * rng.standard_normal(theta.shape)
     estimator, _ = inference.train(parameters, theta, x, {**settings, "hidden_features": 4, "transforms": 1,
                                                           "max_epochs": 3, "threads": 1}, seed=0)
-    drawn = inference.sample(inference.posterior(parameters, [estimator], settings), x[0], 500, 3)
+    drawn = inference.sample(inference.posterior(parameters, [estimator], settings, x), x[0], 500, 3)
     assert drawn.shape == (500, 4)
     assert np.all((drawn[:, 0] > 0.05) & (drawn[:, 0] < 0.5) & (drawn[:, 1] > a) & (drawn[:, 1] < b) & (drawn[:, 2] > 0))
+
+
+def test_the_normal_scores_by_hand():
+    """fit.estimator.statistics = "normal-scores": the k-th smallest of n training values goes to Phi^-1((k - 1/2)/n),
+    a value between two of them linearly between their scores, one beyond them to the end's score; "z-score"
+    leaves the statistics as they are. The posterior's samples are those of the scaled statistics."""
+    from master.fit import inference
+    from master.fit.plan import ESTIMATOR_DEFAULTS, Parameter
+
+    training = np.array([[3.0, 0.5], [1.0, -1.0], [2.0, 0.0], [10.0, 7.0]])
+    scores = stats.norm.ppf([1 / 8, 3 / 8, 5 / 8, 7 / 8])  # n = 4
+    scale = inference.statistics_scale({"statistics": "normal-scores"}, training)
+    x = np.array([[2.0, 7.0], [2.5, -0.5], [100.0, -5.0], [1.0, 0.25]])
+    expected = np.array([[scores[1], scores[3]], [(scores[1] + scores[2]) / 2, (scores[0] + scores[1]) / 2],
+                         [scores[3], scores[0]], [scores[0], (scores[1] + scores[2]) / 2]])
+    # a linear interpolation of float64 scores: 1e-12 is a few thousand ulps of O(1)
+    assert np.allclose(scale(x), expected, rtol=0, atol=1e-12)
+    assert scale(x[0]).shape == (2,) and np.allclose(scale(x[None]), expected[None], rtol=0, atol=1e-12)
+    assert np.array_equal(inference.statistics_scale({"statistics": "z-score"}, training)(x), x)
+    with pytest.raises(ValueError, match="3 statistics given to an estimator trained on 2"):
+        scale(np.zeros(3))
+
+    parameters = [Parameter("a", "uniform", -3.0, 3.0), Parameter("b", "uniform", -3.0, 3.0)]
+    rng = np.random.default_rng(3)
+    theta = rng.uniform(-3, 3, (200, 2))
+    statistics = np.exp(theta + 0.3 * rng.standard_normal((200, 2)))  # spanning decades
+    settings = {**ESTIMATOR_DEFAULTS, "statistics": "normal-scores", "hidden_features": 4, "transforms": 1,
+                "max_epochs": 3, "threads": 1}
+    estimator, _ = inference.train(parameters, theta, statistics, settings, seed=0)
+    scaled = inference.posterior(parameters, [estimator], settings, statistics)
+    plain = inference.posterior(parameters, [estimator], {**settings, "statistics": "z-score"}, statistics)
+    observed = statistics[5]
+    assert np.array_equal(inference.sample(scaled, observed, 50, 4),
+                          inference.sample(plain, inference.statistics_scale(settings, statistics)(observed), 50, 4))

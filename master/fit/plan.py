@@ -34,8 +34,10 @@ FIT_KEYS = ("model", "quick", "simulations", "calibration", "seed", "trials_per_
             "predictive_participants", "noise", "estimator", "parameters")
 # the flow's size, batch and learning rate are sbi's own defaults (posterior_nn, NPE.train)
 ESTIMATOR_DEFAULTS = {"density": "maf", "hidden_features": 50, "transforms": 5, "batch_size": 200,
-                      "max_epochs": 500, "learning_rate": 5e-4, "threads": 2, "ensemble": 1, "space": "unconstrained"}
-CHOICES = {"density": ("maf", "nsf", "mdn"), "space": ("bounded", "unconstrained")}
+                      "max_epochs": 500, "learning_rate": 5e-4, "threads": 2, "ensemble": 1, "space": "unconstrained",
+                      "statistics": "normal-scores"}
+CHOICES = {"density": ("maf", "nsf", "mdn"), "space": ("bounded", "unconstrained"),
+           "statistics": ("z-score", "normal-scores")}
 WHOLE = {"simulations": 1000, "calibration": 100, "seed": 0, "trials_per_cell": 1, "participants_per_batch": 10,
          "posterior_samples": 1000, "calibration_samples": 99, "predictive_draws": 10, "predictive_participants": 8}
 MAX_SIMULATIONS = 100_000

@@ -199,7 +199,8 @@ def results_markdown(out: Path) -> str:
               + (f"{estimator['epochs']} epochs" if estimator.get("ensemble", 1) == 1 else
                  f"an ensemble of {estimator['ensemble']} ({', '.join(map(str, estimator['members']))} epochs)")
               + f", {estimator['density']} ({estimator['hidden_features']} hidden, {estimator['transforms']} transforms"
-              + (", unconstrained space" if estimator.get("space") == "unconstrained" else "") + "), "
+              + (", unconstrained space" if estimator.get("space") == "unconstrained" else "")
+              + (", normal scores" if estimator.get("statistics") == "normal-scores" else "") + "), "
               f"{estimator['torch_threads']} torch threads |",
               f"| posterior of a participant ({run['settings']['posterior_samples']} samples) | "
               f"{timing['mean']:.3f} s mean, {timing['max']:.3f} s max |",

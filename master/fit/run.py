@@ -41,10 +41,11 @@ def fingerprint(plan: FitPlan, sweep_fingerprint: str) -> str:
     return canonical_hash({"simulations": sweep_fingerprint, "parameters": [p.describe() for p in plan.parameters],
                            "settings": {k: v for k, v in plan.settings.items() if k not in AFTER_TRAINING},
                            "measures": plan.measures, "noise": plan.noise,
-                           # a single estimator in the bounded space, as before ensembles and spaces existed: fits
-                           # made then keep their identity
+                           # a single estimator in the bounded space on z-scored statistics, as before ensembles,
+                           # spaces and scales existed: fits made then keep their identity
                            "estimator": {k: v for k, v in plan.estimator.items()
-                                         if (k, v) not in (("ensemble", 1), ("space", "bounded"))}})
+                                         if (k, v) not in (("ensemble", 1), ("space", "bounded"),
+                                                           ("statistics", "z-score"))}})
 
 
 def prepare_folder(out: Path, identity: str) -> None:
@@ -113,7 +114,7 @@ def _fit(data: Data, plan: FitPlan, drawn: np.ndarray, sweep, out: Path, pool, l
                           f"(see {out / 'simulations' / 'index.csv'}); narrow the priors")
     theta, x_train = drawn[train_rows], x[train_rows]
     estimators, training = load_or_train(plan, theta, x_train, out / "estimator.pt", identity)
-    posterior = inference.posterior(plan.parameters, estimators, plan.estimator)
+    posterior = inference.posterior(plan.parameters, estimators, plan.estimator, x_train)
 
     timing = []
     samples = []
@@ -203,7 +204,7 @@ def predictive_check(data: Data, plan: FitPlan, posterior, out: Path, pool) -> d
     draws = settings["predictive_draws"]
     if not count or not draws:
         return None
-    values = np.concatenate([inference.sample(posterior, data.observed[n], draws,
+    values = np.concatenate([inference.sample(posterior, select(data, plan)[n], draws,
                                               simulation_seed(settings["seed"], n, "predictive") % 2**62)
                              for n in range(count)])
     sweep = participants_sweep(plan, values, "predictive")
