@@ -178,7 +178,7 @@ class ArmPlant(Component):
                               f"use substeps >= {math.ceil(h * rate.max())}")
         # The hot loop runs substeps times over the whole batch: the bodies' angular velocities read and their
         # torques written by pymunk's batch calls, one C call each for all trials, the servo law in numpy
-        # (element-wise IEEE arithmetic: the same numbers bit for bit as a per-trial loop, several times faster).
+        # (element-wise IEEE arithmetic: the same numbers bit for bit as a per-trial loop, without its Python calls).
         want, gain, cap = command.T, v["servo_gain"], v["torque_limit"]
         upper, forearm = self._body_slots
         speeds, torques = pymunk.batch.Buffer(), pymunk.batch.Buffer()

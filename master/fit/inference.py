@@ -141,8 +141,8 @@ def statistics_scale(settings: dict, training: np.ndarray):
     Erickson & Allison 2009, Behav. Genet. 39:580; Bliss's rankits): the k-th smallest of n training values goes
     to Phi^-1((k - 1/2) / n), a value between two training values by linear interpolation, a value beyond them to
     the nearest end. Monotone, so it keeps every statistic's information inside the training range; it takes
-    statistics that span decades (a drift of 0.002-5 cm) to the normal's scale, where z-scoring leaves most of
-    them within a small fraction of one sd of each other."""
+    statistics that span decades to the normal's scale, where z-scoring leaves most of them within a small
+    fraction of one sd of each other."""
     if settings["statistics"] == "z-score":
         return lambda x: np.asarray(x, dtype=float)
     from scipy import stats
