@@ -113,11 +113,12 @@ class LinearisedDecoder(Decoder):
         # The nearest stored point of every trial at once (in chunks of ~16 MB), then, trial by trial, the nearest
         # of this call's new points: the stored one wins a tie, as the first of one list, stored then new, would.
         nearest, distance = np.zeros(len(trials), dtype=np.int64), np.full(len(trials), np.inf)  # inf: none
-        points, chunk = self._points[stored], max(1, 2**20 // max(1, len(stored)))
-        for start in range(0, len(trials), chunk) if len(stored) else ():
-            gap = np.abs(points[None] - mu[trials[start:start + chunk], None]).max(axis=2)
-            closest = gap.argmin(axis=1)
-            nearest[start:start + chunk], distance[start:start + chunk] = stored[closest], gap.min(axis=1)
+        if len(stored):
+            points, chunk = self._points[stored], max(1, 2**20 // len(stored))
+            for start in range(0, len(trials), chunk):
+                gap = np.abs(points[None] - mu[trials[start:start + chunk], None]).max(axis=2)
+                closest = gap.argmin(axis=1)
+                nearest[start:start + chunk], distance[start:start + chunk] = stored[closest], gap.min(axis=1)
         new = np.empty((len(trials), 2))  # this call's new points; the k-th has slot -1 - k until evaluated
         count = 0
         for trial, slot, gap in zip(trials, nearest, distance):

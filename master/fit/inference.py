@@ -158,6 +158,14 @@ def statistics_scale(settings: dict, training: np.ndarray):
     return normal_scores
 
 
+def flow_pairs(parameters: list[Parameter], settings: dict, theta: np.ndarray, x: np.ndarray):
+    """The training pairs as the estimator sees them: theta in the flow's space, x on the statistics' scale
+    (both float32 tensors)."""
+    import torch
+
+    return to_flow(parameters, settings, theta), torch.as_tensor(statistics_scale(settings, x)(x), dtype=torch.float32)
+
+
 def builder(settings: dict):
     """sbi's density-estimator builder for ``fit.estimator``'s settings."""
     from sbi.neural_nets import posterior_nn
@@ -178,8 +186,7 @@ def train(parameters: list[Parameter], theta: np.ndarray, x: np.ndarray, setting
     began = time.perf_counter()
     inference = NPE(prior=flow_prior(parameters, settings), density_estimator=builder(settings),
                     show_progress_bars=False, tracker=NoTracker())
-    inference.append_simulations(to_flow(parameters, settings, theta),
-                                 torch.as_tensor(statistics_scale(settings, x)(x), dtype=torch.float32))
+    inference.append_simulations(*flow_pairs(parameters, settings, theta, x))
     estimator = inference.train(training_batch_size=settings["batch_size"], learning_rate=settings["learning_rate"],
                                 max_num_epochs=settings["max_epochs"], show_train_summary=False)
     summary = inference.summary
@@ -216,8 +223,7 @@ def rebuild(parameters: list[Parameter], theta: np.ndarray, x: np.ndarray, setti
 
     torch.set_num_threads(settings["threads"])
     torch.manual_seed(seed)
-    estimator = builder(settings)(to_flow(parameters, settings, theta),
-                                  torch.as_tensor(statistics_scale(settings, x)(x), dtype=torch.float32))
+    estimator = builder(settings)(*flow_pairs(parameters, settings, theta, x))
     estimator.load_state_dict(state)
     return estimator.eval()
 

@@ -204,7 +204,8 @@ def predictive_check(data: Data, plan: FitPlan, posterior, out: Path, pool) -> d
     draws = settings["predictive_draws"]
     if not count or not draws:
         return None
-    values = np.concatenate([inference.sample(posterior, select(data, plan)[n], draws,
+    observed = select(data, plan)[:count]
+    values = np.concatenate([inference.sample(posterior, observed[n], draws,
                                               simulation_seed(settings["seed"], n, "predictive") % 2**62)
                              for n in range(count)])
     sweep = participants_sweep(plan, values, "predictive")
@@ -212,7 +213,6 @@ def predictive_check(data: Data, plan: FitPlan, posterior, out: Path, pool) -> d
     predicted = with_noise(statistics(sweep, records, data, plan.measures), data, plan.measures, plan.noise,
                            settings["seed"], "predictive").reshape(count, draws, -1)
     names = data_statistic_names(data, plan)
-    observed = select(data, plan)[:count]
     atomic_write(out / "predictive.csv", report.predictive_csv(names, data.participants[:count], observed, predicted))
     report.predictive_figure(names, data.participants[:count], observed, predicted,
                              out / "figures" / "posterior_predictive.png")
