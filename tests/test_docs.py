@@ -103,7 +103,26 @@ def test_the_fit_pages_tables_are_made_from_the_shipped_fits():
     from master.fit.report import results_markdown
 
     page = (DOCS / "fit.md").read_text()
-    for folder in ("recovery", "recovery_zscore", "recovery_bounded", "recovery_ensemble", "human/kocur2022"):
+    variants = ("recovery_zscore", "recovery_bounded", "recovery_ensemble", "recovery_noise")
+    for folder in ("recovery", *variants, "human/kocur2022"):
         tables = results_markdown(DOCS / "fit" / folder)
         first = tables.split("\n\n")[0]  # the variants' page shows their calibration table only
-        assert (first if folder in ("recovery_zscore", "recovery_bounded", "recovery_ensemble") else tables) in page, folder
+        assert (first if folder in variants else tables) in page, folder
+
+
+def test_the_noisy_recovery_s_noise_is_derived_as_its_comments_say():
+    """1.13 cm (van Beers et al. 1998's upper end, one lateral localisation): the drift's sd is that of a
+    difference of two, the force's one localisation through default_run.csv's synchronous force per drift."""
+    import math
+    from master.fit.data import read_data
+    from master.fit.plan import read_plan
+
+    data = read_data(DOCS / "fit" / "default_run.csv")
+    plan = read_plan(DOCS / "fit" / "recovery_noise.toml", data)
+    rows = [line.split(",") for line in (DOCS / "fit" / "default_run.csv").read_text().splitlines()
+            if line.endswith(tuple("0123456789")) and ",sync," in line and ",center," not in line]
+    newton_per_cm = sum(float(r[4]) / float(r[3]) for r in rows) / len(rows)
+    assert len(rows) == 2 and round(newton_per_cm, 4) == 0.0587
+    # each figure is rounded to its last digit: half a unit of it, and of 1.13, carried through
+    assert abs(plan.noise["drift_cm"] / math.sqrt(2) - 1.13) <= 0.005 + 0.005 / math.sqrt(2)
+    assert abs(plan.noise["force_n"] - 1.13 * newton_per_cm) <= 0.0005 + 0.005 * newton_per_cm
