@@ -126,3 +126,22 @@ def test_the_noisy_recovery_s_noise_is_derived_as_its_comments_say():
     # each figure is rounded to its last digit: half a unit of it, and of 1.13, carried through
     assert abs(plan.noise["drift_cm"] / math.sqrt(2) - 1.13) <= 0.005 + 0.005 / math.sqrt(2)
     assert abs(plan.noise["force_n"] - 1.13 * newton_per_cm) <= 0.0005 + 0.005 * newton_per_cm
+
+
+def test_the_noisy_recovery_s_coverage_arithmetic_is_as_the_page_says():
+    """The page's sampling figures for a calibrated 90 % interval (binomial, scipy) and the shipped fit's count."""
+    import csv
+    from scipy import stats
+
+    page = " ".join((DOCS / "fit.md").read_text().split())
+    binomial = stats.binom
+    for n, sd, outside in ((100, "0.030", "0.06"), (200, "0.021", "0.01")):
+        assert f"{(0.9 * 0.1 / n) ** 0.5:.3f}" == sd
+        low, high = round(0.85 * n), round(0.95 * n)  # covering low .. high of n is inside 0.85-0.95
+        assert f"{binomial.cdf(low - 1, n, 0.9) + binomial.sf(high, n, 0.9):.2f}" == outside
+    assert "0.030 at 100 and 0.021 at 200, and falls outside 0.85–0.95 with probability about 0.06 and 0.01" in page
+    rows = {row["parameter"]: row for row in csv.DictReader(open(DOCS / "fit" / "recovery_noise" / "calibration.csv"))}
+    gamma0 = rows["brain.gamma0"]
+    covered = round(float(gamma0["coverage_90"]) * int(gamma0["held_out"]))
+    assert f"covers 0.84 ({covered} of {gamma0['held_out']}; a calibrated one covers {covered} or fewer with " \
+           f"probability {binomial.cdf(covered, 200, 0.9):.2f})" in page
