@@ -128,10 +128,13 @@ def test_the_noisy_recovery_s_noise_is_derived_as_its_comments_say():
     assert abs(plan.noise["force_n"] - 1.13 * newton_per_cm) <= 0.0005 + 0.005 * newton_per_cm
 
 
-def test_the_noisy_recovery_s_coverage_arithmetic_is_as_the_page_says():
-    """The page's sampling figures for a calibrated 90 % interval (binomial, scipy) and the shipped fit's count."""
-    import csv
+def test_the_noisy_recovery_s_held_out_arithmetic_is_as_the_page_says():
+    """The page's figures on the held-out participants: the binomial ones (scipy) and the random looks' truths
+    (the prior draws of seeds 0, 1 and 2, read again with draw_prior)."""
+    import numpy as np
     from scipy import stats
+    from master.fit.data import read_data
+    from master.fit.plan import draw_prior, read_plan
 
     page = " ".join((DOCS / "fit.md").read_text().split())
     binomial = stats.binom
@@ -140,8 +143,17 @@ def test_the_noisy_recovery_s_coverage_arithmetic_is_as_the_page_says():
         low, high = round(0.85 * n), round(0.95 * n)  # covering low .. high of n is inside 0.85-0.95
         assert f"{binomial.cdf(low - 1, n, 0.9) + binomial.sf(high, n, 0.9):.2f}" == outside
     assert "0.030 at 100 and 0.021 at 200, and falls outside 0.85–0.95 with probability about 0.06 and 0.01" in page
-    rows = {row["parameter"]: row for row in csv.DictReader(open(DOCS / "fit" / "recovery_noise" / "calibration.csv"))}
-    gamma0 = rows["brain.gamma0"]
-    covered = round(float(gamma0["coverage_90"]) * int(gamma0["held_out"]))
-    assert f"covers 0.84 ({covered} of {gamma0['held_out']}; a calibrated one covers {covered} or fewer with " \
-           f"probability {binomial.cdf(covered, 200, 0.9):.2f})" in page
+    assert f"1 − 0.95⁸ = {1 - 0.95 ** 8:.2f}" in page
+
+    plan = read_plan(DOCS / "fit" / "recovery_noise.toml", read_data(DOCS / "fit" / "default_run.csv"))
+    unit = [lambda v, p=p: (v - p.to_inference(p.low)) / (p.to_inference(p.high) - p.to_inference(p.low))
+            for p in plan.parameters]
+    sync, gamma0 = 2, 3
+    seed0 = unit[sync](draw_prior(plan.parameters, 1667, 0)[1567:, sync])  # recovery.toml's 1567 + 100
+    outer = int(np.sum((seed0 < 0.05) | (seed0 > 0.95)))
+    assert f"with {outer} of the 100 sync_sd truths in the prior's outer tenth, where a posterior as wide as the " \
+           f"prior covers {1 - outer / 100:.2f}" in page
+    seed2 = draw_prior(plan.parameters, 1767, 2)[1567:]
+    assert f"its truths themselves too (KS p {stats.kstest(unit[sync](seed2[:, sync]), 'uniform').pvalue:.3f}" in page
+    pooled = np.concatenate([draw_prior(plan.parameters, 200, 1), seed2])  # the selection set and seed 2's
+    assert f"Those 400 hold {int(np.sum(unit[gamma0](pooled[:, gamma0]) >= 0.8))} γ0 truths in the prior's top fifth" in page

@@ -274,12 +274,42 @@ def test_fit_file_refusals(tmp_path):
            good.replace("[fit.estimator]", '[fit.estimator]\nspace = "curved"'):
                "fit.estimator.space = 'curved' is not one of bounded, unconstrained",
            good.replace("[fit.estimator]", '[fit.estimator]\nstatistics = "log"'):
-               "fit.estimator.statistics = 'log' is not one of z-score, normal-scores"}
+               "fit.estimator.statistics = 'log' is not one of z-score, normal-scores",
+           good.replace("seed = 3", 'seed = 3\ncalibration_design = "sobol"'):
+               "fit.calibration_design = 'sobol' is not one of random, latin-hypercube"}
     for text, message in bad.items():
         with pytest.raises(ConfigError, match=message.replace("[", r"\[").replace("(", r"\(")):
             read_plan(write(tmp_path / "bad.toml", text), data)
     with pytest.raises(ConfigError, match="condition 'far' is not defined"):
         read_plan(write(tmp_path / "f.toml", good), read_data(write(tmp_path / "far.csv", DATA.replace("left", "far"))))
+
+
+def test_a_latin_hypercube_holds_one_held_out_truth_in_each_stratum_of_every_prior(tmp_path):
+    """fit.calibration_design = "latin-hypercube": the training rows are the random design's; the held-out rows'
+    prior distribution function values, F(v), fall one in each [k/n, (k+1)/n) (F by scipy, independently of the
+    quantile functions the draws went through). An explicit "random" is the fit of no key at all."""
+    from master.fit.plan import Parameter, draw_participants, read_plan
+    from master.fit.run import fingerprint
+
+    parameters = [Parameter("a", "log-uniform", 5.0, 80.0), Parameter("b", "uniform", 0.05, 0.5),
+                  Parameter("c", "normal", 0.0, 3.0, mean=1.0, sd=2.0), Parameter("d", "normal", mean=-1.0, sd=0.5)]
+    settings = {"simulations": 30, "calibration": 40, "seed": 7}
+    random = draw_participants(parameters, {**settings, "calibration_design": "random"})
+    latin = draw_participants(parameters, {**settings, "calibration_design": "latin-hypercube"})
+    assert np.array_equal(latin[:30], random[:30]) and not np.array_equal(latin[30:], random[30:])
+    held = latin[30:]
+    cdf = [(held[:, 0] - np.log(5.0)) / (np.log(80.0) - np.log(5.0)), (held[:, 1] - 0.05) / 0.45,
+           stats.truncnorm.cdf(held[:, 2], -0.5, 1.0, loc=1.0, scale=2.0), stats.norm.cdf(held[:, 3], -1.0, 0.5)]
+    for column in cdf:
+        # a value within float rounding of a stratum's edge could land in the next one: none is this close
+        assert np.min(np.abs(column * 40 - np.round(column * 40))) > 1e-9
+        assert sorted(np.floor(column * 40).astype(int)) == list(range(40))
+
+    data = read_data(write(tmp_path / "d.csv", DATA))
+    good = FIT.format(steps=5, simulations=20, calibration=4)
+    plain = read_plan(write(tmp_path / "f.toml", good), data)
+    named = read_plan(write(tmp_path / "g.toml", good.replace("seed = 3", 'seed = 3\ncalibration_design = "random"')), data)
+    assert fingerprint(plain, "sweep") == fingerprint(named, "sweep")
 
 
 def test_per_trial_parameters_of_a_batch_of_configurations():

@@ -22,7 +22,7 @@ from master.cosim import ConfigError
 from master.fit import report
 from master.fit.calibration import calibrate
 from master.fit.data import Data, read_data
-from master.fit.plan import FitPlan, draw_prior, read_plan, simulation_seed
+from master.fit.plan import FitPlan, draw_participants, read_plan, simulation_seed
 from master.fit.simulate import Pool, participants_sweep, simulate, statistics, with_noise
 from master.outputs.files import atomic_write
 from master.outputs.provenance import package_versions
@@ -39,7 +39,8 @@ def fingerprint(plan: FitPlan, sweep_fingerprint: str) -> str:
     """What decides the simulations and the estimator: the design, the priors, the settings (not the data's
     observed values, so that new participants of the same design reuse them)."""
     return canonical_hash({"simulations": sweep_fingerprint, "parameters": [p.describe() for p in plan.parameters],
-                           "settings": {k: v for k, v in plan.settings.items() if k not in AFTER_TRAINING},
+                           "settings": {k: v for k, v in plan.settings.items() if k not in AFTER_TRAINING
+                                        and (k, v) != ("calibration_design", "random")},  # the design before it had a name
                            "measures": plan.measures, "noise": plan.noise,
                            # a single estimator in the bounded space on z-scored statistics, as before ensembles,
                            # spaces and scales existed: fits made then keep their identity
@@ -82,8 +83,7 @@ def fit(data_path: str, config_path: str, out: Path, model: str | None = None, s
     data = read_data(data_path)
     plan = read_plan(config_path, data, model)
     settings = plan.settings
-    total = settings["simulations"] + settings["calibration"]
-    drawn = draw_prior(plan.parameters, total, settings["seed"])
+    drawn = draw_participants(plan.parameters, settings)
     sweep = participants_sweep(plan, drawn, "prior")
     identity = fingerprint(plan, sweep.fingerprint)
     created = not out.exists()
