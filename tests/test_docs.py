@@ -103,7 +103,7 @@ def test_the_fit_pages_tables_are_made_from_the_shipped_fits():
     from master.fit.report import results_markdown
 
     page = (DOCS / "fit.md").read_text()
-    variants = ("recovery_zscore", "recovery_bounded", "recovery_ensemble", "recovery_noise")
+    variants = ("recovery_zscore", "recovery_bounded", "recovery_ensemble")
     for folder in ("recovery", *variants, "human/kocur2022"):
         tables = results_markdown(DOCS / "fit" / folder)
         first = tables.split("\n\n")[0]  # the variants' page shows their calibration table only
