@@ -156,4 +156,5 @@ def test_the_noisy_recovery_s_held_out_arithmetic_is_as_the_page_says():
     seed2 = draw_prior(plan.parameters, 1767, 2)[1567:]
     assert f"its truths themselves too (KS p {stats.kstest(unit[sync](seed2[:, sync]), 'uniform').pvalue:.3f}" in page
     pooled = np.concatenate([draw_prior(plan.parameters, 200, 1), seed2])  # the selection set and seed 2's
-    assert f"Those 400 hold {int(np.sum(unit[gamma0](pooled[:, gamma0]) >= 0.8))} γ0 truths in the prior's top fifth" in page
+    top_fifth = int(np.sum(unit[gamma0](pooled[:, gamma0]) >= 0.8))
+    assert f"Those 400 hold {top_fifth} γ0 truths in the prior's top fifth" in page

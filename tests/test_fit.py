@@ -308,7 +308,8 @@ def test_a_latin_hypercube_holds_one_held_out_truth_in_each_stratum_of_every_pri
     data = read_data(write(tmp_path / "d.csv", DATA))
     good = FIT.format(steps=5, simulations=20, calibration=4)
     plain = read_plan(write(tmp_path / "f.toml", good), data)
-    named = read_plan(write(tmp_path / "g.toml", good.replace("seed = 3", 'seed = 3\ncalibration_design = "random"')), data)
+    named = read_plan(write(tmp_path / "g.toml", good.replace("seed = 3", 'seed = 3\ncalibration_design = "random"')),
+                      data)
     assert fingerprint(plain, "sweep") == fingerprint(named, "sweep")
 
 

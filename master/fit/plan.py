@@ -29,9 +29,9 @@ from master.experiment.wiring import PARAMETER_SOURCES, batchable_keys, config_k
 from master.fit.data import MEASURES, Data, check_against
 
 PRIORS = ("uniform", "log-uniform", "normal")
-FIT_KEYS = ("model", "quick", "simulations", "calibration", "calibration_design", "seed", "trials_per_cell", "participants_per_batch",
-            "workers", "measures", "posterior_samples", "calibration_samples", "predictive_draws",
-            "predictive_participants", "noise", "estimator", "parameters")
+FIT_KEYS = ("model", "quick", "simulations", "calibration", "calibration_design", "seed", "trials_per_cell",
+            "participants_per_batch", "workers", "measures", "posterior_samples", "calibration_samples",
+            "predictive_draws", "predictive_participants", "noise", "estimator", "parameters")
 # the flow's size, batch and learning rate are sbi's own defaults (posterior_nn, NPE.train)
 ESTIMATOR_DEFAULTS = {"density": "maf", "hidden_features": 50, "transforms": 5, "batch_size": 200,
                       "max_epochs": 500, "learning_rate": 5e-4, "threads": 2, "ensemble": 1, "space": "unconstrained",

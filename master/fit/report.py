@@ -190,7 +190,8 @@ def results_markdown(out: Path) -> str:
               f"{simulations['steps_per_trial']} steps at {simulations['resolution']}x{simulations['resolution']}) |",
               f"| held out for the calibration | {run['calibration']['held_out']} "
               f"(L = {run['calibration']['samples_per_participant']}"
-              + ("; a Latin hypercube" if run["settings"].get("calibration_design") == "latin-hypercube" else "") + ") |",
+              + ("; a Latin hypercube" if run["settings"].get("calibration_design") == "latin-hypercube" else "")
+              + ") |",
               f"| failed simulated participants | {simulations['failed_participants']} |",
               f"| simulations' wall time | {simulations['wall_s_now']:.0f} s "
               + (f"({simulations['trials_per_s_now']} trials/s) |" if simulations['trials_per_s_now'] is not None

@@ -39,8 +39,9 @@ def fingerprint(plan: FitPlan, sweep_fingerprint: str) -> str:
     """What decides the simulations and the estimator: the design, the priors, the settings (not the data's
     observed values, so that new participants of the same design reuse them)."""
     return canonical_hash({"simulations": sweep_fingerprint, "parameters": [p.describe() for p in plan.parameters],
+                           # "random", the only design before the key existed: fits made then keep their identity
                            "settings": {k: v for k, v in plan.settings.items() if k not in AFTER_TRAINING
-                                        and (k, v) != ("calibration_design", "random")},  # the design before it had a name
+                                        and (k, v) != ("calibration_design", "random")},
                            "measures": plan.measures, "noise": plan.noise,
                            # a single estimator in the bounded space on z-scored statistics, as before ensembles,
                            # spaces and scales existed: fits made then keep their identity
