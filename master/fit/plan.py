@@ -66,6 +66,17 @@ class Parameter:
     def from_inference(self, values):
         return np.exp(values) if self.log else np.asarray(values, dtype=float)
 
+    def quantile(self, unit):
+        """The prior's quantile function in the inference space: the values at which its distribution function
+        is ``unit`` (in [0, 1])."""
+        from scipy import stats
+
+        low, high = self.to_inference(self.low), self.to_inference(self.high)
+        if self.prior == "normal":
+            return stats.truncnorm.ppf(unit, (low - self.mean) / self.sd, (high - self.mean) / self.sd,
+                                       loc=self.mean, scale=self.sd)
+        return low + np.asarray(unit, dtype=float) * (high - low)
+
     def describe(self) -> dict:
         text = {"key": self.key, "prior": self.prior}
         if self.prior == "normal":
@@ -266,20 +277,13 @@ def draw_participants(parameters: list[Parameter], settings: dict) -> np.ndarray
     posterior's rank is about the prior's distribution function at the truth, so with random truths the SBC
     tests and the coverage test the draws' own uniformity as much as the estimator; stratified truths remove that
     part. The iid rank tests are then conservative."""
-    from scipy import stats
     from scipy.stats import qmc
 
     training, held_out = settings["simulations"], settings["calibration"]
     drawn = draw_prior(parameters, training + held_out, settings["seed"])
     if settings["calibration_design"] == "latin-hypercube" and held_out:
         unit = qmc.LatinHypercube(d=len(parameters), rng=np.random.default_rng([settings["seed"], 2])).random(held_out)
-        for d, parameter in enumerate(parameters):
-            low, high = parameter.to_inference(parameter.low), parameter.to_inference(parameter.high)
-            if parameter.prior == "normal":
-                a, b = (low - parameter.mean) / parameter.sd, (high - parameter.mean) / parameter.sd
-                drawn[training:, d] = stats.truncnorm.ppf(unit[:, d], a, b, loc=parameter.mean, scale=parameter.sd)
-            else:
-                drawn[training:, d] = low + unit[:, d] * (high - low)
+        drawn[training:] = np.stack([p.quantile(unit[:, d]) for d, p in enumerate(parameters)], axis=1)
     return drawn
 
 

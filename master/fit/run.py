@@ -31,6 +31,9 @@ from master.sweeps.plan import canonical_hash
 COMMAND = "rhi fit"
 # settings that change only what is computed from the trained estimator: not part of the fit's identity
 AFTER_TRAINING = ("workers", "posterior_samples", "calibration_samples", "predictive_draws", "predictive_participants")
+# settings that were a fit's only behaviour before their key existed (a single estimator in the bounded space on
+# z-scored statistics, random held-out draws): left out of the fingerprint, so that fits made then keep theirs
+BEFORE_THEIR_KEYS = (("ensemble", 1), ("space", "bounded"), ("statistics", "z-score"), ("calibration_design", "random"))
 OUTPUTS = ("fit.json", "simulations", "estimator.pt", "posterior.csv", "estimates.csv", "calibration.csv",
            "recovery.csv", "held_out.csv", "predictive", "predictive.csv", "figures", "run.json", ".lock")
 
@@ -38,16 +41,12 @@ OUTPUTS = ("fit.json", "simulations", "estimator.pt", "posterior.csv", "estimate
 def fingerprint(plan: FitPlan, sweep_fingerprint: str) -> str:
     """What decides the simulations and the estimator: the design, the priors, the settings (not the data's
     observed values, so that new participants of the same design reuse them)."""
+    def named(table: dict) -> dict:
+        return {k: v for k, v in table.items() if k not in AFTER_TRAINING and (k, v) not in BEFORE_THEIR_KEYS}
+
     return canonical_hash({"simulations": sweep_fingerprint, "parameters": [p.describe() for p in plan.parameters],
-                           # "random", the only design before the key existed: fits made then keep their identity
-                           "settings": {k: v for k, v in plan.settings.items() if k not in AFTER_TRAINING
-                                        and (k, v) != ("calibration_design", "random")},
-                           "measures": plan.measures, "noise": plan.noise,
-                           # a single estimator in the bounded space on z-scored statistics, as before ensembles,
-                           # spaces and scales existed: fits made then keep their identity
-                           "estimator": {k: v for k, v in plan.estimator.items()
-                                         if (k, v) not in (("ensemble", 1), ("space", "bounded"),
-                                                           ("statistics", "z-score"))}})
+                           "settings": named(plan.settings), "measures": plan.measures, "noise": plan.noise,
+                           "estimator": named(plan.estimator)})
 
 
 def prepare_folder(out: Path, identity: str) -> None:
