@@ -110,6 +110,21 @@ def test_the_fit_pages_tables_are_made_from_the_shipped_fits():
         assert (first if folder in variants else tables) in page, folder
 
 
+def test_the_shipped_fits_coverage_is_that_of_their_ranks():
+    """calibration.csv's coverage against recovery.csv's ranks, by hand: with L = 99 samples a truth is inside
+    the central 50 % interval when its rank is 25 to 74, inside the 90 % interval when it is 5 to 94."""
+    import csv
+
+    for folder in ("recovery", "recovery_noise", "human/kocur2022"):
+        with open(DOCS / "fit" / folder / "recovery.csv", newline="") as file:
+            rows = list(csv.DictReader(file))
+        with open(DOCS / "fit" / folder / "calibration.csv", newline="") as file:
+            for row in csv.DictReader(file):
+                ranks = [int(r[row["parameter"] + "_rank"]) for r in rows]
+                assert float(row["coverage_50"]) == sum(25 <= r <= 74 for r in ranks) / len(ranks), folder
+                assert float(row["coverage_90"]) == sum(5 <= r <= 94 for r in ranks) / len(ranks), folder
+
+
 def test_the_noisy_recovery_s_noise_is_derived_as_its_comments_say():
     """1.13 cm (van Beers et al. 1998's upper end, one lateral localisation): the drift's sd is that of a
     difference of two, the force's one localisation through default_run.csv's synchronous force per drift."""
@@ -143,7 +158,9 @@ def test_the_noisy_recovery_s_held_out_arithmetic_is_as_the_page_says():
         low, high = round(0.85 * n), round(0.95 * n)  # covering low .. high of n is inside 0.85-0.95
         assert f"{binomial.cdf(low - 1, n, 0.9) + binomial.sf(high, n, 0.9):.2f}" == outside
     assert "0.030 at 100 and 0.021 at 200, and falls outside 0.85–0.95 with probability about 0.06 and 0.01" in page
-    assert f"1 − 0.95⁸ = {1 - 0.95 ** 8:.2f}" in page
+    assert f"1 − 0.95⁸ = {100 * (1 - 0.95 ** 8):.0f} %" in page
+    # numpy's 5 % and 95 % quantiles of 99 samples sit at order statistics 5.9 and 94.1 (1-based, linear)
+    assert f"(94.1 − 5.9)/100 = {100 * (1 + 0.95 * 98 - (1 + 0.05 * 98)) / 100:.1f} %" in page
 
     plan = read_plan(DOCS / "fit" / "recovery_noise.toml", read_data(DOCS / "fit" / "default_run.csv"))
     unit = [lambda v, p=p: (v - p.to_inference(p.low)) / (p.to_inference(p.high) - p.to_inference(p.low))

@@ -39,9 +39,14 @@ def run_fit(args) -> int:
             f"trials, {result['simulations']['trials_run_now']} run now); posterior {timing['mean']:.3f} s per "
             f"participant; {result['wall_s']:.0f} s; results in {out}")
     print(line)
-    for key, values in result.get("calibration", {}).items():
-        if isinstance(values, dict):
-            print(f"  {key}: r = {values['correlation']:.3f}, coverage 50 % {values['coverage_50']:.2f}, "
+    calibration = result.get("calibration")
+    if calibration:
+        for parameter in result["parameters"]:
+            values = calibration[parameter["key"]]
+            print(f"  {parameter['key']}: r = {values['correlation']:.3f}, coverage 50 % {values['coverage_50']:.2f}, "
                   f"90 % {values['coverage_90']:.2f}, SBC p = {values['sbc_chisquare_p']:.3f} (chi-square), "
                   f"{values['sbc_ks_p']:.3f} (KS)")
+        verdict = calibration["sbc_verdict"]
+        print(f"  SBC rank tests as one family: {'rejected' if verdict['rejected'] else 'not rejected'} (smallest p "
+              f"{verdict['smallest_p']:.3f}, Bonferroni threshold {verdict['alpha']:g}/{verdict['tests']})")
     return 0

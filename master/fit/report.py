@@ -13,7 +13,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from master.fit.calibration import LEVELS, central_interval, rank_histogram  # noqa: E402
+from master.fit.calibration import LEVELS, central_interval, rank_histogram, rank_tests_verdict  # noqa: E402
 from master.fit.plan import Parameter  # noqa: E402
 from master.outputs.figures import METADATA  # noqa: E402
 from master.outputs.files import atomic_write  # noqa: E402
@@ -165,6 +165,14 @@ __all__ = ["LEVELS", "natural", "posterior_csv", "estimates_csv", "calibration_c
            "calibration_figure", "predictive_figure", "predictive_csv"]
 
 
+def verdict_row(rows: list[dict]) -> str:
+    """The measures table's row of :func:`rank_tests_verdict`, from calibration.csv's rows."""
+    verdict = rank_tests_verdict([float(r["sbc_chisquare_p"]) for r in rows], [float(r["sbc_ks_p"]) for r in rows])
+    return (f"| SBC rank tests as one family (Bonferroni, α = {verdict['alpha']:g}) | "
+            f"{'rejected' if verdict['rejected'] else 'not rejected'}: smallest p {verdict['smallest_p']:.3f} "
+            f"{'<' if verdict['rejected'] else '≥'} {verdict['alpha']:g}/{verdict['tests']} = {verdict['threshold']:.4f} |")
+
+
 def results_markdown(out: Path) -> str:
     """A fit's calibration and timing as Markdown tables, from its own files (calibration.csv, run.json):
     what docs/fit.md shows of a measured fit."""
@@ -186,6 +194,7 @@ def results_markdown(out: Path) -> str:
     simulations, estimator = run["simulations"], run["estimator"]
     timing = run["posterior_seconds_per_participant"]
     lines += ["", "| measure | value |", "|---|---|",
+              verdict_row(rows),
               f"| simulated participants (trials) | {simulations['participants']} ({simulations['trials']}, "
               f"{simulations['steps_per_trial']} steps at {simulations['resolution']}x{simulations['resolution']}) |",
               f"| held out for the calibration | {run['calibration']['held_out']} "

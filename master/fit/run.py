@@ -262,6 +262,7 @@ def run_record(data, plan, sweep, records, training, timing, calibration, predic
         result["calibration"] = {
             "held_out": calibration["participants"], "samples_per_participant": calibration["samples"],
             "sbc_test": "scipy.stats.chisquare of the binned ranks; scipy.stats.kstest of (rank + 1/2) / (L + 1)",
+            "sbc_verdict": calibration["verdict"],
             **{p.key: {"correlation": float(calibration["recovery"]["correlation"][d]),
                        "sd_ratio": float(calibration["recovery"]["sd_ratio"][d]),
                        **{f"coverage_{int(level * 100)}": float(calibration["coverage"][level][d]) for level in LEVELS},

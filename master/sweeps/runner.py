@@ -56,7 +56,9 @@ def dask_client(scheduler: str | None, workers: int | None, debug: bool):
         with connect(Client, scheduler) as client:
             yield client
         return
-    quiet = False if debug else logging.ERROR
+    # Not ERROR: a worker's heartbeat that races the pool's own shutdown logs one, with a traceback; a trial's
+    # failure reaches the caller through its future and is reported there.
+    quiet = False if debug else logging.CRITICAL
     # Only this machine: listen on loopback; the scheduler's small HTTP server on any free port. The
     # nannies hand the settings in force when they start to their workers.
     # Each worker dies with this process, even by SIGKILL (master.sweeps.lifeline, a worker preload).
