@@ -5,8 +5,8 @@
   Ranks are binned and tested against uniformity with Pearson's chi-square (scipy.stats.chisquare) and, on
   the ranks scaled to (0, 1), with a Kolmogorov-Smirnov test (scipy.stats.kstest). The fit's verdict takes
   these 2P tests as one family, with Bonferroni's correction.
-- Coverage: the share of true values inside the central 50 % and 90 % posterior intervals (the samples'
-  quantiles); a calibrated posterior covers them at these rates.
+- Coverage: the share of true values inside the central 50 % and 90 % posterior intervals, read off the
+  ranks (:func:`coverage`); a calibrated posterior covers them at exactly these rates.
 - Recovery: Pearson's correlation between the true values and the posterior medians.
 """
 from __future__ import annotations

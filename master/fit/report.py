@@ -31,8 +31,8 @@ CALIBRATION_COLUMNS = {
     "correlation": "Pearson's r of the true values and the posterior medians (in the inference space: the "
                    "logarithm of a log-uniform parameter)",
     "sd_ratio": "mean posterior sd / the prior's sd over the held-out participants (near 1: not identified)",
-    "coverage_50": "share of true values inside the central 50 % interval",
-    "coverage_90": "share of true values inside the central 90 % interval",
+    "coverage_50": "share of true values inside the central 50 % interval (read off the ranks)",
+    "coverage_90": "share of true values inside the central 90 % interval (read off the ranks)",
     "sbc_bins": "bins of the SBC rank histogram", "sbc_chisquare": "chi-square statistic of the histogram against "
     "the uniform", "sbc_chisquare_p": "its p-value (scipy.stats.chisquare)",
     "sbc_ks": "Kolmogorov-Smirnov statistic of the scaled ranks against U(0, 1)",
