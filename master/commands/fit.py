@@ -46,7 +46,6 @@ def run_fit(args) -> int:
             print(f"  {parameter['key']}: r = {values['correlation']:.3f}, coverage 50 % {values['coverage_50']:.2f}, "
                   f"90 % {values['coverage_90']:.2f}, SBC p = {values['sbc_chisquare_p']:.3f} (chi-square), "
                   f"{values['sbc_ks_p']:.3f} (KS)")
-        verdict = calibration["sbc_verdict"]
-        print(f"  SBC rank tests as one family: {'rejected' if verdict['rejected'] else 'not rejected'} (smallest p "
-              f"{verdict['smallest_p']:.3f}, Bonferroni threshold {verdict['alpha']:g}/{verdict['tests']})")
+        from master.fit.calibration import verdict_words
+        print(f"  SBC rank tests as one family (Bonferroni): {verdict_words(calibration['sbc_verdict'])}")
     return 0

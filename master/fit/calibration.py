@@ -71,6 +71,12 @@ def rank_tests_verdict(chisquare_p: np.ndarray, ks_p: np.ndarray, alpha: float =
             "rejected": smallest < alpha / len(p)}
 
 
+def verdict_words(verdict: dict) -> str:
+    """:func:`rank_tests_verdict` in words, for the command's output and the results table."""
+    return (f"{'rejected' if verdict['rejected'] else 'not rejected'}: smallest p {verdict['smallest_p']:.3f} "
+            f"{'<' if verdict['rejected'] else '≥'} {verdict['alpha']:g}/{verdict['tests']} = {verdict['threshold']:.4f}")
+
+
 def central_interval(samples: np.ndarray, level: float, axis: int = -2) -> tuple[np.ndarray, np.ndarray]:
     """The central ``level`` interval of the samples along ``axis``: their (1 - level)/2 and (1 + level)/2
     quantiles (numpy's linear interpolation)."""
@@ -86,11 +92,13 @@ def coverage(samples: np.ndarray, truths: np.ndarray, level: float) -> np.ndarra
     samples' own quantiles would cover less: between numpy's 5 % and 95 % quantiles of 99 samples lie
     (94.1 - 5.9) / 100 = 88.2 % of a calibrated posterior's truths.
     samples: (participants, L, parameters); truths: (participants, parameters)."""
-    samples = np.asarray(samples)
-    count = samples.shape[1]
-    k = int(np.floor((count + 1) * (1 - level) / 2 + 1e-9))
-    ranks = sbc_ranks(samples, truths)
-    return ((ranks >= k) & (ranks <= count - k)).mean(axis=0)
+    return rank_coverage(sbc_ranks(samples, truths), np.shape(samples)[1], level)
+
+
+def rank_coverage(ranks: np.ndarray, samples_per_participant: int, level: float) -> np.ndarray:
+    """:func:`coverage` from the ranks themselves, (participants, parameters), of L = samples_per_participant."""
+    k = int(np.floor((samples_per_participant + 1) * (1 - level) / 2 + 1e-9))
+    return ((ranks >= k) & (ranks <= samples_per_participant - k)).mean(axis=0)
 
 
 def recovery(samples: np.ndarray, truths: np.ndarray) -> dict[str, np.ndarray]:
@@ -110,5 +118,5 @@ def calibrate(samples: np.ndarray, truths: np.ndarray) -> dict:
     ranks = sbc_ranks(samples, truths)
     tests = uniformity(ranks, samples.shape[1])
     return {"ranks": ranks, "uniformity": tests, "verdict": rank_tests_verdict(tests["chisquare_p"], tests["ks_p"]),
-            "coverage": {level: coverage(samples, truths, level) for level in LEVELS},
+            "coverage": {level: rank_coverage(ranks, samples.shape[1], level) for level in LEVELS},
             "recovery": recovery(samples, truths), "participants": len(truths), "samples": samples.shape[1]}

@@ -13,7 +13,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from master.fit.calibration import LEVELS, central_interval, rank_histogram, rank_tests_verdict  # noqa: E402
+from master.fit.calibration import (LEVELS, central_interval, rank_histogram, rank_tests_verdict,  # noqa: E402
+                                    verdict_words)
 from master.fit.plan import Parameter  # noqa: E402
 from master.outputs.figures import METADATA  # noqa: E402
 from master.outputs.files import atomic_write  # noqa: E402
@@ -168,9 +169,7 @@ __all__ = ["LEVELS", "natural", "posterior_csv", "estimates_csv", "calibration_c
 def verdict_row(rows: list[dict]) -> str:
     """The measures table's row of :func:`rank_tests_verdict`, from calibration.csv's rows."""
     verdict = rank_tests_verdict([float(r["sbc_chisquare_p"]) for r in rows], [float(r["sbc_ks_p"]) for r in rows])
-    return (f"| SBC rank tests as one family (Bonferroni, α = {verdict['alpha']:g}) | "
-            f"{'rejected' if verdict['rejected'] else 'not rejected'}: smallest p {verdict['smallest_p']:.3f} "
-            f"{'<' if verdict['rejected'] else '≥'} {verdict['alpha']:g}/{verdict['tests']} = {verdict['threshold']:.4f} |")
+    return f"| SBC rank tests as one family (Bonferroni, α = {verdict['alpha']:g}) | {verdict_words(verdict)} |"
 
 
 def results_markdown(out: Path) -> str:
