@@ -10,7 +10,7 @@ $(STAMP): pyproject.toml constraints.txt
 	$(VENV)/bin/pip install --quiet -c constraints.txt -e '.[test]'
 	touch $(STAMP)
 
-.PHONY: setup test test-kernels experiment
+.PHONY: setup test test-kernels experiment docs
 setup: $(STAMP)
 
 # Two xdist workers, a module to each (modules share expensive fixtures); TEST_WORKERS=0 runs in one process.
@@ -25,3 +25,8 @@ test-kernels: $(STAMP)
 
 experiment: $(STAMP)
 	$(VENV)/bin/rhi experiment --out results
+
+# The documentation site with the API reference generated from the docstrings (mkdocs.yml), into site/; strict:
+# a broken link or a docstring griffe cannot read fails it. `$(VENV)/bin/python -m mkdocs serve` to browse.
+docs: $(STAMP)
+	$(VENV)/bin/python -m mkdocs build --strict --site-dir site

@@ -39,6 +39,10 @@ class System:
 
     Verbs: :meth:`validate`, :meth:`variable`, :meth:`feeds`, :meth:`algebraic_loop`.
 
+    Example::
+
+        system = System([source, integrator], [("source.y", "integrator.u")])
+
     Parameters
     ----------
     components : list of Component
@@ -46,10 +50,6 @@ class System:
         same step, and the previous step's outputs of those after it. Names must be unique.
     connections : iterable
         ``(source, target)`` pairs of ``component.variable`` paths, or :class:`Connection` objects.
-
-    Example::
-
-        system = System([source, integrator], [("source.y", "integrator.u")])
     """
 
     def __init__(self, components: list[Component], connections):
