@@ -103,6 +103,7 @@ class Values(dict):
         return value
 
     def get(self, name, default=None):
+        """The value of ``name`` (a :class:`Deferred` one computed), or ``default`` when there is none."""
         return self[name] if name in self else default
 
 
@@ -167,15 +168,28 @@ class Component:
         self.state = INSTANTIATED
 
     def setup_experiment(self, start_time: float = 0.0, stop_time: float | None = None) -> None:
+        """Set the run's start and stop times (instantiated components only).
+
+        Parameters
+        ----------
+        start_time : float
+            s; the time :meth:`exit_initialization_mode` initializes at.
+        stop_time : float or None
+            s; None: open-ended.
+        """
         self._require(INSTANTIATED, "setup_experiment")
         self.start_time, self.stop_time = float(start_time), stop_time
 
     def enter_initialization_mode(self) -> None:
+        """Enter initialization mode and call :meth:`publish_initial`; parameters may still be set."""
         self._require(INSTANTIATED, "enter_initialization_mode")
         self.state = INITIALIZATION
         self.publish_initial()
 
     def exit_initialization_mode(self) -> None:
+        """Call :meth:`initialize` (the inputs set) and enter step mode; a StepFailure's reason is left in
+        ``last_reason``.
+        """
         self._require(INITIALIZATION, "exit_initialization_mode")
         self._run_hook(self.initialize, self.start_time)
         self.state = STEPPING
@@ -186,6 +200,7 @@ class Component:
         return self._run_hook(lambda: self.step(t, h), t)
 
     def terminate(self) -> None:
+        """Call :meth:`terminate_hook` and enter the terminated state; once only (again: nothing)."""
         if self.state != TERMINATED:
             self.terminate_hook()
             self.state = TERMINATED

@@ -51,12 +51,15 @@ class ComponentSlaveBase(Fmi2Slave):
 
     # -- FMI 2.0 lifecycle ------------------------------------------------------------------
     def setup_experiment(self, start_time, stop_time=None, tolerance=None):
+        """fmi2SetupExperiment: the component's start and stop times, s (``tolerance`` is not used)."""
         self.component.setup_experiment(start_time, stop_time)
 
     def enter_initialization_mode(self):
+        """fmi2EnterInitializationMode: the component enters initialization mode."""
         self.component.enter_initialization_mode()
 
     def exit_initialization_mode(self):
+        """fmi2ExitInitializationMode: the component initializes; a failure is logged as one line and raised."""
         try:
             self.component.exit_initialization_mode()
             if self.component.last_reason:
@@ -66,6 +69,18 @@ class ComponentSlaveBase(Fmi2Slave):
             raise
 
     def do_step(self, current_time, step_size):
+        """fmi2DoStep: one step of the component.
+
+        Parameters
+        ----------
+        current_time, step_size : float
+            The step's start and size, s.
+
+        Returns
+        -------
+        bool
+            False when the step failed (an exception, or a status of discard or worse), its reason logged.
+        """
         try:
             status = self.component.do_step(current_time, step_size)
         except Exception as error:  # pythonfmu would only say "unknown error": log the cause, fail the step
@@ -77,6 +92,7 @@ class ComponentSlaveBase(Fmi2Slave):
         return True
 
     def terminate(self):
+        """fmi2Terminate: the component terminates."""
         self.component.terminate()
 
     # -- model description ----------------------------------------------------------------

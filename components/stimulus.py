@@ -49,12 +49,14 @@ class Stimulus(Component):
         ])
 
     def check_parameters(self):
+        """ComponentError if ``delay_max`` is below ``delay_min`` in any trial."""
         v = self.values
         if np.any(v["delay_max"] < v["delay_min"]):
             raise ComponentError(f"{self.name}.delay_max = {v['delay_max'].tolist()} is below delay_min = "
                                  f"{v['delay_min'].tolist()}")
 
     def initialize(self):
+        """Seed each trial's delay generator with its ``seed`` and publish the outputs at the start time."""
         self.check_parameters()
         v = self.values
         self._generators = [np.random.default_rng(int(seed)) for seed in v["seed"]]
@@ -62,6 +64,14 @@ class Stimulus(Component):
         self._publish(self.start_time)
 
     def step(self, t, h):
+        """Publish the events observed by the step's end, ``t + h``: ``visual_time``, ``tactile_time`` (B,) s, and
+        ``ball`` (B, 2) m.
+
+        Parameters
+        ----------
+        t, h : float
+            The step's start and size, s.
+        """
         self._publish(t + h)
 
     def delays(self, count: int) -> np.ndarray:

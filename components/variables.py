@@ -73,6 +73,7 @@ class Variable:
 
     @property
     def dtype(self):
+        """The numpy dtype of a value: an Array's ``element``, else the scalar type's (float64, int64, bool)."""
         return ELEMENTS[self.element] if self.type == "Array" else DTYPES[self.type]
 
     @property

@@ -35,6 +35,7 @@ class PosedArm(Component):
         self.initialize()
 
     def initialize(self):
+        """Publish ``pose`` (B, 2) deg and ``hand`` (B, 2) m of the parameters; ComponentError if one is not finite."""
         pose = np.stack([self.values["shoulder"], self.values["elbow"]], axis=1).astype(np.float64)
         if not np.all(np.isfinite(pose)):
             raise ComponentError(f"{self.name}.shoulder/elbow must be finite, got {pose.tolist()}")
@@ -57,7 +58,15 @@ class JointPose(Component):
         ])
 
     def initialize(self):
+        """Publish ``pose`` of the inputs as set, as a step does."""
         self.step(0.0, 0.0)
 
     def step(self, t, h):
+        """Publish ``pose`` (B, 2) deg: (q_shoulder, q_elbow) of the current inputs.
+
+        Parameters
+        ----------
+        t, h : float
+            The step's start and size, s (unused: the outputs follow the current inputs).
+        """
         self.values["pose"] = np.stack([self.values["q_shoulder"], self.values["q_elbow"]], axis=1).astype(np.float64)

@@ -221,10 +221,12 @@ class Camera(Component):
         self._blur_sigma, self._ball_radius = BLUR_SIGMA, BALL_RADIUS
 
     def check_parameters(self):
+        """ComponentError naming ``blur`` or ``ball_radius`` when its value differs between the trials."""
         for name in ("blur", "ball_radius"):
             self._shared(name)
 
     def initialize(self):
+        """Take this run's ``blur`` and ``ball_radius``, drop the kept arm layers, and draw the first ``image``."""
         self._blur_sigma, self._ball_radius = (self._shared(name) for name in ("blur", "ball_radius"))
         self._arm_layers = {}  # drawn with this run's blur only
         self._draw()
@@ -238,6 +240,14 @@ class Camera(Component):
         return float(values[0])
 
     def step(self, t, h):
+        """Draw ``image`` (B, res, res) float32 of the current ``arm_pose`` and ``ball``; StepFailure if a pose is
+        not finite.
+
+        Parameters
+        ----------
+        t, h : float
+            The step's start and size, s (unused: the outputs follow the current inputs).
+        """
         self._draw()
 
     def _draw(self):

@@ -64,9 +64,13 @@ class MirroredArm(Component):
         ])
 
     def publish_initial(self):
+        """Publish the rubber arm at rest as soon as the parameters are in (:meth:`initialize`)."""
         self.initialize()
 
     def initialize(self):
+        """Start the history with the real arm at rest, and publish the rubber arm at rest: ``pose`` (B, 2) deg,
+        ``hand`` (B, 2) m. ComponentError if ``delay`` is not a whole number of steps.
+        """
         lag = self.values["delay"] / self.step_size
         if np.any(np.abs(lag - np.round(lag)) > 1e-6):
             raise ComponentError(f"{self.name}.delay = {self.values['delay'].tolist()} s must be a whole number of "

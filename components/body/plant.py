@@ -43,6 +43,19 @@ CELL_ARM = 1.0  # m, length of each load-cell spring (long, so a sideways deflec
 
 
 def state_output(name, unit, description, start):
+    """An output of the arm's state: a Real that depends on no input (``depends_on=()``).
+
+    Parameters
+    ----------
+    name, unit, description : str
+        As for :class:`~components.variables.Variable`.
+    start : float
+        Its start value, in ``unit``.
+
+    Returns
+    -------
+    Variable
+    """
     return Variable(name, "output", start=start, unit=unit, description=description, depends_on=())
 
 
@@ -110,12 +123,16 @@ class ArmPlant(Component):
         self.values.update(q_shoulder=q0[0].copy(), q_elbow=q0[1].copy(), hand_x=hand_x, hand_y=hand_y)
 
     def check_parameters(self):
+        """ComponentError if ``substeps`` differs between the trials (they share one pymunk space)."""
         v = self.values
         if np.any(v["substeps"] != v["substeps"][0]):
             raise ComponentError(f"{self.name}.substeps = {v['substeps'].tolist()} must be the same for every "
                                  f"trial (the trials share one pymunk space)")
 
     def initialize(self):
+        """Build the pymunk space, an arm per trial at (q0_shoulder, q0_elbow) and a held trial's hand in its load
+        cell, and publish the state with zero force.
+        """
         self.check_parameters()
         v = self.values
         self.space = pymunk.Space()
@@ -164,6 +181,17 @@ class ArmPlant(Component):
 
     # -- stepping ------------------------------------------------------------------------------
     def step(self, t, h):
+        """Advance every arm by ``h`` in ``substeps`` pymunk sub-steps under the velocity servo, and publish the
+        angles (deg), the hand (m) and the load cell's force (N; 0 when free).
+
+        A held arm whose ``release_time`` has come is let go first. StepFailure if the command is not finite, or
+        if a sub-step is longer than the servo's time constant (too few ``substeps``).
+
+        Parameters
+        ----------
+        t, h : float
+            The step's start and size, s.
+        """
         v = self.values
         self._release(t)
         command = np.radians(np.stack([v["u_shoulder"], v["u_elbow"]], axis=1))
@@ -219,6 +247,7 @@ class ArmPlant(Component):
                            hand_x=hands[:, 0], hand_y=hands[:, 1], force_x=force[:, 0], force_y=force[:, 1])
 
     def terminate_hook(self):
+        """Drop the pymunk space and its arms."""
         self._arms, self._cells = [], []
         self.space = None
 

@@ -33,9 +33,11 @@ class RubberArm(Component):
         self.initialize()
 
     def check_parameters(self):
+        """ComponentError if ``offset_x``, ``offset_y`` put the rubber hand out of the arm's reach."""
         self._pose()
 
     def initialize(self):
+        """Publish ``hand`` (B, 2) m, REST_HAND plus the offsets, and ``pose`` (B, 2) deg by inverse kinematics."""
         self.values["pose"], self.values["hand"] = self._pose()
 
     def _pose(self):

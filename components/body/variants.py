@@ -52,10 +52,19 @@ class KinematicArm(Component):
                       np.zeros((self.batch_size, 2)))
 
     def initialize(self):
+        """Publish the initial pose (q0_shoulder, q0_elbow), deg, and zero force."""
         self._publish(self.values["q0_shoulder"].copy(), self.values["q0_elbow"].copy(),
                       np.zeros((self.batch_size, 2)))
 
     def step(self, t, h):
+        """Free: the joints move by ``h`` times the command (deg). Held: they stay, and the hand force (N) is the
+        servo's static push (:func:`held_hand_force`). StepFailure if the command is not finite.
+
+        Parameters
+        ----------
+        t, h : float
+            The step's start and size, s.
+        """
         v = self.values
         command = np.stack([v["u_shoulder"], v["u_elbow"]], axis=1)
         if not np.all(np.isfinite(command)):

@@ -112,6 +112,19 @@ class FMUComponent(Component):
 
     # -- lifecycle ------------------------------------------------------------------------
     def instantiate(self, batch_size: int = 1) -> None:
+        """Instantiate one FMU instance per trial (fmi2Instantiate, one logger for all into ``messages``), with the
+        signal handlers of :data:`~components.fmu.watchdog.WATCH` installed until :meth:`terminate`.
+
+        Parameters
+        ----------
+        batch_size : int
+            B, the trials.
+
+        Raises
+        ------
+        ComponentError
+            An instance could not be made (the FMU's messages give the reason).
+        """
         from fmpy.fmi1 import calloc, free
         from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
                                fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
@@ -250,6 +263,9 @@ class FMUComponent(Component):
             self.failure = failure
 
     def initialize(self) -> None:
+        """Set the parameters and inputs, exit the instances' initialization mode and read their outputs at the start
+        time; a failure met in :meth:`publish_initial` is raised here.
+        """
         if self.failure is not None:
             raise self.failure
         self._set("parameter", "input")  # FMI allows both in initialization mode: take the latest
@@ -257,11 +273,22 @@ class FMUComponent(Component):
         self._get(self.start_time)
 
     def step(self, t: float, h: float) -> None:
+        """Set the inputs, call fmi2DoStep on every instance and read the outputs at ``t + h``; a call that fails or
+        runs over ``step_timeout`` fails its trial (StepFailure).
+
+        Parameters
+        ----------
+        t, h : float
+            The step's start and size, s.
+        """
         self._set("input")
         self._each("fmi2DoStep", t, lambda fmu: fmu.fmi2DoStep(fmu.component, t, h, 1))
         self._get(t + h)
 
     def terminate_hook(self) -> None:
+        """Terminate (a healthy instance that was initialized) and free every instance, whatever each answers, and
+        release the signal handlers.
+        """
         def release(fmu):  # a failed FMU may only be freed; a healthy one in initialization or step mode terminates
             if self.failure is None and self.state in (INITIALIZATION, STEPPING):
                 fmu.terminate()

@@ -15,6 +15,20 @@ CAUSALITY = {"parameter": "parameter", "input": "input", "output": "output",
 
 
 def library_path(unzipdir: str, model_identifier: str) -> str:
+    """The path of an FMU's shared library for this platform.
+
+    Parameters
+    ----------
+    unzipdir : str
+        The unzipped FMU's folder (``""``: the path inside the FMU).
+    model_identifier : str
+        The co-simulation ``modelIdentifier``: the library's name.
+
+    Returns
+    -------
+    str
+        ``unzipdir/binaries/<platform>/<model_identifier><extension>``, fmpy's platform and extension.
+    """
     import fmpy
     return os.path.join(unzipdir, "binaries", fmpy.platform, model_identifier + fmpy.sharedLibraryExtension)
 

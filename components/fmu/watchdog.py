@@ -60,6 +60,9 @@ class Watch:
 
     # handlers: installed while any FMUComponent is instantiated in the main thread
     def attach(self) -> None:
+        """Count one more user; the first installs the SIGINT, SIGTERM and SIGALRM handlers. Outside the main thread:
+        nothing.
+        """
         if threading.current_thread() is not threading.main_thread():
             return
         if self.users == 0:
@@ -70,6 +73,9 @@ class Watch:
         self.users += 1
 
     def detach(self) -> None:
+        """Count one user fewer; the last puts back the handlers that were there before. Outside the main thread:
+        nothing.
+        """
         if threading.current_thread() is not threading.main_thread() or self.users == 0:
             return
         self.users -= 1
@@ -106,12 +112,14 @@ class Watch:
 
     # the calls, and the watchdog thread
     def begin(self, call: Call) -> None:
+        """``call`` is under way in this thread; the watchdog thread starts if the call has a limit and none runs."""
         self.calls[threading.get_ident()] = call
         if call.limit and (self.thread is None or not self.thread.is_alive()):
             self.thread = threading.Thread(target=self._watch, name="rhi-fmu-watchdog", daemon=True)
             self.thread.start()
 
     def end(self) -> None:
+        """This thread's call is over."""
         self.calls.pop(threading.get_ident(), None)
 
     def _watch(self) -> None:

@@ -216,10 +216,19 @@ class Decoder(Component):
         ])
 
     def initialize(self):
+        """Set torch's threads and publish the outputs of the initial ``mu`` and ``image``."""
         torch.set_num_threads(self.threads)
         self._update()
 
     def step(self, t, h):
+        """Publish ``visual_drive`` (B, 2) deg/s, ``visual_error`` (B,), ``visual_stiffness`` (B,) 1/s and
+        ``prediction`` (B, res, res) of the current ``mu`` and ``image``; StepFailure if ``mu`` is not finite.
+
+        Parameters
+        ----------
+        t, h : float
+            The step's start and size, s (unused: the outputs follow the current inputs).
+        """
         self._update()
 
     def _checked_inputs(self):

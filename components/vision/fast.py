@@ -84,9 +84,13 @@ class LinearisedDecoder(Decoder):
 
     @property
     def decoder_calls(self) -> int:
+        """Batched decoder calls made (the ``i``-th evaluated ``call_sizes[i]`` points)."""
         return len(self.call_sizes)
 
     def initialize(self):
+        """Empty the store of linearisation points (room for ``memory_mb``, at least 2 per trial) and the counters,
+        then publish as :meth:`Decoder.initialize`.
+        """
         pixels = self.model.resolution ** 2
         capacity = max(2 * self.batch_size, int(self.memory_mb * 2**20) // (12 * pixels))
         self._store = torch.empty(capacity, 3, pixels)  # per point: g0, then J0's columns (shoulder, elbow)

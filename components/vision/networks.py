@@ -72,6 +72,7 @@ PRESETS = {
 
 
 def preset(name: str) -> Preset:
+    """The :class:`Preset` named ``name`` (a key of :data:`PRESETS`); ComponentError if there is none."""
     try:
         return PRESETS[name]
     except KeyError:
@@ -97,6 +98,18 @@ class ConvDecoder(nn.Module):
         self.convolutions = nn.Sequential(*layers)
 
     def forward(self, mu_normalised: torch.Tensor) -> torch.Tensor:
+        """g(mu): the images the normalised joint angles predict.
+
+        Parameters
+        ----------
+        mu_normalised : torch.Tensor
+            (B, 2): joint angles normalised to [-1, 1] over the training ranges (:func:`normalise`).
+
+        Returns
+        -------
+        torch.Tensor
+            (B, res, res) in [0, 1].
+        """
         features = self.dense(mu_normalised).view(-1, self.start_channels, self.start, self.start)
         return self.convolutions(features)[:, 0]
 
@@ -119,6 +132,20 @@ class Encoder(nn.Module):
                                    nn.Linear(sizes.hidden, 4))
 
     def forward(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """q(mu | image): the latent Gaussian of each image.
+
+        Parameters
+        ----------
+        images : torch.Tensor
+            (B, res, res) in [0, 1].
+
+        Returns
+        -------
+        mean : torch.Tensor
+            (B, 2), in normalised joint-angle units.
+        log_variance : torch.Tensor
+            (B, 2), of the same units squared.
+        """
         out = self.dense(self.convolutions(images[:, None]))
         return out[:, :2], out[:, 2:]
 
@@ -149,6 +176,7 @@ def sizes_dict(sizes: Preset) -> dict:
 
 
 def sizes_from_dict(data: dict) -> Preset:
+    """The :class:`Preset` of :func:`sizes_dict`'s data (a checkpoint's metadata)."""
     return Preset(hidden=int(data["hidden"]), channels=tuple(int(c) for c in data["channels"]),
                   resolution=int(data["resolution"]))
 

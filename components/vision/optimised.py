@@ -149,9 +149,22 @@ class SubPixelTransposedConv(nn.Module):
                 and layer.groups == 1 and layer.out_channels == 1)
 
     def linear(self, x: torch.Tensor) -> torch.Tensor:
+        """The transposed convolution without its bias (its linear part, as the JVPs need it).
+
+        Parameters
+        ----------
+        x : torch.Tensor
+            (B, C_in, H, W).
+
+        Returns
+        -------
+        torch.Tensor
+            (B, C_out, 2H, 2W).
+        """
         return F.pixel_shuffle(F.conv2d(x, self.weight, None, 1, 1), 2)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """The transposed convolution of ``x`` (B, C_in, H, W), bias included: (B, C_out, 2H, 2W)."""
         out = self.linear(x)
         return out if self.bias is None else out + self.bias.view(-1, 1, 1)
 

@@ -179,10 +179,19 @@ class PoseEncoder(Component):
         ])
 
     def initialize(self):
+        """Set torch's threads and publish the pose of the initial ``image``."""
         torch.set_num_threads(self.threads)
         self._update()
 
     def step(self, t, h):
+        """Publish ``pose`` (B, 2) deg and ``pose_variance`` (B, 2) deg² of the current ``image``; StepFailure if the
+        image is not finite.
+
+        Parameters
+        ----------
+        t, h : float
+            The step's start and size, s (unused: the outputs follow the current inputs).
+        """
         self._update()
 
     def _update(self):

@@ -96,9 +96,11 @@ class TrainSettings:
 
     @classmethod
     def names(cls) -> list[str]:
+        """The settings' names, in declaration order."""
         return [f.name for f in fields(cls)]
 
     def as_dict(self) -> dict:
+        """Every setting by name, as a plain dict."""
         return asdict(self)
 
     def identity(self) -> dict:
@@ -114,6 +116,7 @@ LATER_FIELDS = {"channels_last": False, "fused_adam": False, "stop_hand_error_cm
 
 
 def validation_count(samples: int, fraction: float) -> int:
+    """The samples held out for validation: ``round(samples * fraction)``, at least 1."""
     return max(1, round(samples * fraction))
 
 

@@ -18,6 +18,7 @@ from pathlib import Path
 
 
 def cpu_seconds_of_children() -> float:
+    """User plus system CPU seconds of this process's children that have been waited for, so far."""
     usage = resource.getrusage(resource.RUSAGE_CHILDREN)
     return usage.ru_utime + usage.ru_stime
 

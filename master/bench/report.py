@@ -5,6 +5,19 @@ import os
 
 
 def targets(report: dict) -> dict:
+    """Each target the bench is judged by: its value in ``report``, the target, and whether it is met.
+
+    Parameters
+    ----------
+    report : dict
+        :func:`~master.bench.suite.run_suite`'s report.
+
+    Returns
+    -------
+    dict
+        ``{name: {"value": ..., "target": "<op> <number>", "met": bool}}``; value and met are None when the
+        run did not measure it.
+    """
     paper = next((p for p in report["presets"].values() if p["preset"] == "paper"), None)
     protocol, error, overhead = report["protocol_fast"], report["fast_error"], report["master_overhead"]
     peak = max(report["matmul_peak"]["flop_per_s"], report.get("matmul_peak_at_end", {}).get("flop_per_s", 0.0))

@@ -19,6 +19,9 @@ from master.experiment.training_data import HALF_RANGES
 
 @dataclass(frozen=True)
 class BenchSettings:
+    """What ``rhi bench`` measures and for how long (each field's comment says what it sets; :data:`QUICK`: a
+    smoke test's).
+    """
     presets: tuple = (("paper", 256), ("default", 64))  # (network preset, resolution)
     batch: int = 60              # trials in lockstep: the whole protocol (2 decoders x 3 x 2 x 5)
     max_steps: int = 50          # measured steps per mode at most ...
@@ -53,11 +56,30 @@ QUICK = BenchSettings(presets=(("tiny", 32),), batch=6, max_steps=3, budget_s=0.
 
 
 def untrained(preset: str, resolution: int, seed: int) -> GenerativeModel:
+    """An untrained conv decoder, seeded (the speed does not depend on the weights).
+
+    Parameters
+    ----------
+    preset : str
+        The network preset (:data:`components.vision.networks.PRESETS`).
+    resolution : int
+        Image side, px.
+    seed : int
+        torch's seed for the initial weights.
+
+    Returns
+    -------
+    GenerativeModel
+        About the rest pose and the training data's half-ranges, as a trained one.
+    """
     torch.manual_seed(seed)
     return GenerativeModel(build("conv", preset, resolution).decoder, kinematics.REST_POSE, HALF_RANGES)
 
 
 def protocol_config(resolution: int, steps: int, **overrides) -> dict:
+    """The experiment configuration the bench runs: the defaults at ``resolution`` px for ``steps`` steps with
+    both decoders, and ``overrides`` (dotted keys) on top.
+    """
     return configuration.load(overrides={"experiment.resolution": resolution, "experiment.steps": steps,
                                          "experiment.decoders": ["conv", "vae"], **overrides})
 
@@ -69,6 +91,15 @@ def protocol_trials(config: dict, batch: int) -> list:
 
 
 def timed(function):
+    """``function()``'s value and its wall time, s.
+
+    Returns
+    -------
+    value : object
+        What ``function()`` returned.
+    seconds : float
+        Its wall time (``time.perf_counter``).
+    """
     began = time.perf_counter()
     value = function()
     return value, time.perf_counter() - began

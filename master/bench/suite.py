@@ -72,6 +72,7 @@ def analytic_flops(decoder: torch.nn.Module, resolution: int) -> int:
 
 
 def counted_flops(function) -> int:
+    """The FLOPs torch's FlopCounterMode counts while ``function()`` runs."""
     with FlopCounterMode(display=False) as counter:
         function()
     return int(counter.get_total_flops())
@@ -130,6 +131,15 @@ def sized_run(make_decoder, trials, resolution: int, settings: BenchSettings) ->
 
 
 def baseline_run(model, trial, resolution: int, settings: BenchSettings) -> dict:
+    """The baseline: one trial the way the released agent runs (:class:`~master.bench.baseline.PaperStyleAgent`),
+    after a warm-up, its steps sized to ``settings.budget_s`` by a probe run.
+
+    Returns
+    -------
+    dict
+        ``trials``, ``steps``, ``seconds`` (stepping), ``setup_s``, ``agent_steps_per_s``, ``decoder_s`` and
+        ``share`` (the decoder's of the step time).
+    """
     config = protocol_config(resolution, settings.max_steps)
     PaperStyleAgent(model, trial, config).run(settings.min_steps)  # warm-up
     probe = PaperStyleAgent(model, trial, config)
@@ -151,6 +161,24 @@ def with_flops(row: dict, flops_per_agent_step: int, peak: float) -> dict:
 
 
 def preset_rows(preset: str, resolution: int, settings: BenchSettings, peak: float) -> dict:
+    """Every mode's measurement for one network preset, with an untrained seeded decoder.
+
+    Parameters
+    ----------
+    preset : str
+        The network preset.
+    resolution : int
+        Image side, px.
+    settings : BenchSettings
+    peak : float
+        The matmul peak, FLOP/s, the decoder's rate is compared with.
+
+    Returns
+    -------
+    dict
+        ``preset``, ``resolution``, ``weights``, ``flops`` (per agent-step) and ``modes``: baseline,
+        exact_single, exact_batched, exact_batched_optimised and fast.
+    """
     model = untrained(preset, resolution, settings.seed)
     threads = settings.threads or available_cores()
     config = protocol_config(resolution, settings.max_steps)
@@ -202,6 +230,9 @@ def run_suite(settings: BenchSettings = BenchSettings()) -> dict:
 
 # -- the rest of the suite ------------------------------------------------------------------------
 def machine(threads: int) -> dict:
+    """The machine the bench ran on: CPU model and flags, cores (all and usable), ``threads`` (torch's), and the
+    versions of Python and the numeric packages.
+    """
     import fmpy
     import pymunk
     import scipy

@@ -22,6 +22,18 @@ def blocks(text: str) -> dict[str, str]:
 
 
 def main(argv: list[str]) -> int:
+    """Rewrite the stale generated tables of docs/*.md, or with ``--check`` only name them.
+
+    Parameters
+    ----------
+    argv : list of str
+        The command's arguments: ``["--check"]`` or none.
+
+    Returns
+    -------
+    int
+        The exit status: 1 when ``--check`` found a stale table, else 0.
+    """
     pages = sorted(DOCS.glob("*.md"))
     names = {name for page in pages for name in blocks(page.read_text())}
     tables = {name: TABLES[name]() for name in sorted(names)}

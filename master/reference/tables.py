@@ -67,12 +67,14 @@ MEANINGS = {
 
 
 def markdown(header: list[str], rows: list[list]) -> str:
+    """A Markdown table of ``header`` and ``rows`` (each cell as ``str``, its ``|`` escaped)."""
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     return "\n".join(lines + ["| " + " | ".join(str(cell).replace("|", "\\|") for cell in row) + " |"
                               for row in rows])
 
 
 def columns(names: list[str]) -> str:
+    """The column-and-meaning table of output columns ``names``; KeyError if one is not in :data:`MEANINGS`."""
     missing = [name for name in names if not MEANINGS.get(name)]
     if missing:
         raise KeyError(f"master/reference/tables.py MEANINGS lacks the output columns {', '.join(missing)}")
@@ -80,6 +82,7 @@ def columns(names: list[str]) -> str:
 
 
 def summary_columns() -> str:
+    """summary.csv's columns and their meanings."""
     from master.outputs.tables import SUMMARY_COLUMNS
     return columns(SUMMARY_COLUMNS)
 
@@ -101,6 +104,7 @@ def trials_columns() -> str:
 
 
 def sweep_columns() -> str:
+    """A sweep folder's ``index.csv`` and ``summary.csv`` columns and their meanings, from the code that writes them."""
     from master.sweeps import tables
     sweep = SimpleNamespace(keys=["KEY"], trials=[], points=[])
     index = tables.index_rows(sweep, {}).splitlines()[0].split(",")
@@ -109,6 +113,7 @@ def sweep_columns() -> str:
 
 
 def phenomenon_columns() -> str:
+    """A phenomenon's table columns and their meanings (the swept quantity as ``x``)."""
     from master.phenomena.report import PHENOMENA, table
     model, _, *rest = table(next(iter(PHENOMENA.values())), []).splitlines()[0].split(",")  # model, x, ...
     return columns([model, "x", *rest])
@@ -140,11 +145,13 @@ def commented_keys(name: str) -> list[tuple[str, str, str]]:
 
 
 def configuration_keys() -> str:
+    """Every key of the shipped defaults.toml: its default and its comment."""
     return markdown(["key", "default", "meaning"],
                     [[f"`{key}`", f"`{value}`", comment] for key, value, comment in commented_keys("defaults")])
 
 
 def paper_preset() -> str:
+    """Every key of the shipped paper.toml: its value there, its default, and why."""
     defaults = {key: value for key, value, _ in commented_keys("defaults")}
     return markdown(["key", "paper", "default", "why"],
                     [[f"`{key}`", f"`{value}`", f"`{defaults[key]}`", why]
@@ -152,6 +159,9 @@ def paper_preset() -> str:
 
 
 def number(value, integer: bool = False) -> str:
+    """``value`` as a table shows it: whole numbers (and any, with ``integer``) without a decimal point, others
+    as ``%g``; None and NaN as ``NaN``, infinities as ``∞`` and ``−∞``.
+    """
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return "NaN"
     if math.isinf(value):
