@@ -6,9 +6,12 @@ replaces only the files it can prove it wrote (docs/safety.md).
     {"command": "rhi experiment", "folders": ["figures"],
      "files": {"summary.csv": {"bytes": 812, "sha256": "9f2c..."}, "figures/a_drift_final.png": {...}}}
 
-A file is *proven* when the manifest lists it, it is still a regular file (not a link) and its bytes still
-hash to what is listed; anything else under the folder (a file of the user's, one edited since rhi wrote it,
-a link, a device) is not, and stays.
+A file is *proven* when the manifest lists it, it is still a regular file (not a link), the way to it from
+the folder passes through folders only (no link: each part is opened relative to the one before with
+O_NOFOLLOW) and its bytes still hash to what is listed; anything else under the folder (a file of the user's,
+one edited since rhi wrote it, a link, a device, a file reached through a link to somewhere else) is not, and
+stays. A proven file is removed, and a listed folder left empty, relative to the descriptor of the folder it
+was proven in, never by a path that could be resolved again through a link.
 """
 from __future__ import annotations
 
@@ -22,19 +25,64 @@ NAME = ".rhi-manifest.json"
 IGNORED = (NAME, ".rhi-staging")  # not listed: the manifest itself, a staging folder's mark (files.STAGING_MARK)
 
 
-def digest(path: Path) -> dict | None:
-    """``{"bytes": size, "sha256": hex}`` of the regular file at ``path`` (never through a link); None if not one."""
+FOLDER_FLAGS = os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW | getattr(os, "O_CLOEXEC", 0)
+FILE_FLAGS = os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0)  # a FIFO opens, never waits
+
+
+def open_parent(folder: str | os.PathLike, relative: str) -> tuple[int, str] | None:
+    """(a descriptor of the folder that holds ``relative`` under ``folder``, the entry's name), every part of
+    the way opened relative to the one before with O_NOFOLLOW; None if ``relative`` is not a safe relative name
+    or a part of the way is not a folder (a link, a file, missing). The caller closes the descriptor."""
+    if not safe_relative(relative):
+        return None
+    *way, name = relative.split("/")
     try:
-        if not stat.S_ISREG(os.lstat(path).st_mode):
-            return None
-        hasher, size = hashlib.sha256(), 0
-        with open(path, "rb") as file:
-            for block in iter(lambda: file.read(1 << 20), b""):
-                hasher.update(block)
-                size += len(block)
+        handle = os.open(folder, os.O_RDONLY | os.O_DIRECTORY | getattr(os, "O_CLOEXEC", 0))
     except OSError:
         return None
+    for part in way:
+        try:
+            inner = os.open(part, FOLDER_FLAGS, dir_fd=handle)
+        except OSError:  # ELOOP, ENOTDIR: a link or a file where a folder belongs; ENOENT
+            os.close(handle)
+            return None
+        os.close(handle)
+        handle = inner
+    return handle, name
+
+
+def digest_at(handle: int, name: str) -> dict | None:
+    """``{"bytes": size, "sha256": hex}`` of the regular file ``name`` in the open folder ``handle`` (never
+    through a link); None if not one."""
+    try:
+        descriptor = os.open(name, FILE_FLAGS, dir_fd=handle)
+    except OSError:
+        return None
+    try:
+        if not stat.S_ISREG(os.fstat(descriptor).st_mode):
+            return None
+        hasher, size = hashlib.sha256(), 0
+        for block in iter(lambda: os.read(descriptor, 1 << 20), b""):
+            hasher.update(block)
+            size += len(block)
+    except OSError:
+        return None
+    finally:
+        os.close(descriptor)
     return {"bytes": size, "sha256": hasher.hexdigest()}
+
+
+def digest(relative: str, folder: str | os.PathLike) -> dict | None:
+    """``{"bytes": size, "sha256": hex}`` of the regular file ``relative`` under ``folder``, reached through
+    folders only (:func:`open_parent`: no part of the way a link, nor the file itself); None if not one."""
+    opened = open_parent(folder, relative)
+    if opened is None:
+        return None
+    handle, name = opened
+    try:
+        return digest_at(handle, name)
+    finally:
+        os.close(handle)
 
 
 def safe_relative(name) -> bool:
@@ -91,7 +139,7 @@ class Manifest:
 
     def add(self, relative: str) -> None:
         """List the file ``relative`` as it is now (rhi has just written it), and the folders above it."""
-        entry = digest(self.folder / relative)
+        entry = digest(relative, self.folder)
         if entry is None:
             self.files.pop(relative, None)
             return
@@ -102,8 +150,9 @@ class Manifest:
             parent = parent.parent
 
     def proven(self, relative: str) -> bool:
-        """Whether ``relative`` is a file rhi wrote, unchanged since."""
-        return relative in self.files and digest(self.folder / relative) == self.files[relative]
+        """Whether ``relative`` is a file rhi wrote, unchanged since, reached from the folder through folders
+        only (module notes)."""
+        return relative in self.files and digest(relative, self.folder) == self.files[relative]
 
     def unproven(self) -> list[str]:
         """Every entry under the folder that is not rhi's as listed, sorted; a changed file says so."""
@@ -121,7 +170,7 @@ class Manifest:
                     continue
                 if not self.proven(path):
                     found.append(f"{path} (changed since rhi wrote it)" if path in self.files and
-                                 digest(Path(root) / name) is not None else path)
+                                 digest(path, self.folder) is not None else path)
         return sorted(found)
 
     def remove_proven(self, keep=()) -> list[str]:
@@ -130,18 +179,39 @@ class Manifest:
         not rhi's now). Returns what was removed."""
         removed = []
         for relative in sorted(self.files):
-            if not self.proven(relative):
+            opened = open_parent(self.folder, relative)
+            if opened is None:  # not reached through folders of DIR's own: not rhi's
                 del self.files[relative]
-            elif relative not in keep:
-                (self.folder / relative).unlink()
-                del self.files[relative]
-                removed.append(relative)
+                continue
+            handle, name = opened
+            try:  # proven and removed in the same folder, held open: a link swapped in meanwhile is not followed
+                if digest_at(handle, name) != self.files[relative]:
+                    del self.files[relative]
+                elif relative not in keep:
+                    os.unlink(name, dir_fd=handle)
+                    del self.files[relative]
+                    removed.append(relative)
+            finally:
+                os.close(handle)
         for relative in sorted(self.folders, key=lambda name: -name.count("/")):
-            path = self.folder / relative
-            if path.is_dir() and not path.is_symlink() and not any(path.iterdir()):
-                path.rmdir()
+            opened = open_parent(self.folder, relative)
+            if opened is None:  # not a folder of DIR's own (reached through a link, or gone): not listed
                 self.folders.discard(relative)
-                removed.append(relative + "/")
+                continue
+            handle, name = opened
+            try:
+                if not stat.S_ISDIR(os.stat(name, dir_fd=handle, follow_symlinks=False).st_mode):
+                    self.folders.discard(relative)  # a link or a file where rhi's folder was: not rhi's now
+                    continue
+                os.rmdir(name, dir_fd=handle)  # an empty folder only
+            except OSError:  # not empty: it stays, listed; gone: not listed
+                if not os.path.lexists(self.folder / relative):
+                    self.folders.discard(relative)
+                continue
+            finally:
+                os.close(handle)
+            self.folders.discard(relative)
+            removed.append(relative + "/")
         return removed
 
     def save(self) -> None:

@@ -1,0 +1,166 @@
+"""Hostile output folders and the files in them: a manifest entry that leads through a link out of DIR, trial
+records and JSON that are not what rhi writes, a FIFO where a file belongs, and a user's file where --out names one.
+
+Each case runs the real command line (tests.faults.rhi: a subprocess, cwd the case's own ``work``, TMPDIR and
+RHI_CACHE inside its tree) and checks what rhi guarantees (docs/configuration.md, "What rhi refuses, and what it
+guarantees"; docs/safety.md): one line on stderr and exit status 2 for a refusal, no traceback, and nothing
+changed that rhi did not write. The folders are made in-process as rhi writes them (the units that write them),
+so that no case trains a decoder or runs a long sweep first.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from pathlib import Path
+
+import pytest
+
+from tests.faults import refused, rhi, snapshot, tiny_checkpoint
+
+VICTIM = b"a file of the user's, outside the output folder\n"
+
+
+def outside_files(root: Path) -> Path:
+    """root/outside: a file of the user's and an empty folder of theirs, which a link in DIR will lead to."""
+    outside = root / "outside"
+    (outside / "empty").mkdir(parents=True)
+    (outside / "victim.txt").write_bytes(VICTIM)
+    return outside
+
+
+def plant_link(folder: Path, outside: Path) -> None:
+    """``folder/lnk`` -> ``outside``, and the folder's manifest listing ``lnk/victim.txt`` with that file's true
+    size and sha256 and ``lnk/empty`` as one of its folders: the bytes proven, the path not rhi's."""
+    (folder / "lnk").symlink_to(outside, target_is_directory=True)
+    path = folder / ".rhi-manifest.json"
+    manifest = json.loads(path.read_text())
+    manifest["files"]["lnk/victim.txt"] = {"bytes": len(VICTIM), "sha256": hashlib.sha256(VICTIM).hexdigest()}
+    manifest["folders"] += ["lnk", "lnk/empty"]
+    path.write_text(json.dumps(manifest))
+
+
+def tree(root: Path) -> dict:
+    """Every entry under ``root``, links as links (not followed), and every entry of the folders a link under
+    ``root`` leads to, under the link's own name: what is there, whichever way it is reached."""
+    found = snapshot(root)
+    for name, entry in list(found.items()):
+        if entry[0] == "link" and (root / name).is_dir():
+            found.update({f"{name}/{inner}": value for inner, value in snapshot(root / name).items()})
+    return found
+
+
+def changed_outside(before: dict, after: dict, inside: str) -> list[str]:
+    """The entries that changed, but those under ``inside`` (DIR) and the run's own TMPDIR and RHI_CACHE."""
+    return sorted(name for name in set(before) | set(after) if before.get(name) != after.get(name)
+                  and not name.startswith((inside + "/", "tmp/", "cache/")) and name not in (inside, "tmp", "cache"))
+
+
+def prepared(root: Path) -> Path:
+    """root/work, root/tmp and root/cache, as tests.faults.rhi makes them (made first: they are not the run's)."""
+    for name in ("work", "tmp", "cache"):
+        (root / name).mkdir(parents=True, exist_ok=True)
+    return root / "work"
+
+
+# ======================================================================================================
+# 1-2. A manifest entry is rhi's only at a path inside DIR reached through no link
+# ======================================================================================================
+def test_sweep_force_never_removes_a_listed_file_reached_through_a_link(tmp_path):
+    from master.sweeps import plan as sweeps
+    from master.sweeps.folder import sweep_folder
+    from tests.sweep_files import sweep_file
+
+    work, outside = prepared(tmp_path), outside_files(tmp_path)
+    for name, left in (("first", -0.1), ("second", -0.2)):
+        sweep_file(work / f"{name}.toml", grid={"conditions.left": [left]}, trials=1, conditions=("left",), workers=1)
+    with sweep_folder(work / "out", sweeps.load(work / "first.toml"), False):
+        pass  # an earlier sweep's DIR, as rhi sweep writes it: sweep.json and the manifest listing it
+    plant_link(work / "out", outside)
+    before = tree(tmp_path)
+    done = rhi(tmp_path, "sweep", "--config", "second.toml", "--out", "out", "--force")
+    assert done.returncode == 0 and "Traceback" not in done.stderr, done.stderr[-2000:]
+    assert (outside / "victim.txt").read_bytes() == VICTIM and (outside / "empty").is_dir()
+    after = tree(tmp_path)
+    assert changed_outside(before, after, "work/out") == []
+    assert after["work/out/lnk"] == ("link", str(outside))  # the link itself is the user's: it stays
+    listed = json.loads((work / "out" / ".rhi-manifest.json").read_text())
+    assert not [name for name in [*listed["files"], *listed["folders"]] if name.startswith("lnk")]
+
+
+FIT = """
+[experiment]
+steps = 3
+resolution = 16
+[decoder]
+fast = false
+conv_checkpoint = "{checkpoint}"
+[fit]
+quick = true
+simulations = 10
+calibration = 0
+seed = 3
+participants_per_batch = 10
+workers = 1
+posterior_samples = 10
+predictive_draws = 1
+predictive_participants = 1
+[fit.estimator]
+hidden_features = 8
+transforms = 1
+max_epochs = 2
+batch_size = 10
+threads = 1
+[fit.parameters."decoder.visual_variance"]
+prior = "log-uniform"
+low = 5.0
+high = 80.0
+"""
+DATA = "participant,condition,stimulation,drift_cm\np1,left,sync,-0.3\n"
+
+
+def fit_folder(work: Path) -> Path:
+    """work/out as an interrupted `rhi fit` left it: fit.json, every simulated participant's record (made up
+    here: the fit only reads them back), and predictive/ an earlier posterior predictive sweep (another
+    fingerprint, as after a change of the data), each with the manifest rhi sweep keeps."""
+    from master.fit.data import read_data
+    from master.fit.plan import draw_participants, read_plan
+    from master.fit.run import fingerprint, prepare_folder
+    from master.fit.simulate import participants_sweep
+    from master.sweeps.folder import sweep_folder
+
+    from components.body.kinematics import REST_POSE
+    from master.experiment.training_data import HALF_RANGES
+
+    checkpoint = tiny_checkpoint(work / "tiny.pt", rest_pose=list(REST_POSE), half_ranges=list(HALF_RANGES))
+    (work / "fit.toml").write_text(FIT.format(checkpoint=checkpoint))
+    (work / "data.csv").write_text(DATA)
+    plan = read_plan(work / "fit.toml", read_data(work / "data.csv"))
+    drawn = draw_participants(plan.parameters, plan.settings)
+    prior = participants_sweep(plan, drawn, "prior")
+    out = work / "out"
+    prepare_folder(out, fingerprint(plan, prior.fingerprint))
+    with sweep_folder(out / "simulations", prior, False) as (_, manifest):
+        for number, trial in enumerate(prior.trials):
+            record = {"id": trial.id, "point": trial.point, "status": "ok",
+                      "outcome": {"drift_cm": -0.01 * number, "force_n": 0.0, "gamma_final": 0.1}}
+            (out / "simulations" / "trials" / f"{trial.id}.json").write_text(json.dumps(record))
+            manifest.add(f"trials/{trial.id}.json")
+        manifest.save()
+    with sweep_folder(out / "predictive", participants_sweep(plan, drawn[:2], "predictive"), False):
+        pass
+    return out
+
+
+def test_fit_never_removes_a_listed_file_of_its_predictive_folder_reached_through_a_link(tmp_path):
+    work, outside = prepared(tmp_path), outside_files(tmp_path)
+    out = fit_folder(work)
+    plant_link(out / "predictive", outside)
+    before = tree(tmp_path)
+    done = rhi(tmp_path, "fit", "--data", "data.csv", "--config", "fit.toml", "--out", "out", timeout=120)
+    assert done.returncode == 0 and "Traceback" not in done.stderr, done.stderr[-2000:]
+    assert "10 run now" not in done.stdout and "0 run now" in done.stdout  # the made-up records were used
+    assert (outside / "victim.txt").read_bytes() == VICTIM and (outside / "empty").is_dir()
+    after = tree(tmp_path)
+    assert changed_outside(before, after, "work/out") == []
+    assert after["work/out/predictive/lnk"] == ("link", str(outside))
