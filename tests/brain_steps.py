@@ -1,24 +1,32 @@
-"""The paper's brain stepped by hand, without a master: for tests/test_brain*.py."""
+"""The brains stepped by hand, without a master: for tests/test_brain*.py."""
 import math
 
 import numpy as np
 
 from components.brain import Brain
+from components.brain.causal_brain import CausalBrain
 from components.component import Status
 
 H = 0.02
 
+# Every brain class, for the tests every brain must pass (tests/test_brain_guards.py). One list: the
+# project's model registry is to take its place.
+BRAINS = [Brain, CausalBrain]
 
-def started(batch=1, inputs=None, **parameters):
-    """A brain past initialization, parameters and inputs set by hand (no master); the paper's action
-    law (action_time_constant = inf) unless the test sets another."""
-    brain = Brain()
+
+def started(batch=1, inputs=None, kind=Brain, **parameters):
+    """A brain of class ``kind`` past initialization, parameters and inputs set by hand (no master); the
+    paper's action law (action_time_constant = inf) unless the test sets another. Every input whose start
+    value is NaN (s_p, a seen pose or hand: what a master would connect) starts at 0 unless ``inputs`` sets it."""
+    brain = kind()
     brain.instantiate(batch)
     for name, value in {"action_time_constant": np.inf, **parameters}.items():
         brain.set(name, value)
     brain.setup_experiment(0.0)
     brain.enter_initialization_mode()
-    for name, value in {"q_shoulder": 0.0, "q_elbow": 0.0, **(inputs or {})}.items():
+    unset = {name: np.zeros_like(brain.get(name)) for name, variable in brain.variables.items()
+             if variable.causality == "input" and np.isnan(brain.get(name)).any()}
+    for name, value in {**unset, **(inputs or {})}.items():
         brain.set(name, value)
     brain.exit_initialization_mode()
     assert brain.last_reason == ""
@@ -31,6 +39,12 @@ def advance(brain, t, h=H, **inputs):
     status = brain.do_step(t, h)
     assert status == Status.OK, brain.last_reason
     return brain
+
+
+def outputs(brain):
+    """Copies of every output of ``brain``, by name: its state as a master sees it."""
+    return {name: np.array(brain.get(name), copy=True) for name, variable in brain.variables.items()
+            if variable.causality == "output"}
 
 
 def normal_pdf(x, sd=0.2):

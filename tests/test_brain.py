@@ -241,7 +241,8 @@ def test_gamma_with_space_is_bayes_with_the_spatial_factor():
 
 
 def test_spatial_extension_needs_the_hands_connected():
-    brain = started(batch=2, spatial_sd=[np.inf, 0.2])  # seen_hand and hand_x/y at their NaN start values
+    unconnected = {"seen_hand": np.full((2, 2), np.nan), "hand_x": np.full(2, np.nan), "hand_y": np.full(2, np.nan)}
+    brain = started(batch=2, spatial_sd=[np.inf, 0.2], inputs=unconnected)  # the hands' start values
     assert brain.do_step(0.0, H) == Status.ERROR
     assert brain.last_reason.startswith("seen_hand is not finite (nan) in trial 1 (brain.spatial_sd is finite")
     with pytest.raises(ComponentError, match=r"brain\.spatial_sd must be positive \(inf: the paper's model\), got 0"):

@@ -1,17 +1,20 @@
-"""The brain's guards and bad input (stability, non-finite values, parameter ranges, event bookkeeping), and
-its two action laws (the paper's integrator, the leaky law) by hand."""
+"""The brains' guards and bad input (stability, non-finite values, parameter ranges, event bookkeeping), every
+brain class through the same cases, and the two action laws (the paper's integrator, the leaky law) by hand."""
 import numpy as np
 import pytest
 
 from components.brain import Brain
+from components.brain.base import action_update, euler_step
 from components.brain.causal_inference import observe_events
-from components.brain.integrator import action_update, euler_step
+from components.brain.integrator import belief_rate
 from components.component import ComponentError, Status
 from master import SimulationError, System, simulate
 from tests.linear_decoder import LinearDecoder
 from tests.toys import Constant
 
-from tests.brain_steps import H, advance, started
+from tests.brain_steps import BRAINS, H, advance, outputs, started
+
+every_brain = pytest.mark.parametrize("kind", BRAINS, ids=lambda kind: kind.__name__)
 
 
 # -- guards and bad input ----------------------------------------------------------------------------
@@ -27,6 +30,19 @@ def test_stability_guard_fails_the_step_and_keeps_the_state():
     advance(quiet, 0.0)
 
 
+@every_brain
+def test_every_brain_fails_an_unstable_belief_step_and_keeps_its_state(kind):
+    """A goal's stiffness enters every brain's stability number: 0.02 * (1/Sigma_p + ... + 120) > 2."""
+    brain = started(kind=kind, mu0=[1.0, 2.0], inputs={"goal_stiffness": 120.0})
+    before = outputs(brain)
+    assert brain.do_step(0.0, H) == Status.ERROR
+    assert brain.last_reason.startswith("step too large for stable explicit Euler in trial 0: dt * (1/Sigma_p + ")
+    assert " + goal_stiffness) = " in brain.last_reason and ">= 2 (dt = 0.02 s, Sigma_p = 1, gamma = " \
+        in brain.last_reason
+    assert all(np.array_equal(value, before[name], equal_nan=True) for name, value in outputs(brain).items())
+    advance(brain, 0.0, goal_stiffness=0.0)
+
+
 def test_stability_guard_through_the_master():
     A, seen = np.array([[10.0, 0.0], [0.0, 1.0]]), np.zeros(2)
     system = System([Constant("shoulder", unit="deg"), Constant("elbow", unit="deg"),
@@ -39,33 +55,48 @@ def test_stability_guard_through_the_master():
         simulate(system, 1.0, H, parameters={"brain.gamma0": 1.0})
 
 
-@pytest.mark.parametrize("name, value", [("q_shoulder", np.nan), ("q_elbow", np.inf), ("visual_error", np.nan),
-                                         ("visual_stiffness", np.nan), ("visual_time", np.nan),
-                                         ("tactile_time", np.inf)])
-def test_non_finite_input_names_the_variable_and_trial(name, value):
-    brain = started(batch=3)
+@every_brain
+@pytest.mark.parametrize("name, value", [("q_shoulder", np.nan), ("q_elbow", np.inf), ("visual_stiffness", np.nan),
+                                         ("goal_error", np.nan), ("visual_time", np.nan), ("tactile_time", np.inf)])
+def test_non_finite_input_names_the_variable_and_trial(kind, name, value):
+    brain = started(batch=3, kind=kind)
+    before = outputs(brain)
     values = np.zeros(3)
     values[1] = value
     brain.set(name, values)
     assert brain.do_step(0.0, H) == Status.ERROR
     assert brain.last_reason == f"{name} is not finite ({value}) in trial 1"
+    assert all(np.array_equal(value, before[name], equal_nan=True) for name, value in outputs(brain).items())
 
 
 def test_non_finite_drive_and_belief_are_named():
     brain = started(batch=2)
     brain.set("visual_drive", [[0.0, 0.0], [0.0, np.nan]])
     assert brain.do_step(0.0, H) == Status.ERROR and brain.last_reason == "visual_drive is not finite (nan) in trial 1"
+    brain = started(batch=2)
+    brain.set("visual_error", [0.0, np.nan])
+    assert brain.do_step(0.0, H) == Status.ERROR and brain.last_reason == "visual_error is not finite (nan) in trial 1"
     big = started(gamma0=1.0, mu0=[1.79e308, 0.0], inputs={"q_shoulder": 1.79e308, "visual_drive": [[1e308, 0.0]]})
     assert big.do_step(0.0, H) == Status.ERROR and big.last_reason == "mu is not finite (inf) in trial 0"
+
+
+@every_brain
+@pytest.mark.parametrize("name, value, message", [
+    ("proprioceptive_variance", np.inf, r"brain\.proprioceptive_variance must be positive and finite, got inf"),
+    ("action_limit", np.inf, r"brain\.action_limit must be positive and finite, got inf"),
+    ("action_time_constant", 0.0, r"brain\.action_time_constant must be positive \(inf: the paper's law\), got 0\.0"),
+    ("action_time_constant", np.nan, r"brain\.action_time_constant must be positive \(inf: the paper's law\), got nan"),
+    ("mu0", [np.nan, 0.0], r"brain\.mu0 must be finite, got \[\[nan, 0\.0\]\]")])
+def test_every_brain_names_a_bad_shared_parameter_at_initialization(kind, name, value, message):
+    with pytest.raises(ComponentError, match=message):
+        started(kind=kind, **{name: value})
 
 
 @pytest.mark.parametrize("name, value, message", [
     ("proprioceptive_variance", 0.0, r"brain\.proprioceptive_variance must be positive and finite, got 0\.0"),
     ("sync_sd", 0.0, r"brain\.sync_sd must be positive and finite, got 0\.0"),
     ("async_density", np.inf, r"brain\.async_density must be positive and finite, got inf"),
-    ("action_limit", 0.0, r"brain\.action_limit must be positive and finite, got 0\.0"),
-    ("action_time_constant", 0.0, r"brain\.action_time_constant must be positive \(inf: the paper's law\), got 0\.0"),
-    ("action_time_constant", np.nan, r"brain\.action_time_constant must be positive \(inf: the paper's law\), got nan")])
+    ("action_limit", 0.0, r"brain\.action_limit must be positive and finite, got 0\.0")])
 def test_bad_parameter_is_named_at_initialization(name, value, message):
     with pytest.raises(ComponentError, match=message):
         started(**{name: value})
@@ -120,13 +151,13 @@ def test_event_bookkeeping_fires_bayes_once_per_new_pair():
 def test_euler_step_updates_the_belief_then_the_action_from_it_and_clips():
     mu, s_p, drive = np.array([[10.0, 20.0]]), np.array([[10.5, 19.0]]), np.array([[3.0, -4.0]])
     one = np.ones(1)
-    new_mu, a_dot, action = euler_step(mu, np.array([[-0.995, -0.2]]), s_p, 0.5 * one, drive, 2.0 * one, one, 0.1,
-                                       np.inf * one)
+    mu_dot = belief_rate(s_p, mu, 0.5 * one, drive, 2.0 * one)
+    new_mu, a_dot, action = euler_step(mu, mu_dot, np.array([[-0.995, -0.2]]), s_p, 2.0 * one, one, np.inf * one, 0.1)
     np.testing.assert_allclose(new_mu, mu + 0.1 * ((s_p - mu) / 2.0 + 0.5 * drive), rtol=1e-15)
     np.testing.assert_allclose(a_dot, -(s_p - new_mu) / 2.0, rtol=1e-15)
     np.testing.assert_allclose(action, [[-1.0, -0.2 + 0.1 * a_dot[0, 1]]], rtol=1e-15)  # shoulder clipped at -1
     # the leaky law in the same step: a + h (a_dot - a/tau), then the clip
-    _, _, leaky = euler_step(mu, np.array([[-0.995, -0.2]]), s_p, 0.5 * one, drive, 2.0 * one, one, 0.1, 0.5 * one)
+    _, _, leaky = euler_step(mu, mu_dot, np.array([[-0.995, -0.2]]), s_p, 2.0 * one, one, 0.5 * one, 0.1)
     np.testing.assert_allclose(leaky, [[-0.995 + 0.1 * (a_dot[0, 0] + 0.995 / 0.5),
                                         -0.2 + 0.1 * (a_dot[0, 1] + 0.2 / 0.5)]], rtol=1e-15)
 
@@ -184,9 +215,36 @@ def test_paper_and_leaky_laws_in_one_batch():
     np.testing.assert_allclose(leaky, 0.05 * a_dot, rtol=0.02)  # tracks tau * a_dot (lag ~ tau/Sigma_p = 1.25 %)
 
 
-def test_leaky_action_step_guard():
-    brain = started(action_time_constant=0.009)  # 0.02 / 0.009 = 2.22
+@every_brain
+def test_leaky_action_step_guard(kind):
+    brain = started(kind=kind, batch=2, action_time_constant=[0.1, 0.005])  # 0.02 / 0.005 = 4
+    before = outputs(brain)
+    assert brain.do_step(0.0, H) == Status.ERROR
+    assert brain.last_reason == ("step too large for the leaky action in trial 1: dt / action_time_constant = 4 >= 2 "
+                                 "(dt = 0.02 s, action_time_constant = 0.005 s); use a smaller step or a longer "
+                                 "action_time_constant")
+    assert all(np.array_equal(value, before[name], equal_nan=True) for name, value in outputs(brain).items())
+    brain = started(kind=kind, action_time_constant=0.009)  # 0.02 / 0.009 = 2.22
     assert brain.do_step(0.0, H) == Status.ERROR
     assert brain.last_reason.startswith("step too large for the leaky action in trial 0: dt / action_time_constant "
                                         "= 2.222 >= 2")
-    advance(started(action_time_constant=0.011), 0.0)
+    advance(started(kind=kind, action_time_constant=0.011), 0.0)
+
+
+@every_brain
+def test_a_failed_step_changes_nothing_a_retry_would_see(kind):
+    """A step that fails at a new pair of events, retried, gives the bits of a brain that never failed: the
+    events, gamma and (the causal model's) each participant's timing noise move on only with a passed step."""
+    events = [{"visual_time": 0.02, "tactile_time": 0.01}, {}, {"visual_time": 0.06, "tactile_time": 0.08}, {}]
+    failed, clean = started(kind=kind, batch=2), started(kind=kind, batch=2)
+    failed.set("goal_stiffness", 120.0)
+    failed.set("visual_time", 0.02)
+    failed.set("tactile_time", 0.01)
+    assert failed.do_step(0.0, H) == Status.ERROR and failed.last_reason.startswith("step too large")
+    failed.set("goal_stiffness", 0.0)
+    for n, inputs in enumerate(events):
+        advance(failed, n * H, **inputs)
+        advance(clean, n * H, **inputs)
+        after, expected = outputs(failed), outputs(clean)
+        assert all(np.array_equal(after[name], expected[name], equal_nan=True) for name in expected)
+    assert not np.array_equal(outputs(clean)["gamma"], started(kind=kind, batch=2).get("gamma"))  # the pairs did count

@@ -19,6 +19,18 @@ def posterior(prior, likelihood_ratio):
 
     The first case of the paper's eq. 9 written with the ratio LR = p(data | C1) / p(data | C2).
     An infinite ratio gives 1, a zero ratio 0 (prior 0 or 1 stays).
+
+    Parameters
+    ----------
+    prior : array_like, (B,)
+        p(C1) before the data, in [0, 1].
+    likelihood_ratio : array_like, (B,)
+        LR >= 0, may be inf.
+
+    Returns
+    -------
+    ndarray, (B,)
+        p(C1 | data), in [0, 1].
     """
     prior, ratio = np.asarray(prior, float), np.asarray(likelihood_ratio, float)
     with np.errstate(invalid="ignore", over="ignore"):
@@ -35,6 +47,20 @@ def hazard_predict(gamma, prior, switching_time, step):
         p(t + h) = prior + (p(t) - prior) exp(-h / switching_time).
     This is the prediction step of the HMM forward algorithm with the hazard-rate transition
     (Rabiner 1989, Proc. IEEE 77:257; the hazard formulation as in Glaze, Kable & Gold 2015, eLife 4:e08825).
+
+    Parameters
+    ----------
+    gamma, prior : array_like, (B,)
+        p(state 1) now, and the chain's stationary probability; in [0, 1].
+    switching_time : array_like, (B,)
+        1 / (k_on + k_off), s.
+    step : float
+        h, s.
+
+    Returns
+    -------
+    ndarray, (B,)
+        p(state 1) after the step.
     """
     return prior + (np.asarray(gamma, float) - prior) * np.exp(-step / np.asarray(switching_time, float))
 
@@ -45,6 +71,20 @@ def timing_likelihood_ratio(perceived_delay, sync_sd, timing_noise_sd, async_den
     Under one cause the true delay is N(0, sync_sd^2) (paper eq. 8) and is perceived with independent
     noise N(0, timing_noise_sd^2), so the perceived delay is N(0, sync_sd^2 + timing_noise_sd^2)
     (scipy's density); under two causes it is uniform with density ``async_density`` (the paper's p2).
+
+    Parameters
+    ----------
+    perceived_delay : array_like, (B,)
+        t_v - t_t plus the perceptual noise, s.
+    sync_sd, timing_noise_sd : array_like, (B,)
+        s.
+    async_density : array_like, (B,)
+        1/s.
+
+    Returns
+    -------
+    ndarray, (B,)
+        The ratio, >= 0.
     """
     scale = np.sqrt(np.asarray(sync_sd, float) ** 2 + np.asarray(timing_noise_sd, float) ** 2)
     from scipy.stats import norm  # here, not at the top: a refused command never pays for scipy.stats
@@ -64,8 +104,19 @@ def spatial_likelihood_ratio(seen_pose, seen_variance, felt_pose, proprioceptive
     Gaussian N(workspace_mean, workspace_sd^2). Densities from scipy.stats.norm; the product over the
     two joints (independent by assumption).
 
-    seen_pose, seen_variance, felt_pose: (B, 2) deg, deg^2, deg; proprioceptive_variance (B,) deg^2;
-    coupling_sd, workspace_mean, workspace_sd: (B, 2) deg.
+    Parameters
+    ----------
+    seen_pose, seen_variance, felt_pose : array_like, (B, 2)
+        x_v (deg), Sigma_x (deg^2), x_p = s_p (deg).
+    proprioceptive_variance : array_like, (B,)
+        Sigma_p, deg^2.
+    coupling_sd, workspace_mean, workspace_sd : array_like, (B, 2)
+        deg.
+
+    Returns
+    -------
+    ndarray, (B,)
+        The ratio, >= 0.
     """
     common_sd = np.sqrt(np.asarray(seen_variance, float) + np.asarray(proprioceptive_variance, float)[:, None]
                         + np.asarray(coupling_sd, float) ** 2)
@@ -83,7 +134,24 @@ def participants(seeds, medians: dict, log_sds: dict, prior_concentration):
     (median x exp(N(0, log_sd^2))); common_cause_prior is Beta(prior k, (1 - prior) k), k =
     ``prior_concentration`` (its mean the median given). A generator per trial from
     numpy's SeedSequence of (seed, 1), so the draws never share a stream with the stimulus' delays.
-    Returns (values, generators): the generators go on to draw each trial's timing noise.
+
+    Parameters
+    ----------
+    seeds : array_like of int, (B,)
+        One per trial.
+    medians : dict of ndarray, (B,) each
+        ``common_cause_prior``, ``switching_time`` (s), ``timing_noise_sd`` (s).
+    log_sds : dict of float or ndarray
+        The sd of the log of ``timing_noise_sd``, ``switching_time`` and ``coupling_scale``.
+    prior_concentration : array_like, (B,)
+        k.
+
+    Returns
+    -------
+    values : dict of ndarray, (B,) each
+        ``timing_noise_sd``, ``switching_time``, ``coupling_scale`` (1), ``common_cause_prior``.
+    generators : list of numpy.random.Generator, B
+        They go on to draw each trial's timing noise.
     """
     generators = [np.random.default_rng([int(seed), 1]) for seed in seeds]
     draws = np.array([g.standard_normal(3) for g in generators]).reshape(len(generators), 3)

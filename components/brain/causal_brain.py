@@ -8,7 +8,9 @@ Each step, for each of the B trials (docs/model.md):
 2. gamma = posterior(gamma_timing, spatial likelihood ratio of the seen pose x_v and the felt pose s_p);
 3. mu_dot = (s_p - mu)/Sigma_p + gamma (x_v - mu)/Sigma_x + pixel_weight * gamma * visual_drive
    (:func:`belief_rate`): x_v and Sigma_x (deg, deg^2 per joint) come from the pose encoder;
-4. a_dot and the action as in the paper's brain (:mod:`components.brain.integrator`).
+4. a_dot and the action as in the paper's brain: the guards, the Euler step and the action law are every
+   brain's (:class:`~components.brain.base.BeliefBrain`); this model computes gamma, mu_dot and F
+   (:meth:`CausalBrain.rate`).
 
 A reach goal's pull (input ``goal_drive``, docs/reach.md) is added to mu_dot unweighted by gamma, as in the
 paper's brain; it is 0 (no goal) unless the reach task connects it.
@@ -24,33 +26,94 @@ import numpy as np
 
 from components.brain.body_inference import hazard_predict, participants, posterior, spatial_likelihood_ratio, \
     timing_likelihood_ratio
-from components.brain.causal_inference import observe_events
-from components.brain.integrator import STABILITY_LIMIT, _require_finite, _trials, action_rate, action_update
+from components.brain.base import BeliefBrain, BeliefRate, add_goal_drive, require_finite
 from components.brain.goal import goal_inputs
-from components.component import Component, ComponentError, StepFailure
+from components.component import ComponentError, StepFailure
 from components.variables import Variable
 
 
 def belief_rate(s_p, mu, gamma, seen_pose, seen_variance, proprioceptive_variance, pixel_weight, visual_drive):
-    """mu_dot = (s_p - mu)/Sigma_p + gamma (x_v - mu)/Sigma_x + w gamma J^T (s_v - g(mu))/Sigma_v, (B, 2) deg/s.
+    """mu_dot = (s_p - mu)/Sigma_p + gamma (x_v - mu)/Sigma_x + w gamma J^T (s_v - g(mu))/Sigma_v.
 
     The gradient of the free energy of two Gaussian observations of the arm's joint angles, the felt
     s_p (variance Sigma_p, the paper's eq. 6 term) and the seen x_v (the pose encoder's calibrated
-    variance Sigma_x), the seen one weighted by gamma; w = pixel_weight adds the paper's pixel term.
-    s_p, mu, seen_pose, seen_variance, visual_drive: (B, 2); gamma, proprioceptive_variance, pixel_weight: (B,).
+    variance Sigma_x), the seen one weighted by gamma; w = pixel_weight adds the paper's pixel term
+    (docs/model.md, "The causal model").
+
+    Parameters
+    ----------
+    s_p, mu, seen_pose : ndarray, (B, 2)
+        Sensed joint angles, belief, the seen pose x_v; deg.
+    gamma, proprioceptive_variance, pixel_weight : ndarray, (B,)
+        gamma (1), Sigma_p (deg^2), w (1).
+    seen_variance : ndarray, (B, 2)
+        Sigma_x, deg^2.
+    visual_drive : ndarray, (B, 2)
+        The paper's pixel term J^T (s_v - g(mu))/Sigma_v, deg/s.
+
+    Returns
+    -------
+    ndarray, (B, 2)
+        mu_dot, deg/s.
     """
     return ((s_p - mu) / proprioceptive_variance[:, None] + gamma[:, None] * (seen_pose - mu) / seen_variance
             + (pixel_weight * gamma)[:, None] * visual_drive)
 
 
 def free_energy(s_p, mu, gamma, seen_pose, seen_variance, proprioceptive_variance, pixel_weight, visual_error):
-    """F = sum (s_p - mu)^2/(2 Sigma_p) + gamma sum (x_v - mu)^2/(2 Sigma_x) + w gamma visual_error, (B,)."""
+    """F = sum (s_p - mu)^2/(2 Sigma_p) + gamma sum (x_v - mu)^2/(2 Sigma_x) + w gamma visual_error.
+
+    The free energy whose gradient in mu is minus :func:`belief_rate` (the goal's pull aside).
+
+    Parameters
+    ----------
+    s_p, mu, seen_pose, seen_variance : ndarray, (B, 2)
+        As :func:`belief_rate`; mu is the step's start belief.
+    gamma, proprioceptive_variance, pixel_weight, visual_error : ndarray, (B,)
+        visual_error: the decoder's 1/2 e^T Sigma_v^-1 e (1).
+
+    Returns
+    -------
+    ndarray, (B,)
+        F, dimensionless.
+    """
     return (((s_p - mu) ** 2).sum(axis=1) / (2.0 * proprioceptive_variance)
             + gamma * ((seen_pose - mu) ** 2 / (2.0 * seen_variance)).sum(axis=1) + pixel_weight * gamma * visual_error)
 
 
-class CausalBrain(Component):
-    """The causal model's integrator: belief mu, action a, gamma (and its timing part), free energy."""
+def stability_number(step, proprioceptive_variance, gamma, seen_variance, pixel_weight, visual_stiffness,
+                     goal_stiffness):
+    """dt * (1/Sigma_p + gamma / min Sigma_x + w gamma visual_stiffness + goal_stiffness): the stiffness of
+    :func:`belief_rate` plus a goal's; explicit Euler is stable below 2.
+
+    Parameters
+    ----------
+    step : float
+        dt, s.
+    proprioceptive_variance, gamma, pixel_weight, visual_stiffness, goal_stiffness : ndarray, (B,)
+        Sigma_p (deg^2, read as 1/s), gamma (1), w (1), the pixel term's and the goal's stiffness (1/s).
+    seen_variance : ndarray, (B, 2)
+        Sigma_x, deg^2.
+
+    Returns
+    -------
+    ndarray, (B,)
+        Dimensionless.
+    """
+    return step * (1.0 / proprioceptive_variance + gamma * (1.0 / seen_variance).max(axis=1)
+                   + pixel_weight * gamma * visual_stiffness + goal_stiffness)
+
+
+class CausalBrain(BeliefBrain):
+    """The causal model's integrator: belief mu, action a, gamma (and its timing part), free energy.
+
+    Parameters
+    ----------
+    name : str
+        The instance name in a system.
+    """
+
+    finite_inputs = ("seen_pose", "seen_pose_variance", "visual_stiffness")  # the last always enters the guard
 
     def __init__(self, name="brain"):
         joint = dict(type="Array", shape=(2,))
@@ -119,49 +182,43 @@ class CausalBrain(Component):
         ])
 
     def publish_initial(self):
-        batch, v = self.batch_size, self.values
+        """Each trial's participant drawn from its seed; mu = mu0, gamma = gamma_timing = the participant's
+        prior, a = a_dot = 0, free energy NaN, no events seen."""
+        v = self.values
         medians = {key: v[key] for key in ("common_cause_prior", "switching_time", "timing_noise_sd")}
         log_sds = {"timing_noise_sd": v["timing_noise_log_sd"], "switching_time": v["switching_log_sd"],
                    "coupling_scale": v["coupling_log_sd"]}
         self.participant, self._generators = participants(v["participant_seed"], medians, log_sds,
                                                           v["prior_concentration"])
         self.participant["coupling_sd"] = v["coupling_sd"] * self.participant.pop("coupling_scale")[:, None]
-        v["mu"] = v["mu0"].copy()
+        super().publish_initial()
         v["gamma_timing"] = self.participant["common_cause_prior"].copy()
         v["gamma"] = v["gamma_timing"].copy()
-        v["u_shoulder"], v["u_elbow"] = np.zeros(batch), np.zeros(batch)
-        v["action_rate"] = np.zeros((batch, 2))
-        v["free_energy"] = np.full(batch, np.nan)
-        self._events = (np.full(batch, -np.inf), np.full(batch, -np.inf), np.zeros(batch, bool), np.zeros(batch, bool))
-
-    def initialize(self):
-        self.check_parameters()
-        self.publish_initial()
 
     def check_parameters(self):
+        """The shared parameters (:meth:`BeliefBrain.check_parameters`), then the coupling's and the
+        workspace's sd positive."""
+        super().check_parameters()
         for name in ("coupling_sd", "workspace_sd"):
             if not np.all(self.values[name] > 0):
                 raise ComponentError(f"{self.name}.{name} must be positive, got {self.values[name].tolist()!r}")
-        if not np.all(np.isfinite(self.values["mu0"])):
-            raise ComponentError(f"{self.name}.mu0 must be finite, got {self.values['mu0'].tolist()!r}")
 
-    def step(self, t, h):
+    def rate(self, t, h, s_p, pair):
+        """gamma from the touches' timing and the seen and felt pose (steps 1-2 of the module notes), mu_dot,
+        the stiffness number and F at the step's start mu; see :meth:`BeliefBrain.rate`."""
         v, who = self.values, self.participant
-        for name in ("q_shoulder", "q_elbow", "seen_pose", "seen_pose_variance", "goal_drive", "goal_error",
-                     "goal_stiffness"):
-            _require_finite(name, v[name])
-        for name in ("visual_time", "tactile_time"):
-            _require_finite(name, v[name], allow_minus_inf=True)
         if np.any(v["seen_pose_variance"] <= 0):
             raise StepFailure("seen_pose_variance must be positive")
-        s_p = np.stack([v["q_shoulder"], v["q_elbow"]], axis=1)
+        pixels = v["pixel_weight"] > 0  # the pixel term's inputs are read only where it is on
+        require_finite("visual_drive", np.where(pixels[:, None], v["visual_drive"], 0.0))
+        require_finite("visual_error", np.where(pixels, v["visual_error"], 0.0))
         mu, variance = v["mu"], v["proprioceptive_variance"]
 
         # 1. the common-cause state: predict over the step, then the touches' timing where a pair is new.
-        pair, *events = observe_events(*self._events, v["visual_time"], v["tactile_time"])
         timing = hazard_predict(v["gamma_timing"], who["common_cause_prior"], who["switching_time"], h)
+        streams = {}
         if pair.any():
-            noise = np.array([g.standard_normal() if fired else 0.0 for g, fired in zip(self._generators, pair)])
+            noise, streams = self._timing_noise(pair)
             delay = np.where(pair, v["visual_time"] - np.where(pair, v["tactile_time"], 0.0), 0.0)
             ratio = timing_likelihood_ratio(delay + who["timing_noise_sd"] * noise, v["sync_sd"],
                                             who["timing_noise_sd"], v["async_density"])
@@ -171,25 +228,45 @@ class CausalBrain(Component):
                                            who["coupling_sd"], v["workspace_mean"], v["workspace_sd"])
         gamma = posterior(timing, spatial)
 
-        stiffness = h * (1.0 / variance + gamma * (1.0 / v["seen_pose_variance"]).max(axis=1)
-                         + v["pixel_weight"] * gamma * v["visual_stiffness"] + v["goal_stiffness"])
-        if np.any(~(stiffness < STABILITY_LIMIT)):
-            raise StepFailure(f"step too large for stable explicit Euler in {_trials(~(stiffness < STABILITY_LIMIT))}: "
-                              f"dt * (1/Sigma_p + gamma/Sigma_x + ...) = {stiffness.max():.4g} >= 2")
-        pixels = v["pixel_weight"] > 0
+        number = stability_number(h, variance, gamma, v["seen_pose_variance"], v["pixel_weight"],
+                                  v["visual_stiffness"], v["goal_stiffness"])
         drive = np.where(pixels[:, None], v["visual_drive"], 0.0)
         error = np.where(pixels, v["visual_error"], 0.0)
-        rate = belief_rate(s_p, mu, gamma, v["seen_pose"], v["seen_pose_variance"], variance, v["pixel_weight"], drive)
-        if np.any(v["goal_drive"]):  # a reach goal, unweighted by gamma as the released agent's attractor
-            rate = rate + v["goal_drive"]                   # (components.brain.integrator.euler_step)
-        new_mu = mu + h * rate
-        a_dot = action_rate(s_p, new_mu, variance)
-        action = action_update(np.stack([v["u_shoulder"], v["u_elbow"]], axis=1), a_dot, v["action_time_constant"],
-                               v["action_limit"], h)
+        mu_dot = add_goal_drive(belief_rate(s_p, mu, gamma, v["seen_pose"], v["seen_pose_variance"], variance,
+                                            v["pixel_weight"], drive), v["goal_drive"])
         energy = free_energy(s_p, mu, gamma, v["seen_pose"], v["seen_pose_variance"], variance, v["pixel_weight"],
                              error)
-        for name, value in (("mu", new_mu), ("action_rate", a_dot), ("free_energy", energy)):
-            _require_finite(name, value)
-        self._events = tuple(events)
-        v["mu"], v["gamma"], v["gamma_timing"], v["action_rate"], v["free_energy"] = new_mu, gamma, timing, a_dot, energy
-        v["u_shoulder"], v["u_elbow"] = action[:, 0].copy(), action[:, 1].copy()
+        return BeliefRate(gamma, mu_dot, number, energy, {"gamma_timing": timing, "streams": streams})
+
+    def _timing_noise(self, pair):
+        """A standard normal from each participant's generator where ``pair`` (0 elsewhere), (B,), and the
+        generators' states after the draw by trial; the generators are put back as they were, so a failed
+        step leaves them so (:meth:`commit` moves them on)."""
+        noise, after = np.zeros(len(pair)), {}
+        for i in np.flatnonzero(pair):
+            stream = self._generators[i].bit_generator
+            before = stream.state
+            noise[i] = self._generators[i].standard_normal()
+            after[i], stream.state = stream.state, before
+        return noise, after
+
+    def commit(self, state):
+        """gamma_timing, and the participants' generators moved past this step's timing noise."""
+        state = dict(state)
+        for i, after in state.pop("streams").items():
+            self._generators[i].bit_generator.state = after
+        super().commit(state)
+
+    def stiffness_terms(self, i, rate):
+        """The stability number's formula and values in trial ``i``, for the guard's message."""
+        v = self.values
+        pixels = " + pixel_weight * gamma * visual_stiffness" if v["pixel_weight"][i] else ""
+        goal = " + goal_stiffness" if v["goal_stiffness"][i] else ""
+        values = (f"Sigma_p = {v['proprioceptive_variance'][i]:g}, gamma = {rate.gamma[i]:.4g}, Sigma_x = "
+                  f"{v['seen_pose_variance'][i].min():.4g}")
+        if pixels:
+            values += (f", pixel_weight = {v['pixel_weight'][i]:g}, visual_stiffness = "
+                       f"{v['visual_stiffness'][i]:.4g} 1/s")
+        if goal:
+            values += f", goal_stiffness = {v['goal_stiffness'][i]:.4g} 1/s"
+        return f"1/Sigma_p + gamma/Sigma_x{pixels}{goal}", values

@@ -36,6 +36,18 @@ def synchrony_likelihood(visual_time, tactile_time, sync_sd):
     """p(t_v, t_t | c1): zero-mean normal density of the delay t_v - t_t, sd ``sync_sd`` (1/s).
 
     The likelihood under a common cause in paper eq. 8; scipy's density, not a hand-written one.
+
+    Parameters
+    ----------
+    visual_time, tactile_time : array_like, (B,)
+        t_v and t_t, s (finite).
+    sync_sd : array_like, (B,)
+        s.
+
+    Returns
+    -------
+    ndarray, (B,)
+        The density, 1/s.
     """
     from scipy.stats import norm  # here, not at the top: a refused command never pays for scipy.stats
 
@@ -45,8 +57,19 @@ def synchrony_likelihood(visual_time, tactile_time, sync_sd):
 def spatial_likelihood(seen_hand, felt_hand, spatial_sd):
     """The extension's spatial factor: exp(-|seen - felt|^2 / (2 spatial_sd^2)), (B,); 1 where spatial_sd = inf.
 
-    seen_hand, felt_hand: (B, 2) m, the seen (rubber) and the felt (sensed) hand; spatial_sd: (B,) m.
     Where spatial_sd is inf the positions are not read (they may be NaN) and the factor is exactly 1.
+
+    Parameters
+    ----------
+    seen_hand, felt_hand : array_like, (B, 2)
+        The seen (rubber) and the felt (sensed) hand, m.
+    spatial_sd : array_like, (B,)
+        sigma_s, m; inf: the paper's model.
+
+    Returns
+    -------
+    ndarray, (B,)
+        The factor, in [0, 1].
     """
     spatial_sd = np.asarray(spatial_sd, dtype=float)
     off = np.isinf(spatial_sd)
@@ -60,6 +83,22 @@ def posterior_common_cause(gamma, visual_time, tactile_time, sync_sd, async_dens
     gamma' = p1 gamma / (p1 gamma + p2 (1 - gamma)), p1 = synchrony_likelihood(...) * spatial,
     p2 = async_density, the uniform density of the delay under two separate causes. ``spatial`` is
     the extension's :func:`spatial_likelihood` (1: the paper's model).
+
+    Parameters
+    ----------
+    gamma : array_like, (B,)
+        The prior, in [0, 1].
+    visual_time, tactile_time : array_like, (B,)
+        t_v and t_t, s (finite).
+    sync_sd, async_density : array_like, (B,)
+        s and 1/s.
+    spatial : float or array_like, (B,)
+        The spatial factor, 1.
+
+    Returns
+    -------
+    ndarray, (B,)
+        gamma', in [0, 1]; gamma where the evidence underflows to 0.
     """
     p1 = synchrony_likelihood(visual_time, tactile_time, sync_sd) * spatial
     numerator = p1 * gamma
@@ -73,6 +112,22 @@ def decayed(gamma, time, tactile_time, step, decay_rate):
 
     t_t is the last observed tactile event; where none has been observed yet (t_t = -inf)
     gamma is returned unchanged (see the module notes).
+
+    Parameters
+    ----------
+    gamma : array_like, (B,)
+        In [0, 1].
+    time, tactile_time : float or array_like, (B,)
+        t and t_t, s (t_t may be -inf).
+    step : float
+        dt, s.
+    decay_rate : array_like, (B,)
+        r_decay, 1/s^3.
+
+    Returns
+    -------
+    ndarray, (B,)
+        The decayed gamma.
     """
     touched = np.isfinite(tactile_time)
     since = np.where(touched, time - np.where(touched, tactile_time, 0.0), 0.0)
@@ -83,12 +138,24 @@ def observe_events(seen_visual, seen_tactile, pending_visual, pending_tactile, v
     """Which trials have a new pair of events, the trigger of Bayes' rule in eq. 9, and the bookkeeping after it.
 
     seen_visual, seen_tactile: the event times observed at the previous step (-inf: none yet).
-    pending_visual, pending_tactile: (B,) bool, a new event of that kind observed since the last
-        Bayes update. visual_time, tactile_time: the last event times observed now.
-    An event is new when its time differs from the one seen before (and is finite). Returns
-    ``(pair, seen_visual, seen_tactile, pending_visual, pending_tactile)``: pair (B,) bool, a new
-    visual and a new tactile event both observed since the last Bayes update; then the state for
-    the next step, the pending flags cleared where a pair fired. Pure: the caller commits it.
+    An event is new when its time differs from the one seen before (and is finite). Pure: the caller
+    commits the state it returns.
+
+    Parameters
+    ----------
+    seen_visual, seen_tactile : ndarray, (B,)
+        The event times observed at the previous step, s (-inf: none yet).
+    pending_visual, pending_tactile : ndarray of bool, (B,)
+        A new event of that kind observed since the last Bayes update.
+    visual_time, tactile_time : ndarray, (B,)
+        The last event times observed now, s.
+
+    Returns
+    -------
+    tuple of five ndarray, (B,) each
+        ``(pair, seen_visual, seen_tactile, pending_visual, pending_tactile)``: pair (bool), a new visual
+        and a new tactile event both observed since the last Bayes update; then the state for the next
+        step, the pending flags cleared where a pair fired.
     """
     pending_visual = pending_visual | ((visual_time != seen_visual) & np.isfinite(visual_time))
     pending_tactile = pending_tactile | ((tactile_time != seen_tactile) & np.isfinite(tactile_time))
@@ -101,12 +168,30 @@ def update_gamma(gamma, new_pair, visual_time, tactile_time, time, step, gamma0,
                  sync_sd=0.2, async_density=0.5, decay_rate=1.0 / 80.0, spatial=1.0):
     """One step of paper eq. 9 for each trial, then the clamp to [gamma0, 1].
 
-    new_pair: (B,) bool, a new visual and a new tactile event have both been observed since
-        the last Bayes update of that trial (:func:`observe_events`); Bayes' rule there, the
-        decay elsewhere.
-    visual_time, tactile_time: the last observed event times, s (-inf before any).
-    time: the time the inputs describe, s; step: the communication step dt, s.
-    spatial: (B,) the extension's :func:`spatial_likelihood` (1: the paper's model).
+    Parameters
+    ----------
+    gamma : array_like, (B,)
+        The previous step's gamma.
+    new_pair : ndarray of bool, (B,)
+        A new visual and a new tactile event have both been observed since the last Bayes update of
+        that trial (:func:`observe_events`); Bayes' rule there, the decay elsewhere.
+    visual_time, tactile_time : array_like, (B,)
+        The last observed event times, s (-inf before any).
+    time : float
+        The time the inputs describe, s.
+    step : float
+        The communication step dt, s.
+    gamma0 : array_like, (B,)
+        The floor.
+    sync_sd, async_density, decay_rate : array_like, (B,)
+        s, 1/s, 1/s^3.
+    spatial : float or array_like, (B,)
+        The extension's :func:`spatial_likelihood` (1: the paper's model).
+
+    Returns
+    -------
+    ndarray, (B,)
+        gamma, in [gamma0, 1].
     """
     # Event times may be -inf where no pair is due; keep them out of the density (no inf - inf).
     visual = np.where(new_pair, visual_time, 0.0)

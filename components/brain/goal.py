@@ -24,21 +24,51 @@ def body_space_attraction(mu, goal_pose, goal_variance, precision_ratio):
     Source: the released agent's ``get_df_dmu_attr`` (beta J^T (attr - g(mu)) / sigma_mu) with the generative
     map of a body-space observation, g = identity on the joint angles (as the causal model's seen-pose term,
     ``causal_brain.belief_rate``), so J = I. w = ``precision_ratio`` is the attractor's precision relative to the
-    seen observation's: the released agent's beta sigma_v_mu / sigma_mu = 1e4 / 5e3 = 2. mu, goal_pose,
-    goal_variance: (B, 2) deg, deg^2; precision_ratio: (B,).
+    seen observation's: the released agent's beta sigma_v_mu / sigma_mu = 1e4 / 5e3 = 2.
+
+    Parameters
+    ----------
+    mu, goal_pose : ndarray, (B, 2)
+        Belief and goal pose x_g, deg.
+    goal_variance : ndarray, (B, 2)
+        Sigma_g, deg^2.
+    precision_ratio : ndarray, (B,)
+        w, 1.
+
+    Returns
+    -------
+    ndarray, (B, 2)
+        The pull on mu_dot, deg/s.
     """
     return precision_ratio[:, None] * (goal_pose - mu) / goal_variance
 
 
 def body_space_goal_error(mu, goal_pose, goal_variance, precision_ratio):
-    """The free energy of the body-space attractor, 1/2 w sum_j (x_g - mu)_j^2 / Sigma_g,j, (B,); its gradient in
-    mu is minus :func:`body_space_attraction`."""
+    """The free energy of the body-space attractor, 1/2 w sum_j (x_g - mu)_j^2 / Sigma_g,j; its gradient in mu is
+    minus :func:`body_space_attraction` (source as there).
+
+    Parameters
+    ----------
+    mu, goal_pose, goal_variance, precision_ratio
+        As :func:`body_space_attraction`.
+
+    Returns
+    -------
+    ndarray, (B,)
+        Dimensionless.
+    """
     return 0.5 * precision_ratio * ((goal_pose - mu) ** 2 / goal_variance).sum(axis=1)
 
 
 def goal_inputs() -> list[Variable]:
     """The three inputs by which a brain reads a reach goal's term (a :class:`GoalAttractor`, a goal decoder or a
-    :class:`GoalOnset`): its pull on mu, its free-energy term and its stiffness; all 0 without a goal."""
+    :class:`GoalOnset`): its pull on mu, its free-energy term and its stiffness; all 0 without a goal.
+
+    Returns
+    -------
+    list of Variable
+        ``goal_drive`` ((2,) deg/s), ``goal_error`` (1), ``goal_stiffness`` (1/s).
+    """
     return [
         Variable("goal_drive", "input", start=(0.0, 0.0), unit="deg/s", type="Array", shape=(2,),
                  description="a reach goal's pull on mu, unweighted by gamma (0: no goal; docs/reach.md)"),
@@ -49,7 +79,13 @@ def goal_inputs() -> list[Variable]:
 
 
 class GoalAttractor(Component):
-    """Belief and goal pose in, the goal's pull on the belief out (body space)."""
+    """Belief and goal pose in, the goal's pull on the belief out (body space).
+
+    Parameters
+    ----------
+    name : str
+        The instance name in a system.
+    """
 
     def __init__(self, name: str = "goal_attractor"):
         joint = dict(type="Array", shape=(2,))
@@ -84,14 +120,33 @@ class GoalAttractor(Component):
 
 
 def shown_from(t, onset, values):
-    """``values`` (B, ...) where the goal is shown (t >= onset, per trial), 0 before: a goal that appears."""
+    """``values`` where the goal is shown (t >= onset, per trial), 0 before: a goal that appears.
+
+    Parameters
+    ----------
+    t : float
+        Now, s.
+    onset : ndarray, (B,)
+        When the goal appears, s (1e-9 s early counts: the tick grid's rounding).
+    values : ndarray, (B, ...)
+
+    Returns
+    -------
+    ndarray, shaped as ``values``
+    """
     shown = t >= onset - 1e-9
     return np.where(shown.reshape((-1,) + (1,) * (np.ndim(values) - 1)), values, 0.0)
 
 
 class GoalOnset(Component):
     """A goal's pull that starts at ``onset``: goal_drive, goal_error, goal_stiffness passed through from then on,
-    0 before (reaching after the illusion: the target appears when the arm is let go)."""
+    0 before (reaching after the illusion: the target appears when the arm is let go).
+
+    Parameters
+    ----------
+    name : str
+        The instance name in a system.
+    """
 
     def __init__(self, name: str = "goal_onset"):
         joint = dict(type="Array", shape=(2,))

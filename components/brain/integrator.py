@@ -6,8 +6,11 @@ Each step, for each of the B trials, in the released agent's order (docs/design.
    extension over space there, ``spatial_sd`` finite, also from the seen and felt hands);
 2. mu_dot = (s_p - mu)/Sigma_p + gamma * visual_drive [+ goal_drive, a reach goal's pull, unweighted by
    gamma; 0 unless the reach task connects it, docs/reach.md];  mu <- mu + dt * mu_dot  (:func:`belief_rate`);
-3. a_dot = -(s_p - mu)/Sigma_p with the UPDATED mu  (:func:`action_rate`, eq. 7);
-4. a <- clip(a + dt * (a_dot - a/tau), -limit, limit)  (:func:`action_update`, the action law).
+3. a_dot = -(s_p - mu)/Sigma_p with the UPDATED mu  (:func:`~components.brain.base.action_rate`, eq. 7);
+4. a <- clip(a + dt * (a_dot - a/tau), -limit, limit)  (:func:`~components.brain.base.action_update`, the
+   action law).
+Steps 2-4 after gamma are every brain's (:class:`~components.brain.base.BeliefBrain`); this model computes
+gamma, mu_dot and the free energy (:meth:`Brain.rate`).
 
 Step 3 uses mu after step 2, as the released agent does (it updates ``self.mu`` and then
 computes ``a_dot`` from it): the action already pursues the new belief.
@@ -49,101 +52,98 @@ yet, since the body steps after the brain.
 Time of the events: under Gauss-Seidel the stimulus has already advanced to t + h when the
 brain steps from t, so the decay of eq. 9 measures t + h minus the last tactile event time.
 
-Guards (the step fails, the master stops the run): explicit Euler of eq. 6 is stable only
-while dt * (1/Sigma_p + gamma * visual_stiffness) < 2, visual_stiffness being the largest
-eigenvalue of J^T J / Sigma_v; the leaky action only while dt/tau < 2; and every input and
-result must be finite (event times may be -inf: no event yet).
+Guards (the step fails, the master stops the run; the shared step of :mod:`components.brain.base`):
+explicit Euler of eq. 6 is stable only while dt * (1/Sigma_p + gamma * visual_stiffness) < 2,
+visual_stiffness being the largest eigenvalue of J^T J / Sigma_v; the leaky action only while
+dt/tau < 2; and every input and result must be finite (event times may be -inf: no event yet).
 """
 from __future__ import annotations
 
 import numpy as np
 
-from components.brain.causal_inference import observe_events, spatial_likelihood, update_gamma
+from components.brain.base import STABILITY_LIMIT, BeliefBrain, BeliefRate, action_rate, action_update, \
+    add_goal_drive, euler_step, trials_text
+from components.brain.causal_inference import spatial_likelihood, update_gamma
 from components.brain.goal import goal_inputs
-from components.component import Component, ComponentError, StepFailure
+from components.component import ComponentError, StepFailure
 from components.variables import Variable
 
-STABILITY_LIMIT = 2.0  # explicit Euler on a linear decay of rate k is stable iff dt * k < 2
+# The action law and the Euler step are the base's, named here too: docs and master read them from this module.
+__all__ = ["STABILITY_LIMIT", "Brain", "action_rate", "action_update", "belief_rate", "euler_step", "free_energy",
+           "stability_number"]
 
 
 def belief_rate(s_p, mu, gamma, visual_drive, proprioceptive_variance):
     """Paper eq. 6: mu_dot = (s_p - mu)/Sigma_p + gamma * J^T (s_v - g(mu))/Sigma_v.
 
-    The visual term arrives as ``visual_drive`` from the decoder. s_p, mu, visual_drive:
-    (B, 2) deg and deg/s; gamma, proprioceptive_variance: (B,). Returns (B, 2) deg/s.
+    The visual term arrives as ``visual_drive`` from the decoder.
+
+    Parameters
+    ----------
+    s_p, mu : ndarray, (B, 2)
+        Sensed joint angles and belief, deg.
+    gamma : ndarray, (B,)
+        Belief in a common cause, 1.
+    visual_drive : ndarray, (B, 2)
+        J^T (s_v - g(mu))/Sigma_v, deg/s.
+    proprioceptive_variance : ndarray, (B,)
+        Sigma_p, deg^2.
+
+    Returns
+    -------
+    ndarray, (B, 2)
+        mu_dot, deg/s.
     """
     return (s_p - mu) / proprioceptive_variance[:, None] + gamma[:, None] * visual_drive
 
 
-def action_rate(s_p, mu, proprioceptive_variance):
-    """Paper eq. 7 as docs/design.md and the released agent write it: a_dot = -(s_p - mu)/Sigma_p.
-
-    The paper's extra factor dt (from ds/da = dt) is left out, as in the released agent.
-    """
-    return -(s_p - mu) / proprioceptive_variance[:, None]
-
-
-def action_update(action, a_dot, action_time_constant, action_limit, h):
-    """The action law: a <- clip(a + h * (a_dot - a/tau), -limit, limit); (B, 2) deg/s.
-
-    tau = ``action_time_constant`` (s, (B,)): inf is the paper's law a <- clip(a + h * a_dot)
-    (computed as written, so bit for bit the released agent's), a finite tau the leaky
-    integrator whose fixed point is a = tau * a_dot (module notes). action, a_dot: (B, 2);
-    action_limit: (B,).
-    """
-    tau, limit = action_time_constant[:, None], action_limit[:, None]
-    paper = np.isinf(tau)
-    leaky = action + h * (a_dot - action / np.where(paper, 1.0, tau))
-    return np.clip(np.where(paper, action + h * a_dot, leaky), -limit, limit)
-
-
-def euler_step(mu, action, s_p, gamma, visual_drive, proprioceptive_variance, action_limit, h,
-               action_time_constant, goal_drive=None):
-    """One explicit Euler step of eqs. 6 and 7 in the released agent's order; returns (new_mu, a_dot, new_action).
-
-    mu <- mu + h * mu_dot (:func:`belief_rate`, plus ``goal_drive`` when given); a_dot from the UPDATED mu
-    (:func:`action_rate`); the action by the action law (:func:`action_update`). mu, action, s_p, visual_drive,
-    goal_drive: (B, 2); gamma, proprioceptive_variance, action_limit, action_time_constant: (B,).
-
-    goal_drive: a reach goal's pull on the belief, added to mu_dot unweighted by gamma, as the released agent
-    adds its attractor term (``FepAgent.active_inference_step``: mu_dot = dF_dmu_vis + dF_dmu_attr +
-    proprioception; the term itself: the goal decoder's drive or ``components.brain.goal``).
-    """
-    rate = belief_rate(s_p, mu, gamma, visual_drive, proprioceptive_variance)
-    if goal_drive is not None and np.any(goal_drive):
-        rate = rate + goal_drive
-    new_mu = mu + h * rate
-    a_dot = action_rate(s_p, new_mu, proprioceptive_variance)
-    return new_mu, a_dot, action_update(action, a_dot, action_time_constant, action_limit, h)
-
-
 def free_energy(s_p, mu, gamma, visual_error, proprioceptive_variance):
-    """F = sum_j (s_p - mu)_j^2 / (2 Sigma_p) + gamma * visual_error, per trial (B,)."""
+    """F = sum_j (s_p - mu)_j^2 / (2 Sigma_p) + gamma * visual_error (module notes; -dF/dmu is eq. 6).
+
+    Parameters
+    ----------
+    s_p, mu : ndarray, (B, 2)
+        Sensed joint angles and the step's start belief, deg.
+    gamma, visual_error, proprioceptive_variance : ndarray, (B,)
+        gamma (1), the decoder's 1/2 e^T Sigma_v^-1 e (1), Sigma_p (deg^2).
+
+    Returns
+    -------
+    ndarray, (B,)
+        F, dimensionless.
+    """
     return ((s_p - mu) ** 2).sum(axis=1) / (2.0 * proprioceptive_variance) + gamma * visual_error
 
 
 def stability_number(step, proprioceptive_variance, gamma, visual_stiffness):
-    """dt * (1/Sigma_p + gamma * visual_stiffness): explicit Euler of eq. 6 is stable below 2."""
+    """dt * (1/Sigma_p + gamma * visual_stiffness): explicit Euler of eq. 6 is stable below 2.
+
+    Parameters
+    ----------
+    step : float
+        dt, s.
+    proprioceptive_variance, gamma, visual_stiffness : ndarray, (B,)
+        Sigma_p (deg^2, read as 1/s), gamma (1), the largest eigenvalue of J^T J / Sigma_v (1/s).
+
+    Returns
+    -------
+    ndarray, (B,)
+        Dimensionless.
+    """
     return step * (1.0 / proprioceptive_variance + gamma * visual_stiffness)
 
 
-def _trials(mask) -> str:
-    indices = np.flatnonzero(mask)
-    shown = ", ".join(map(str, indices[:5])) + (", ..." if len(indices) > 5 else "")
-    return f"trial{'s' if len(indices) > 1 else ''} {shown}"
+class Brain(BeliefBrain):
+    """The paper's free-energy integrator: belief mu, action a, gamma and free energy for B trials.
 
+    Parameters
+    ----------
+    name : str
+        The instance name in a system.
+    """
 
-def _require_finite(name, value, allow_minus_inf=False):
-    """StepFailure naming the variable, the first bad value and the trials, if any value is bad."""
-    value = np.asarray(value)
-    bad = np.isnan(value) | (value == np.inf) if allow_minus_inf else ~np.isfinite(value)
-    per_trial = bad.reshape(len(value), -1).any(axis=1)
-    if per_trial.any():
-        raise StepFailure(f"{name} is not finite ({value[bad].flat[0]}) in {_trials(per_trial)}")
-
-
-class Brain(Component):
-    """Free-energy integrator: belief mu, action a, gamma and free energy for B trials."""
+    finite_inputs = ("visual_drive", "visual_error", "visual_stiffness")
+    stiffness_remedy = "a larger visual_variance"
 
     def __init__(self, name="brain"):
         joint = dict(type="Array", shape=(2,))
@@ -203,39 +203,18 @@ class Brain(Component):
     def publish_initial(self):
         """mu = mu0, gamma = gamma0, a = a_dot = 0, free energy NaN, no events seen: the decoder,
         earlier in the step order, reads mu0 in initialization mode."""
-        batch = self.batch_size
-        self.values["mu"] = self.values["mu0"].copy()
+        super().publish_initial()
         self.values["gamma"] = self.values["gamma0"].copy()
-        self.values["u_shoulder"], self.values["u_elbow"] = np.zeros(batch), np.zeros(batch)
-        self.values["action_rate"] = np.zeros((batch, 2))
-        self.values["free_energy"] = np.full(batch, np.nan)
-        # Event bookkeeping (observe_events): last seen times, and events seen since the last Bayes update.
-        self._events = (np.full(batch, -np.inf), np.full(batch, -np.inf), np.zeros(batch, bool), np.zeros(batch, bool))
 
     def check_parameters(self):
-        for name in ("proprioceptive_variance", "sync_sd", "async_density", "action_limit"):
-            bad = self.values[name][~((self.values[name] > 0) & np.isfinite(self.values[name]))]
-            if bad.size:
-                raise ComponentError(f"{self.name}.{name} must be positive and finite, got {float(bad[0])!r}")
+        """The shared parameters (:meth:`BeliefBrain.check_parameters`), then the events' law positive and
+        finite and ``spatial_sd`` positive (inf: the paper's model)."""
+        super().check_parameters()
+        self.require_positive_finite("sync_sd", "async_density")
         spatial = self.values["spatial_sd"]
         if np.any(~(spatial > 0)):
             raise ComponentError(f"{self.name}.spatial_sd must be positive (inf: the paper's model), "
                                  f"got {float(spatial[~(spatial > 0)][0])!r}")
-        tau = self.values["action_time_constant"]
-        if np.any(~(tau > 0)):  # inf is allowed (the paper's law); 0 and NaN are not
-            raise ComponentError(f"{self.name}.action_time_constant must be positive (inf: the paper's law), "
-                                 f"got {float(tau[~(tau > 0)][0])!r}")
-        if not np.all(np.isfinite(self.values["mu0"])):
-            raise ComponentError(f"{self.name}.mu0 must be finite, got {self.values['mu0'].tolist()!r}")
-
-    def _sensed(self, proprioception=True):
-        """s_p as (B, 2) after checking the inputs; StepFailure names the bad one."""
-        names = ("visual_drive", "visual_error", "visual_stiffness", "goal_drive", "goal_error", "goal_stiffness")
-        for name in ("q_shoulder", "q_elbow") + names if proprioception else names:
-            _require_finite(name, self.values[name])
-        for name in ("visual_time", "tactile_time"):
-            _require_finite(name, self.values[name], allow_minus_inf=True)
-        return np.stack([self.values["q_shoulder"], self.values["q_elbow"]], axis=1)
 
     def _hands(self):
         """(seen, felt) hands as (B, 2) m; checked finite only in trials that read them (spatial_sd finite)."""
@@ -247,62 +226,40 @@ class Brain(Component):
             if bad.any():
                 first = np.ravel(value[np.flatnonzero(bad)[0]])
                 first = first[~np.isfinite(first)][0]
-                raise StepFailure(f"{name} is not finite ({first}) in {_trials(bad)} (brain.spatial_sd is finite, "
-                                  f"so the seen and the felt hand must be connected)")
+                raise StepFailure(f"{name} is not finite ({first}) in {trials_text(bad)} (brain.spatial_sd is "
+                                  f"finite, so the seen and the felt hand must be connected)")
         return seen, felt
 
     def initialize(self):
-        """mu = mu0, a = a_dot = 0, gamma = gamma0, free energy NaN.
+        """mu = mu0, a = a_dot = 0, gamma = gamma0, free energy NaN; the inputs but s_p checked finite.
 
         F is the free energy each step descends, so it exists from the first step on: at
         initialization s_p may not have arrived (the body comes after the brain in the agreed
         order, and the brain would see its start value), so row 0 of a recorded F is NaN.
         """
-        self.check_parameters()
-        self.publish_initial()  # again: parameters may have been set in initialization mode
-        self._sensed(proprioception=False)
+        super().initialize()
+        self.check_inputs(proprioception=False)
 
-    def step(self, t, h):
+    def rate(self, t, h, s_p, pair):
+        """gamma (eqs. 8-9, Bayes once a new pair of events is seen), mu_dot (eq. 6 plus a goal's pull), the
+        stiffness number and F at the step's start mu (module notes); see :meth:`BeliefBrain.rate`."""
         v = self.values
-        s_p, mu, variance = self._sensed(), v["mu"], v["proprioceptive_variance"]
-        visual_time, tactile_time = v["visual_time"], v["tactile_time"]
-
-        # 1. gamma: Bayes once a new visual and a new tactile event have both been seen.
-        pair, *events = observe_events(*self._events, visual_time, tactile_time)
+        mu, variance = v["mu"], v["proprioceptive_variance"]
         spatial = spatial_likelihood(*self._hands(), v["spatial_sd"])
-        gamma = update_gamma(v["gamma"], pair, visual_time, tactile_time, t + h, h, v["gamma0"],
+        gamma = update_gamma(v["gamma"], pair, v["visual_time"], v["tactile_time"], t + h, h, v["gamma0"],
                              v["sync_sd"], v["async_density"], v["decay_rate"], spatial)
-
         number = stability_number(h, variance, gamma, v["visual_stiffness"]) + h * v["goal_stiffness"]
-        unstable = ~(number < STABILITY_LIMIT)
-        if unstable.any():
-            i = np.flatnonzero(unstable)[0]
-            raise StepFailure(
-                f"step too large for stable explicit Euler in {_trials(unstable)}: dt * (1/Sigma_p + gamma * "
-                f"visual_stiffness{' + goal_stiffness' if v['goal_stiffness'][i] else ''}) = {number[i]:.4g} >= 2 "
-                f"(dt = {h:g} s, Sigma_p = {variance[i]:g}, gamma = {gamma[i]:.4g}, visual_stiffness = "
-                f"{v['visual_stiffness'][i]:.4g} 1/s); use a smaller step or a larger visual_variance")
-
-        leaky = ~(h / v["action_time_constant"] < STABILITY_LIMIT)
-        if leaky.any():
-            i = np.flatnonzero(leaky)[0]
-            raise StepFailure(
-                f"step too large for the leaky action in {_trials(leaky)}: dt / action_time_constant = "
-                f"{h / v['action_time_constant'][i]:.4g} >= 2 (dt = {h:g} s, action_time_constant = "
-                f"{v['action_time_constant'][i]:g} s); use a smaller step or a longer action_time_constant")
-
-        # 2. belief, 3. a_dot from the updated belief (released agent's order), 4. the action law.
-        with np.errstate(over="ignore", invalid="ignore"):  # overflow is caught just below, by name
-            new_mu, a_dot, action = euler_step(mu, np.stack([v["u_shoulder"], v["u_elbow"]], axis=1), s_p, gamma,
-                                               v["visual_drive"], variance, v["action_limit"], h,
-                                               v["action_time_constant"], v["goal_drive"])
+        with np.errstate(over="ignore", invalid="ignore"):  # overflow is named after the step, by the base
+            mu_dot = add_goal_drive(belief_rate(s_p, mu, gamma, v["visual_drive"], variance), v["goal_drive"])
             energy = free_energy(s_p, mu, gamma, v["visual_error"], variance)
             if np.any(v["goal_error"]):
                 energy = energy + v["goal_error"]
-        for name, value in (("mu", new_mu), ("action_rate", a_dot), ("free_energy", energy)):
-            _require_finite(name, value)
+        return BeliefRate(gamma, mu_dot, number, energy)
 
-        # Commit only after every check passed: a failed step leaves the state as it was.
-        self._events = tuple(events)
-        v["mu"], v["gamma"], v["action_rate"], v["free_energy"] = new_mu, gamma, a_dot, energy
-        v["u_shoulder"], v["u_elbow"] = action[:, 0].copy(), action[:, 1].copy()
+    def stiffness_terms(self, i, rate):
+        """The stability number's formula and values in trial ``i``, for the guard's message."""
+        v = self.values
+        goal = " + goal_stiffness" if v["goal_stiffness"][i] else ""
+        return (f"1/Sigma_p + gamma * visual_stiffness{goal}",
+                f"Sigma_p = {v['proprioceptive_variance'][i]:g}, gamma = {rate.gamma[i]:.4g}, visual_stiffness = "
+                f"{v['visual_stiffness'][i]:.4g} 1/s")

@@ -23,6 +23,19 @@ def turned(previous_direction, change):
     """(turned (B,), new direction (B,)): a reversal where the change opposes the last direction of movement.
 
     Directions are +1, -1, or 0 (not moved yet); a change under STILL keeps the direction.
+
+    Parameters
+    ----------
+    previous_direction : ndarray, (B,)
+        +1, -1 or 0.
+    change : ndarray, (B,)
+        This step's change of the angle, deg.
+
+    Returns
+    -------
+    turned : ndarray of bool, (B,)
+    direction : ndarray, (B,)
+        The direction after this step.
     """
     moving = np.abs(change) > STILL
     direction = np.where(moving, np.sign(change), previous_direction)
@@ -30,7 +43,13 @@ def turned(previous_direction, change):
 
 
 class TurningPoints(Component):
-    """The last turning points of the seen and the felt shoulder: seen_pose, q_shoulder in; event times out."""
+    """The last turning points of the seen and the felt shoulder: seen_pose, q_shoulder in; event times out.
+
+    Parameters
+    ----------
+    name : str
+        The instance name in a system.
+    """
 
     def __init__(self, name: str = "turning_points"):
         super().__init__(name, [

@@ -1,0 +1,351 @@
+"""The brains' one base: a step of belief and action, its guards and the action law (docs/model.md).
+
+A brain (:class:`BeliefBrain`) holds the belief mu of the arm's two joint angles and the action a. The
+models differ only in how fast the belief moves; each step of every model, for each of the B trials:
+
+1. the inputs are checked finite, by name (event times may be -inf: no event yet);
+2. the model's own rate (:meth:`BeliefBrain.rate`): gamma, mu_dot, the stiffness number dt * k of the
+   belief's decay, the free energy and any state of the model's own (the paper's brain:
+   :mod:`components.brain.integrator`; the causal model's: :mod:`components.brain.causal_brain`);
+3. the guards of explicit Euler: the belief is stable only while the stiffness number < 2, the leaky
+   action only while dt / tau < 2;
+4. mu <- mu + dt * mu_dot, then a_dot from the UPDATED mu (:func:`action_rate`, eq. 7) and the action law
+   (:func:`action_update`), the released agent's order (:func:`euler_step`);
+5. mu, a_dot and the free energy checked finite; only then is anything committed, so a failed step
+   leaves the state as it was.
+
+The guards raise :class:`~components.component.StepFailure` naming the variable, the value and the trials
+(:func:`require_finite`, :func:`trials_text`); the master then stops the run.
+"""
+from __future__ import annotations
+
+import abc
+from types import MappingProxyType
+from typing import NamedTuple
+
+import numpy as np
+
+from components.brain.causal_inference import observe_events
+from components.component import Component, ComponentError, StepFailure
+
+STABILITY_LIMIT = 2.0  # explicit Euler on a linear decay of rate k is stable iff dt * k < 2
+GOAL_INPUTS = ("goal_drive", "goal_error", "goal_stiffness")  # components.brain.goal.goal_inputs
+EVENT_INPUTS = ("visual_time", "tactile_time")
+
+
+def action_rate(s_p, mu, proprioceptive_variance):
+    """Paper eq. 7 as docs/design.md and the released agent write it: a_dot = -(s_p - mu)/Sigma_p.
+
+    The paper's extra factor dt (from ds/da = dt) is left out, as in the released agent.
+
+    Parameters
+    ----------
+    s_p, mu : ndarray, (B, 2)
+        Sensed joint angles and belief, deg.
+    proprioceptive_variance : ndarray, (B,)
+        Sigma_p, deg^2.
+
+    Returns
+    -------
+    ndarray, (B, 2)
+        a_dot, deg/s^2 (with Sigma_p's implicit unit rate, 1/s per 1/deg^2).
+    """
+    return -(s_p - mu) / proprioceptive_variance[:, None]
+
+
+def action_update(action, a_dot, action_time_constant, action_limit, h):
+    """The action law: a <- clip(a + h * (a_dot - a/tau), -limit, limit).
+
+    tau = ``action_time_constant``: inf is the paper's law a <- clip(a + h * a_dot) (computed as written,
+    so bit for bit the released agent's), a finite tau the leaky integrator whose fixed point is
+    a = tau * a_dot (:mod:`components.brain.integrator`'s notes).
+
+    Parameters
+    ----------
+    action, a_dot : ndarray, (B, 2)
+        The action a (deg/s) and its rate (deg/s^2).
+    action_time_constant : ndarray, (B,)
+        tau, s; inf for the paper's law.
+    action_limit : ndarray, (B,)
+        The clip, deg/s.
+    h : float
+        The step, s.
+
+    Returns
+    -------
+    ndarray, (B, 2)
+        The new action, deg/s.
+    """
+    tau, limit = action_time_constant[:, None], action_limit[:, None]
+    paper = np.isinf(tau)
+    leaky = action + h * (a_dot - action / np.where(paper, 1.0, tau))
+    return np.clip(np.where(paper, action + h * a_dot, leaky), -limit, limit)
+
+
+def add_goal_drive(mu_dot, goal_drive):
+    """mu_dot plus a reach goal's pull on the belief, unweighted by gamma; mu_dot itself (same bits) without a goal.
+
+    Source: the released agent adds its attractor term so (``FepAgent.active_inference_step``: mu_dot =
+    dF_dmu_vis + dF_dmu_attr + proprioception); the term itself: a goal decoder's drive or
+    :mod:`components.brain.goal`.
+
+    Parameters
+    ----------
+    mu_dot : ndarray, (B, 2)
+        The model's belief rate, deg/s.
+    goal_drive : ndarray, (B, 2) or None
+        The goal's pull, deg/s; all 0 or None: no goal.
+
+    Returns
+    -------
+    ndarray, (B, 2)
+        deg/s.
+    """
+    if goal_drive is not None and np.any(goal_drive):  # no goal: no addition, so not even a -0.0 changes
+        return mu_dot + goal_drive
+    return mu_dot
+
+
+def euler_step(mu, mu_dot, action, s_p, proprioceptive_variance, action_limit, action_time_constant, h):
+    """One explicit Euler step of belief and action in the released agent's order.
+
+    mu <- mu + h * mu_dot; a_dot from the UPDATED mu (:func:`action_rate`, eq. 7: the action already
+    pursues the new belief, as the released agent computes ``a_dot`` after updating ``self.mu``); the
+    action by the action law (:func:`action_update`).
+
+    Parameters
+    ----------
+    mu, mu_dot : ndarray, (B, 2)
+        Belief (deg) and the model's belief rate (deg/s).
+    action, s_p : ndarray, (B, 2)
+        Action (deg/s) and sensed joint angles (deg).
+    proprioceptive_variance, action_limit, action_time_constant : ndarray, (B,)
+        Sigma_p (deg^2), the action's clip (deg/s), tau (s; inf: the paper's law).
+    h : float
+        The step, s.
+
+    Returns
+    -------
+    tuple of ndarray, each (B, 2)
+        (new_mu deg, a_dot deg/s^2, new_action deg/s).
+    """
+    new_mu = mu + h * mu_dot
+    a_dot = action_rate(s_p, new_mu, proprioceptive_variance)
+    return new_mu, a_dot, action_update(action, a_dot, action_time_constant, action_limit, h)
+
+
+def trials_text(mask) -> str:
+    """The trials where ``mask`` is true, for a message: "trial 3" or "trials 0, 2, ..." (at most five shown).
+
+    Parameters
+    ----------
+    mask : array_like of bool, (B,)
+
+    Returns
+    -------
+    str
+    """
+    indices = np.flatnonzero(mask)
+    shown = ", ".join(map(str, indices[:5])) + (", ..." if len(indices) > 5 else "")
+    return f"trial{'s' if len(indices) > 1 else ''} {shown}"
+
+
+def require_finite(name, value, allow_minus_inf=False):
+    """Raise StepFailure naming the variable, the first bad value and the trials, if any value is not finite.
+
+    Parameters
+    ----------
+    name : str
+        The variable's name, as the message gives it.
+    value : array_like, (B, ...)
+        Batch first.
+    allow_minus_inf : bool
+        -inf is allowed (an event time: no event yet); NaN and +inf are not.
+
+    Raises
+    ------
+    StepFailure
+        "<name> is not finite (<value>) in trial(s) ...".
+    """
+    value = np.asarray(value)
+    bad = np.isnan(value) | (value == np.inf) if allow_minus_inf else ~np.isfinite(value)
+    per_trial = bad.reshape(len(value), -1).any(axis=1)
+    if per_trial.any():
+        raise StepFailure(f"{name} is not finite ({value[bad].flat[0]}) in {trials_text(per_trial)}")
+
+
+class BeliefRate(NamedTuple):
+    """What a model computes in a step, before the shared guards and the Euler step (:meth:`BeliefBrain.rate`).
+
+    Attributes
+    ----------
+    gamma : ndarray, (B,)
+        This step's belief in a common cause, in [0, 1].
+    mu_dot : ndarray, (B, 2)
+        The belief's rate, deg/s.
+    stiffness : ndarray, (B,)
+        The stability number dt * k of the belief's linear decay, dimensionless (explicit Euler: stable below 2).
+    free_energy : ndarray, (B,)
+        F at the step's start mu, dimensionless.
+    state : mapping
+        The model's further state, committed with the step (:meth:`BeliefBrain.commit`; by default outputs by
+        name, e.g. ``gamma_timing``).
+    """
+
+    gamma: np.ndarray
+    mu_dot: np.ndarray
+    stiffness: np.ndarray
+    free_energy: np.ndarray
+    state: MappingProxyType = MappingProxyType({})  # read-only, so the one default cannot change
+
+
+class BeliefBrain(Component, abc.ABC):
+    """A brain of belief mu and action a for B trials: the shared step, guards and action law.
+
+    A model derives from it, declares its variables (those named here among them: ``mu0``,
+    ``proprioceptive_variance``, ``action_limit``, ``action_time_constant``, ``q_shoulder``, ``q_elbow``,
+    the goal and event inputs; ``mu``, ``u_shoulder``, ``u_elbow``, ``action_rate``, ``gamma``,
+    ``free_energy`` out) and implements :meth:`rate`, :meth:`stiffness_terms` and the publishing of gamma.
+
+    Attributes
+    ----------
+    finite_inputs : tuple of str
+        The model's own inputs checked finite every step, between s_p and the goal's.
+    stiffness_remedy : str
+        What the stability message suggests besides a smaller step ("" for nothing).
+    """
+
+    finite_inputs: tuple[str, ...] = ()
+    stiffness_remedy = ""
+
+    @abc.abstractmethod
+    def rate(self, t, h, s_p, pair) -> BeliefRate:
+        """The model's gamma, mu_dot, stiffness number and free energy; may raise StepFailure.
+
+        Parameters
+        ----------
+        t, h : float
+            The step's start time and size, s.
+        s_p : ndarray, (B, 2)
+            Sensed joint angles, deg (checked finite).
+        pair : ndarray of bool, (B,)
+            A new visual and a new tactile event both seen since the last Bayes update
+            (:func:`~components.brain.causal_inference.observe_events`).
+
+        Returns
+        -------
+        BeliefRate
+        """
+
+    @abc.abstractmethod
+    def stiffness_terms(self, i, rate: BeliefRate) -> tuple[str, str]:
+        """Trial ``i``'s stiffness number in words, for the stability message.
+
+        Parameters
+        ----------
+        i : int
+            The first unstable trial.
+        rate : BeliefRate
+            This step's.
+
+        Returns
+        -------
+        tuple of str
+            (formula, values), e.g. ("1/Sigma_p + gamma * visual_stiffness", "Sigma_p = 1, gamma = 0.5,
+            visual_stiffness = 3 1/s").
+        """
+
+    def publish_initial(self):
+        """mu = mu0, a = a_dot = 0, free energy NaN (s_p may not have arrived yet), no events seen.
+
+        A model publishes its gamma after calling this.
+        """
+        batch, v = self.batch_size, self.values
+        v["mu"] = v["mu0"].copy()
+        v["u_shoulder"], v["u_elbow"] = np.zeros(batch), np.zeros(batch)
+        v["action_rate"] = np.zeros((batch, 2))
+        v["free_energy"] = np.full(batch, np.nan)
+        # Event bookkeeping (observe_events): last seen times, and events seen since the last Bayes update.
+        self._events = (np.full(batch, -np.inf), np.full(batch, -np.inf), np.zeros(batch, bool), np.zeros(batch, bool))
+
+    def initialize(self):
+        """Check the parameters, then publish again: parameters may have been set in initialization mode."""
+        self.check_parameters()
+        self.publish_initial()
+
+    def require_positive_finite(self, *names):
+        """Raise ComponentError naming the first parameter of ``names`` with a value not positive and finite."""
+        for name in names:
+            bad = self.values[name][~((self.values[name] > 0) & np.isfinite(self.values[name]))]
+            if bad.size:
+                raise ComponentError(f"{self.name}.{name} must be positive and finite, got {float(bad[0])!r}")
+
+    def check_parameters(self):
+        """The parameters every brain shares: Sigma_p and the action's clip positive and finite, tau > 0
+        (inf: the paper's law), mu0 finite. A model checks its own after these."""
+        self.require_positive_finite("proprioceptive_variance", "action_limit")
+        tau = self.values["action_time_constant"]
+        if np.any(~(tau > 0)):  # inf is allowed (the paper's law); 0 and NaN are not
+            raise ComponentError(f"{self.name}.action_time_constant must be positive (inf: the paper's law), "
+                                 f"got {float(tau[~(tau > 0)][0])!r}")
+        if not np.all(np.isfinite(self.values["mu0"])):
+            raise ComponentError(f"{self.name}.mu0 must be finite, got {self.values['mu0'].tolist()!r}")
+
+    def check_inputs(self, proprioception=True):
+        """StepFailure naming the first input not finite: s_p (unless ``proprioception`` is false: at
+        initialization it may not have arrived), the model's :attr:`finite_inputs`, the goal's, the event
+        times (which may be -inf)."""
+        names = (("q_shoulder", "q_elbow") if proprioception else ()) + self.finite_inputs + GOAL_INPUTS
+        for name in names:
+            require_finite(name, self.values[name])
+        for name in EVENT_INPUTS:
+            require_finite(name, self.values[name], allow_minus_inf=True)
+
+    def check_stiffness(self, rate: BeliefRate, h):
+        """StepFailure where explicit Euler of the belief would be unstable: stiffness number >= 2 (or NaN)."""
+        unstable = ~(rate.stiffness < STABILITY_LIMIT)
+        if unstable.any():
+            i = np.flatnonzero(unstable)[0]
+            formula, values = self.stiffness_terms(i, rate)
+            remedy = f" or {self.stiffness_remedy}" if self.stiffness_remedy else ""
+            raise StepFailure(f"step too large for stable explicit Euler in {trials_text(unstable)}: dt * ({formula}) "
+                              f"= {rate.stiffness[i]:.4g} >= 2 (dt = {h:g} s, {values}); use a smaller step{remedy}")
+
+    def check_leak(self, h):
+        """StepFailure where explicit Euler of the leaky action would be unstable: dt / tau >= 2."""
+        tau = self.values["action_time_constant"]
+        leaky = ~(h / tau < STABILITY_LIMIT)
+        if leaky.any():
+            i = np.flatnonzero(leaky)[0]
+            raise StepFailure(
+                f"step too large for the leaky action in {trials_text(leaky)}: dt / action_time_constant = "
+                f"{h / tau[i]:.4g} >= 2 (dt = {h:g} s, action_time_constant = {tau[i]:g} s); use a smaller step "
+                f"or a longer action_time_constant")
+
+    def step(self, t, h):
+        """Advance from ``t`` to ``t + h``: the steps of the module notes; StepFailure leaves the state as it was."""
+        v = self.values
+        self.check_inputs()
+        s_p = np.stack([v["q_shoulder"], v["q_elbow"]], axis=1)
+        pair, *events = observe_events(*self._events, v["visual_time"], v["tactile_time"])
+        rate = self.rate(t, h, s_p, pair)
+        self.check_stiffness(rate, h)
+        self.check_leak(h)
+        with np.errstate(over="ignore", invalid="ignore"):  # overflow is named just below
+            new_mu, a_dot, action = euler_step(v["mu"], rate.mu_dot, np.stack([v["u_shoulder"], v["u_elbow"]], axis=1),
+                                               s_p, v["proprioceptive_variance"], v["action_limit"],
+                                               v["action_time_constant"], h)
+        for name, value in (("mu", new_mu), ("action_rate", a_dot), ("free_energy", rate.free_energy)):
+            require_finite(name, value)
+
+        # Commit only after every check passed.
+        self._events = tuple(events)
+        v["mu"], v["gamma"], v["action_rate"], v["free_energy"] = new_mu, rate.gamma, a_dot, rate.free_energy
+        v["u_shoulder"], v["u_elbow"] = action[:, 0].copy(), action[:, 1].copy()
+        self.commit(rate.state)
+
+    def commit(self, state):
+        """Commit the model's own state once the step has passed every check: each item of ``state`` (a
+        :attr:`BeliefRate.state`) into the output of that name; a model with more state extends this."""
+        for name, value in state.items():
+            self.values[name] = value
