@@ -57,6 +57,20 @@ sys.exit(main(sys.argv[1:]))
 """
 
 
+def old_fmu() -> bytes:
+    """An FMU as rhi writes one, by what --force checks (master.export.own_files): the old file a full disk keeps."""
+    import io
+    import zipfile
+
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w") as archive:
+        archive.writestr("modelDescription.xml", '<fmiModelDescription fmiVersion="2.0" generationTool="rhi"/>')
+    return buffer.getvalue()
+
+
+OLD_FMU = old_fmu()
+
+
 @dataclass
 class Case:
     """One bad input or fault. ``args`` (after ``rhi``) may name the module's resources: {conv}, {vae},
@@ -240,8 +254,8 @@ CASES = [
     # -- the machine's faults: a full disk, a closed or full stdout ---------------------------------
     Case("disk_full_while_writing_results", experiment("--out", "out"), 1, "trials.csv: No space left on device",
          files={"conv_only.toml": CONV_ONLY}, python=FULL_DISK_RUN),
-    Case("disk_full_while_exporting", ["export-body", "--out", "Body.fmu"], 1, "No space left on device",
-         files={"Body.fmu": b"the old FMU"}, python=FULL_DISK_EXPORT),
+    Case("disk_full_while_exporting", ["export-body", "--out", "Body.fmu", "--force"], 1, "No space left on device",
+         files={"Body.fmu": OLD_FMU}, python=FULL_DISK_EXPORT),
     Case("stdout_closed", experiment("--out", "out"), 1, "cannot write to standard output", out="out",
          files={"conv_only.toml": CONV_ONLY}, stdout="closed", check=whole_results),
     Case("stdout_full", experiment("--out", "out"), 1, "cannot write to standard output", out="out",

@@ -12,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import zipfile
 from pathlib import Path
 
 import pytest
@@ -164,3 +165,74 @@ def test_fit_never_removes_a_listed_file_of_its_predictive_folder_reached_throug
     after = tree(tmp_path)
     assert changed_outside(before, after, "work/out") == []
     assert after["work/out/predictive/lnk"] == ("link", str(outside))
+
+
+# ======================================================================================================
+# 3. --out FILE never replaces a file rhi did not write; an existing one needs --force
+# ======================================================================================================
+MINE = b"my own notes, in a file I happened to name like an output\n"
+
+
+@pytest.fixture(scope="module")
+def one_body_ssp(tmp_path_factory) -> Path:
+    """A fair SSP package of the kinematic body alone (5 steps), for run-system."""
+    from master.export.body import build_fmu
+    from tests.test_hostile_files import one_body_package
+
+    folder = tmp_path_factory.mktemp("ssp")
+    return one_body_package(build_fmu(folder / "Body.fmu", "kinematic"), folder / "X.ssp")
+
+
+def out_file_commands(ssp: Path) -> dict:
+    """Each command that writes --out FILE, its suffix, and its arguments but --out: the cheapest run of each."""
+    return {"export-body": (".fmu", ["export-body", "--variant", "kinematic"]),
+            "export-agent": (".fmu", ["export-agent", "--decoder", "conv", "--checkpoint", "ckpt.pt", "--config",
+                                      "c.toml"]),
+            "export-system": (".ssp", ["export-system", "--decoder", "conv", "--checkpoint", "ckpt.pt", "--config",
+                                       "c.toml", "--body-variant", "kinematic"]),
+            "run-system": (".csv", ["run-system", str(ssp)])}
+
+
+def agent_inputs(work: Path) -> None:
+    """A 16 px tiny conv checkpoint and a configuration at 16 px with 2 steps, for the agent's exports."""
+    from components.body.kinematics import REST_POSE
+    from master.experiment.training_data import HALF_RANGES
+
+    tiny_checkpoint(work / "ckpt.pt", rest_pose=list(REST_POSE), half_ranges=list(HALF_RANGES))
+    (work / "c.toml").write_text('[experiment]\ndecoders = ["conv"]\nresolution = 16\nsteps = 2\n'
+                                 '[decoder]\nfast = false\n')
+
+
+@pytest.mark.parametrize("command", ["export-body", "export-agent", "export-system", "run-system"])
+def test_out_file_never_replaces_a_user_s_file(tmp_path, one_body_ssp, command):
+    """Without --force an existing FILE is refused, naming it and --force; with --force, a file that is not one
+    rhi wrote of that kind is refused all the same; both leave it, and everything else, as it was."""
+    work = prepared(tmp_path)
+    agent_inputs(work)
+    suffix, arguments = out_file_commands(one_body_ssp)[command]
+    (work / f"mine{suffix}").write_bytes(MINE)
+    before = tree(tmp_path)
+    refused(rhi(tmp_path, *arguments, "--out", f"mine{suffix}"), f"--out mine{suffix} exists; use --force")
+    refused(rhi(tmp_path, *arguments, "--out", f"mine{suffix}", "--force"),
+            f"mine{suffix} exists and rhi did not write it")
+    assert (work / f"mine{suffix}").read_bytes() == MINE
+    assert changed_outside(before, tree(tmp_path), "\0") == []
+
+
+@pytest.mark.parametrize("command", ["export-body", "export-agent", "export-system", "run-system"])
+def test_out_file_with_force_replaces_a_file_rhi_wrote_of_its_kind(tmp_path, one_body_ssp, command):
+    work = prepared(tmp_path)
+    agent_inputs(work)
+    suffix, arguments = out_file_commands(one_body_ssp)[command]
+    done = rhi(tmp_path, *arguments, "--out", f"ours{suffix}", timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    first = (work / f"ours{suffix}").read_bytes()
+    refused(rhi(tmp_path, *arguments, "--out", f"ours{suffix}"), "--force")
+    assert (work / f"ours{suffix}").read_bytes() == first
+    done = rhi(tmp_path, *arguments, "--out", f"ours{suffix}", "--force", timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert sorted(p.name for p in work.iterdir()) == ["c.toml", "ckpt.pt", f"ours{suffix}"]  # nothing left beside it
+    if suffix == ".csv":
+        assert (work / f"ours{suffix}").read_bytes() == first  # the same run, the same table
+    else:
+        assert zipfile.ZipFile(work / f"ours{suffix}").testzip() is None

@@ -72,6 +72,7 @@ def build_parser() -> argparse.ArgumentParser:
     export.add_argument("--variant", metavar="NAME",
                         help="native (default: the pymunk plant), kinematic, or kinematic-c (the kinematic arm in C)")
     export.add_argument("--out", metavar="FILE.fmu", required=True)
+    export.add_argument("--force", action="store_true", help="replace an existing --out FILE, if rhi wrote it")
     export.set_defaults(run=lambda args: __import__("master.commands.export_body", fromlist=["_"]).run_export(args))
 
     module = "master.commands.export_agent"
@@ -101,6 +102,7 @@ def build_parser() -> argparse.ArgumentParser:
                                                             "a reach's conv_near_1)")
     run_system.add_argument("--steps", type=int, metavar="N", help="steps (default: the SSD's stop time)")
     run_system.add_argument("--out", metavar="FILE.csv", required=True, help="every connector, one row per step")
+    run_system.add_argument("--force", action="store_true", help="replace an existing --out FILE, if rhi wrote it")
     run_system.set_defaults(run=lambda args: __import__(module, fromlist=["_"]).run_run_system(args))
 
     sweep = commands.add_parser("sweep", help="run a parameter sweep, locally or on a Dask cluster")

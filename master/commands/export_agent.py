@@ -1,4 +1,6 @@
-"""`rhi export-agent`, `rhi export-system` and `rhi run-system`: arguments in, the written file printed."""
+"""`rhi export-agent`, `rhi export-system` and `rhi run-system`: arguments in, the written file printed.
+
+An existing --out FILE is replaced only with --force, and only if rhi wrote it (:func:`check_out`)."""
 from __future__ import annotations
 
 import os
@@ -16,6 +18,17 @@ def add_common(parser) -> None:
     parser.add_argument("--decoder", metavar="KIND", help="conv or vae (default: the configuration's first)")
     parser.add_argument("--checkpoint", metavar="CKPT", help="a trained decoder of that kind (default: the "
                                                              "configured one, or the cached default, trained if missing)")
+    parser.add_argument("--force", action="store_true", help="replace an existing --out FILE, if rhi wrote it")
+
+
+def check_out(args, noun: str, suffix: str) -> None:
+    """--out FILE checked before any work: an existing file is replaced only with --force, and only if rhi wrote
+    it, a file of its kind (master.export.own_files)."""
+    from master.export import own_files
+    from master.outputs.files import check_output_file
+
+    ours = {".fmu": own_files.fmu_problem, ".ssp": own_files.ssp_problem, ".csv": own_files.csv_problem}[suffix]
+    check_output_file(args.out, noun, suffix, getattr(args, "force", False), ours)
 
 
 def load(args) -> dict:
@@ -37,6 +50,7 @@ def run_export_agent(args) -> int:
     from master.export.agent_fmu import export_agent
 
     started = time.perf_counter()
+    check_out(args, "FMU file", ".fmu")
     path, checkpoint = export_agent(args.out, load(args), args.decoder, args.task)
     print(f"wrote {path} ({os.path.getsize(path) / 1024:.0f} KiB, decoder {checkpoint}) "
           f"in {time.perf_counter() - started:.1f} s")
@@ -48,6 +62,7 @@ def run_export_system(args) -> int:
     from master.export.system import export_system
 
     started = time.perf_counter()
+    check_out(args, "SSP file", ".ssp")
     path = export_system(args.out, load(args), args.decoder, args.body_variant or "native", args.body, args.trial,
                          args.task)
     print(f"wrote {path} ({os.path.getsize(path) / 1024:.0f} KiB: SystemStructure.ssd, the agent and body FMUs, a "
@@ -58,10 +73,9 @@ def run_export_system(args) -> int:
 def run_run_system(args) -> int:
     """The ``rhi run-system`` command: args.ssp, .master, .trial, .steps, .out."""
     from master.export.system import final_drift_cm, final_goal_distance_cm, run_ssp, write_csv
-    from master.outputs.files import check_output_file
 
     started = time.perf_counter()
-    check_output_file(args.out, "CSV file", ".csv")
+    check_out(args, "CSV file", ".csv")
     values = run_ssp(args.ssp, args.master, args.trial, args.steps)
     write_csv(args.out, values)
     print(f"wrote {args.out} ({len(values['time'])} steps under {args.master}) in "

@@ -113,10 +113,15 @@ def check_name_length(out: str | os.PathLike) -> None:
                               (f", less {NAME_MARGIN} for the staging name .NAME.XXXXXXXX.partial)" if last else ")"))
 
 
-def check_output_file(out: str | os.PathLike, noun: str, suffix: str = "") -> Path:
+def check_output_file(out: str | os.PathLike, noun: str, suffix: str = "", force: bool = False,
+                      ours: Callable[[Path], str | None] | None = None) -> Path:
     """``out`` as a Path if a ``noun`` (e.g. "checkpoint file") can be written there, checked before any work:
     a name (ending in ``suffix`` when one is given), not a folder, in a folder that exists and takes new
-    files (/proc, read-only, full: refused now, not after the work). A ConfigError names the problem."""
+    files (/proc, read-only, full: refused now, not after the work). A ConfigError names the problem.
+
+    With ``ours`` (a command's --out FILE), an existing file is replaced only with ``force``, and only if
+    ``ours(path)`` says rhi wrote it (None; else what it is not: master.export.own_files); a link is never
+    replaced."""
     text = str(out)
     out = Path(out)
     if suffix and (out.suffix != suffix or out.name == suffix):
@@ -128,6 +133,13 @@ def check_output_file(out: str | os.PathLike, noun: str, suffix: str = "") -> Pa
         raise ConfigError(f"--out {text} is a folder; name the {noun} to write")
     if out.exists() and not out.is_file():
         raise ConfigError(f"--out {text} exists and is not a regular file")
+    if ours is not None and (out.exists() or out.is_symlink()):
+        if not force:
+            raise ConfigError(f"--out {text} exists; use --force to replace it (rhi replaces only its own {noun}s)")
+        problem = "a symbolic link" if out.is_symlink() else ours(out)
+        if problem is not None:
+            raise ConfigError(f"--out {text} exists and rhi did not write it ({problem}); --force replaces only "
+                              f"rhi's own {noun}s: choose another --out")
     parent = out.absolute().parent
     if not parent.is_dir():
         raise ConfigError(f"cannot write {text}: {parent} {'is not a folder' if parent.exists() else 'does not exist'}")
