@@ -13,7 +13,8 @@ from components.stimulus import Stimulus
 from components.vision import pose_encoder as pe
 from components.vision.networks import Encoder, preset
 from master.cosim import ConfigError
-from master.experiment import causal, config as configuration, protocol, wiring
+from master import models
+from master.experiment import config as configuration, protocol, wiring
 
 
 def normal_log_pdf(x, mean, sd):
@@ -134,7 +135,7 @@ def test_a_tiny_causal_run_and_its_gamma(tiny_causal):
     # Before the first touch (2 s > 60 steps * 0.02 s) gamma_timing sits at each participant's prior exactly.
     brain = CausalBrain()
     brain.instantiate(len(trials))
-    for path, value in causal.parameters(trials, config, wiring.parameters(trials, config)).items():
+    for path, value in wiring.parameters(trials, config).items():
         if path.startswith("brain."):
             brain.set(path.partition(".")[2], value)
     brain.initialize()
@@ -169,7 +170,7 @@ def test_stimulation_stops_at_stop_time():
 def test_models_in_the_configuration():
     assert configuration.load(model_name="paper") == configuration.load()
     causal_config = configuration.load(model_name="causal")
-    assert configuration.model_name(causal_config) == "causal" and "causal" in causal_config
+    assert models.of(causal_config).name == "causal" and "causal" in causal_config
     with pytest.raises(ConfigError, match="model 'nope' is unknown"):
         configuration.load(model_name="nope")
     with pytest.raises(ConfigError, match="unknown config key causal"):
@@ -184,9 +185,9 @@ def test_a_sweep_file_names_its_model(tmp_path):
                     '"causal.switching_time" = [10.0, 40.0]\n')
     sweep = sweeps.load(path)
     assert [c["causal"]["switching_time"] for c in sweep.configs] == [10.0, 40.0]
-    assert all(configuration.model_name(c) == "causal" for c in sweep.configs)
+    assert all(models.of(c).name == "causal" for c in sweep.configs)
     with pytest.raises(ConfigError, match="unknown config key causal"):  # the paper's model has no causal keys
         sweeps.load(path, model="paper")
     path.write_text('[sweep]\nmodel = "other"\n')
-    with pytest.raises(ConfigError, match="sweep.model = 'other' is not one of paper, causal"):
+    with pytest.raises(ConfigError, match="sweep.model: model 'other' is unknown; choose one of paper, causal"):
         sweeps.load(path)

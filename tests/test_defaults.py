@@ -71,12 +71,15 @@ def test_every_component_parameter_has_exactly_one_source(systems, declared):
         assert not missing, f"{kind} system: parameters without an entry in wiring.PARAMETER_SOURCES: {missing}"
     stale = sorted(set(SOURCES) - set(declared))
     assert not stale, f"wiring.PARAMETER_SOURCES names parameters no component declares: {stale}"
-    # A dict literal keeps the last of two equal keys silently: read the table's source for duplicates.
-    tree = ast.parse(inspect.getsource(wiring))
-    table = next(node.value for node in ast.walk(tree) if isinstance(node, ast.Assign)
-                 and any(getattr(target, "id", None) == "PARAMETER_SOURCES" for target in node.targets))
-    keys = [key.value for key in table.keys]
-    assert len(keys) == len(set(keys)), f"PARAMETER_SOURCES repeats {sorted({k for k in keys if keys.count(k) > 1})}"
+    # A dict literal keeps the last of two equal keys silently: read the tables' sources for duplicates.
+    from master.models import paper
+    keys = []
+    for module, name in ((wiring, "TASK_SOURCES"), (paper, "BRAIN_SOURCES")):
+        tree = ast.parse(inspect.getsource(module))
+        table = next(node.value for node in ast.walk(tree) if isinstance(node, ast.Assign)
+                     and any(getattr(target, "id", None) == name for target in node.targets))
+        keys += [key.value for key in table.keys]
+    assert len(keys) == len(set(keys)), f"the sources repeat {sorted({k for k in keys if keys.count(k) > 1})}"
 
 
 def test_every_source_is_handled_one_way():

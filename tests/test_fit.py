@@ -350,9 +350,10 @@ def test_a_latin_hypercube_holds_one_held_out_truth_in_each_stratum_of_every_pri
 
 
 def test_per_trial_parameters_of_a_batch_of_configurations():
-    """wiring.parameters and causal.parameters give each trial its own values where trials carry them, and the
-    configuration's own (a scalar, as before) where none differs; brain.coupling_sd is derived per trial."""
-    from master.experiment import causal, config as configuration, make_trial
+    """wiring.parameters (the task's and the model's) give each trial its own values where trials carry them, and
+    the configuration's own (a scalar, as before) where none differs; brain.coupling_sd is derived per trial."""
+    from master.experiment import config as configuration, make_trial
+    from master.models import causal
     from master.experiment.wiring import batchable_keys, parameters
 
     base = configuration.load(quick=True, model_name="causal")
@@ -362,12 +363,12 @@ def test_per_trial_parameters_of_a_batch_of_configurations():
     own = [(("brain.sync_sd", 0.1), ("causal.peripersonal_sd", 0.15), ("decoder.visual_variance", 20.0)),
            (("brain.sync_sd", 0.3), ("causal.peripersonal_sd", 0.3), ("decoder.visual_variance", 20.0))]
     trials = [make_trial(base, "conv", "left", "sync", 0, overrides) for overrides in own]
-    given = causal.parameters(trials, base, parameters(trials, base))
+    given = parameters(trials, base)
     assert given["brain.sync_sd"].tolist() == [0.1, 0.3]
     assert "brain.gamma0" not in batchable_keys(base)  # the causal brain has no gamma floor: not fitted there
     assert given["decoder.visual_variance"] == 20.0  # the same for both: the configuration's scalar
     assert np.array_equal(given["brain.coupling_sd"], np.stack([causal.coupling_sd(0.15), causal.coupling_sd(0.3)]))
-    plain = causal.parameters(trials[:1], base, parameters([make_trial(base, "conv", "left", "sync", 0)], base))
+    plain = parameters([make_trial(base, "conv", "left", "sync", 0)], base)
     assert np.array_equal(plain["brain.coupling_sd"], causal.coupling_sd(base["causal"]["peripersonal_sd"]))
 
 

@@ -16,7 +16,7 @@ ROOT = Path(__file__).resolve().parents[1]
 # agent it exports is the experiment's system without its body (master/export/agent.py). reference writes
 # docs/'s tables from everything below it.
 MASTER_LAYERS = [("commands",), ("reference",), ("phenomena", "fit"), ("sweeps", "bench"), ("export",), ("experiment",),
-                 ("outputs",), ("cosim",)]
+                 ("models",), ("outputs",), ("cosim",)]
 # master's own files outside the sub-packages, and the sub-packages each may import.
 MASTER_FILES = {"master/__init__.py": ("cosim",), "master/__main__.py": ("commands",)}
 # ``from master import X`` (not a sub-package) reaches master/__init__.py, which re-exports this one:
@@ -181,3 +181,84 @@ def test_the_checker_catches_each_kind_of_violation(relative, source, expected):
 ])
 def test_the_checker_allows_what_the_table_allows(relative, source):
     assert violations(relative, source) == []
+
+
+# -- no import circles ---------------------------------------------------------------------------------
+def module_name(relative: str) -> str:
+    """``master/experiment/config.py`` -> ``master.experiment.config`` (a package's ``__init__`` is the package)."""
+    parts = relative[:-3].split("/")
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def circles(sources: dict[str, str]) -> list[list[str]]:
+    """Every import circle among the modules ``{relative path: source}``, as the sorted modules of each strongly
+    connected part of the import graph (any import, at any depth, counts, as for the rule table; importing a
+    module runs its packages' ``__init__`` too, but a module's own packages are not counted as its imports)."""
+    names = {module_name(relative): relative for relative in sources}
+    graph = {}
+    for name, relative in names.items():
+        edges = set()
+        for _, _, target in imports(relative, sources[relative]):
+            parts = target.split(".")
+            while parts and ".".join(parts) not in names:
+                parts.pop()
+            for depth in range(1, len(parts) + 1):  # the module and the packages above it
+                reached = ".".join(parts[:depth])
+                if reached in names and reached != name and not name.startswith(reached + "."):
+                    edges.add(reached)
+        graph[name] = edges
+    # Tarjan's strongly connected components, iteratively (no recursion limit to meet).
+    index, low, on_stack, stack, found, counter = {}, {}, set(), [], [], 0
+    for root in graph:
+        if root in index:
+            continue
+        work = [(root, iter(sorted(graph[root])))]
+        index[root] = low[root] = counter
+        counter += 1
+        stack.append(root)
+        on_stack.add(root)
+        while work:
+            node, children = work[-1]
+            child = next(children, None)
+            if child is not None:
+                if child not in index:
+                    index[child] = low[child] = counter
+                    counter += 1
+                    stack.append(child)
+                    on_stack.add(child)
+                    work.append((child, iter(sorted(graph.get(child, ())))))
+                elif child in on_stack:
+                    low[node] = min(low[node], index[child])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[node])
+            if low[node] == index[node]:
+                part = []
+                while True:
+                    member = stack.pop()
+                    on_stack.discard(member)
+                    part.append(member)
+                    if member == node:
+                        break
+                if len(part) > 1:
+                    found.append(sorted(part))
+    return found
+
+
+def test_no_import_circles():
+    sources = {path.relative_to(ROOT).as_posix(): path.read_text() for path in python_files("master", "components")}
+    assert circles(sources) == []
+
+
+@pytest.mark.parametrize("sources, expected", [
+    ({"master/a/x.py": "from master.a import y\n", "master/a/y.py": "def f():\n    from master.a.x import g\n"},
+     [["master.a.x", "master.a.y"]]),
+    ({"master/a/__init__.py": "from master.a.x import f\n", "master/a/x.py": "", "master/b/y.py": "import master.a.x\n",
+      "master/a/z.py": "from master.b import y\n", "master/b/__init__.py": ""}, []),
+    ({"master/a/__init__.py": "from master.a.z import f\n", "master/a/z.py": "from master.b.y import g\n",
+      "master/b/__init__.py": "", "master/b/y.py": "from master.a import h\n"},
+     [["master.a", "master.a.z", "master.b.y"]]),
+])
+def test_the_circle_finder_finds_each_circle(sources, expected):
+    assert circles(sources) == expected

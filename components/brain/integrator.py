@@ -245,9 +245,7 @@ class Brain(BeliefBrain):
         stiffness number and F at the step's start mu (module notes); see :meth:`BeliefBrain.rate`."""
         v = self.values
         mu, variance = v["mu"], v["proprioceptive_variance"]
-        spatial = spatial_likelihood(*self._hands(), v["spatial_sd"])
-        gamma = update_gamma(v["gamma"], pair, v["visual_time"], v["tactile_time"], t + h, h, v["gamma0"],
-                             v["sync_sd"], v["async_density"], v["decay_rate"], spatial)
+        gamma = self.common_cause(t, h, pair)
         number = stability_number(h, variance, gamma, v["visual_stiffness"]) + h * v["goal_stiffness"]
         with np.errstate(over="ignore", invalid="ignore"):  # overflow is named after the step, by the base
             mu_dot = add_goal_drive(belief_rate(s_p, mu, gamma, v["visual_drive"], variance), v["goal_drive"])
@@ -255,6 +253,22 @@ class Brain(BeliefBrain):
             if np.any(v["goal_error"]):
                 energy = energy + v["goal_error"]
         return BeliefRate(gamma, mu_dot, number, energy)
+
+    def common_cause(self, t, h, pair):
+        """gamma (B,): the belief in a common cause after this step's events (eqs. 8-9, and the spatial
+        extension when ``spatial_sd`` is finite). A model of one's own may override it (examples/my_model.py).
+
+        Parameters
+        ----------
+        t, h : float
+            The step's start time and size, s.
+        pair : numpy.ndarray
+            (B,) bool: whether a new pair of a visual and a tactile event was seen in each trial.
+        """
+        v = self.values
+        spatial = spatial_likelihood(*self._hands(), v["spatial_sd"])
+        return update_gamma(v["gamma"], pair, v["visual_time"], v["tactile_time"], t + h, h, v["gamma0"],
+                            v["sync_sd"], v["async_density"], v["decay_rate"], spatial)
 
     def stiffness_terms(self, i, rate):
         """The stability number's formula and values in trial ``i``, for the guard's message."""

@@ -111,8 +111,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help="a Dask scheduler, tcp://HOST:PORT (default: a process pool on this machine)")
     sweep.add_argument("--out", metavar="DIR", required=True)
     sweep.add_argument("--force", action="store_true", help="replace a different sweep in DIR")
-    sweep.add_argument("--model", choices=("paper", "causal"),
-                       help="the model, instead of the sweep file's sweep.model (default there: paper; docs/model.md)")
+    sweep.add_argument("--model", metavar="NAME",
+                       help="the model, instead of the sweep file's sweep.model (default there: paper; a name or "
+                            "FILE.py:Class, docs/model.md)")
     sweep.set_defaults(run=lambda args: __import__("master.commands.sweep", fromlist=["_"]).run_sweep(args))
 
     phenomenon = commands.add_parser("phenomenon", help="a human phenomenon (temporal window, distance, time "

@@ -5,6 +5,7 @@ import sys
 import time
 from pathlib import Path
 
+from master import models
 from master.experiment import config as configuration
 from master.outputs.files import check_output
 
@@ -34,9 +35,8 @@ def add_preset(parser) -> None:
 
 
 def add_model(parser) -> None:
-    parser.add_argument("--model", choices=configuration.MODELS, default="paper",
-                        help="the model (master/models/NAME.toml, docs/model.md): paper = the paper's (default), "
-                             "causal = body-space visual evidence and causal inference over space and time")
+    parser.add_argument("--model", default="paper", metavar="NAME",
+                        help=f"the model (docs/model.md): {models.described()}; default: paper")
 
 
 def add_device(parser) -> None:

@@ -14,8 +14,9 @@ def add_arguments(parser) -> None:
                         help="one row per participant x observation: participant, the design, drift_cm (force_n)")
     parser.add_argument("--config", metavar="FIT.toml", required=True,
                         help="the fit file: parameters and priors, simulations, estimator (docs/fit.md)")
-    parser.add_argument("--model", choices=("paper", "causal"),
-                        help="the model, instead of the fit file's fit.model (default there: paper)")
+    parser.add_argument("--model", metavar="NAME",
+                        help="the model, instead of the fit file's fit.model (default there: paper; a name or "
+                             "FILE.py:Class, docs/model.md)")
     parser.add_argument("--scheduler", metavar="ADDRESS",
                         help="a Dask scheduler, tcp://HOST:PORT (default: a process pool on this machine)")
     parser.add_argument("--out", metavar="DIR", required=True)

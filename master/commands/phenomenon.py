@@ -12,6 +12,7 @@ import argparse
 import time
 from pathlib import Path
 
+from master import models as registry
 from master.phenomena import NAMES, sweep_file
 
 OWN_PROTOCOLS = ("moving-hand", "reach-after")  # not sweeps: master/phenomena/moving_hand.py, reach_after.py
@@ -25,8 +26,9 @@ def add_arguments(parser) -> None:
                         help="a Dask scheduler, tcp://HOST:PORT (default: a process pool on this machine)")
     parser.add_argument("--out", metavar="DIR", required=True)
     parser.add_argument("--force", action="store_true", help="replace a different sweep in DIR")
-    parser.add_argument("--model", choices=("both", "paper", "causal"), default="both",
-                        help="which model(s) to run, side by side on one figure (default: both; docs/model.md)")
+    parser.add_argument("--model", default="both", metavar="NAME",
+                        help="the model to run, or both: the built-in ones side by side on one figure (default: both; "
+                             "a name or FILE.py:Class, docs/model.md)")
 
 
 def run_phenomenon(args) -> int:
@@ -47,17 +49,17 @@ def run_phenomenon(args) -> int:
         print((Path(args.out) / written[0]).read_text(), end="")
         return 0
     path = Path(args.config) if args.config else sweep_file(args.name)
-    models = ("paper", "causal") if getattr(args, "model", "both") == "both" else (args.model,)
-    trials = {model: configuration.load(model_name=model)["causal"]["participants"]  # one participant a trial
-              for model in models if model != "paper"}
-    for model in models:  # every model's points checked before anything runs or is written
+    chosen = tuple(registry.BUILT_IN) if getattr(args, "model", "both") == "both" else (args.model,)
+    per_point = {model: registry.get(model).trials_per_point(configuration.load(model_name=model)) for model in chosen}
+    trials = {model: count for model, count in per_point.items() if count}  # a population: one participant a trial
+    for model in chosen:  # every model's points checked before anything runs or is written
         plan.load(path, model, trials.get(model))
     check_folder(Path(args.out))
     own = report_manifest(Path(args.out), args.name)
     Path(args.out).mkdir(parents=True, exist_ok=True)
     folders, status = {}, 0
-    for model in models:
-        folders[model] = Path(args.out) / model
+    for model in chosen:
+        folders[model] = Path(args.out) / registry.get(model).name
         status = max(status, run_sweep(argparse.Namespace(
             config=str(path), out=str(folders[model]), scheduler=args.scheduler, force=args.force, debug=args.debug,
             model=model, trials=trials.get(model))))

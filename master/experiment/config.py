@@ -17,6 +17,7 @@ import tomllib
 from importlib import resources
 from pathlib import Path
 
+from master import models
 from master.cosim import ConfigError
 
 OPEN_TABLES = ("conditions", "stimulations")  # users may add entries here (a new condition, say)
@@ -24,7 +25,6 @@ LISTS = ("decoders", "conditions", "stimulations")  # experiment.* lists: non-em
 SCHEMES = ("gauss-seidel", "jacobi")
 MAX_RESOLUTION = 1024  # px; the paper's decoders work at 256
 PRESETS = ("paper",)  # --preset NAME merges master/NAME.toml over the defaults
-MODELS = ("paper", "causal")  # --model NAME merges master/models/NAME.toml over the defaults (docs/model.md)
 
 
 def defaults() -> dict:
@@ -40,27 +40,10 @@ def preset(name: str) -> dict:
         return tomllib.load(file)
 
 
-def model(name: str) -> dict:
-    """The shipped model ``name`` (``master/models/NAME.toml``); ConfigError if unknown.
-
-    A model's tables that defaults.toml lacks (``[model]``, ``[causal]``) become part of the
-    configuration's keys; its keys in existing tables override the defaults. ``paper`` is empty:
-    the defaults are the paper's model, and its configuration is the defaults' bytes.
-    """
-    if name not in MODELS:
-        raise ConfigError(f"model {name!r} is unknown; choose one of {', '.join(MODELS)}")
-    with resources.files("master").joinpath("models", f"{name}.toml").open("rb") as file:
-        return tomllib.load(file)
-
-
-def model_name(config: dict) -> str:
-    """The model a configuration runs: ``[model] name``, or ``paper`` (the defaults) when it has none."""
-    return config.get("model", {}).get("name", "paper")
-
-
 def with_model(config: dict, name: str) -> dict:
-    """``config`` with the model ``name`` merged over it (its new tables added, its other keys merged)."""
-    shipped = model(name)
+    """``config`` with the model ``name`` (a registered name or ``file.py:Class``, :func:`master.models.get`)
+    merged over it: its new tables (``[model]``, ``[causal]``) added, its keys in existing tables merged."""
+    shipped = models.get(name).settings()
     added = {table: values for table, values in shipped.items() if table not in config}
     return merge({**config, **copy.deepcopy(added)},
                  {table: values for table, values in shipped.items() if table not in added})
@@ -190,7 +173,8 @@ def load(path: str | Path | None = None, overrides: dict | None = None, quick: b
 
     overrides: ``{"experiment.trials": 3, ...}`` from the command line.
     preset_name: a shipped preset (:data:`PRESETS`), e.g. ``"paper"``; None: none.
-    model_name: a shipped model (:data:`MODELS`); ``paper`` (the default) adds nothing.
+    model_name: a model, by name or ``file.py:Class`` (:func:`master.models.get`); ``paper`` (the default) adds
+    nothing.
     """
     config = defaults()
     quick_values = config.pop("quick")

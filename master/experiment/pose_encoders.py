@@ -26,9 +26,9 @@ from components.vision.pose_encoder import PoseModel, coverage, load_encoder, sa
     variance_scale
 from master.cosim import ConfigError
 from master.experiment import training_data
+from master.experiment.scene import shipped_path
 from master.experiment.training import prepare_data, train_settings
 
-SHIPPED = Path(__file__).parent / "checkpoints"
 CALIBRATION_POSES, CALIBRATION_SEED = 500, 101
 COVERAGE_POSES, COVERAGE_SEED = 500, 202
 BALL_REACH = 0.25  # m: the ball is anywhere from the hand to this far forward of it (the stimulus' ball_distance)
@@ -82,20 +82,6 @@ def build(kind: str, config: dict, decoder_checkpoint: str, cache: Path, epochs:
                       metadata={"kind": kind, "trained": "gaussian NLL on the decoders' data" if kind == "conv"
                                 else "the VAE's encoder", "history": history})
     return calibrated(model, settings.resolution, blur)
-
-
-def shipped_path(kind: str, resolution: int) -> Path:
-    return SHIPPED / f"pose-{kind}-r{resolution}.pt"
-
-
-def encoder_path(kind: str, config: dict) -> str:
-    """The pose encoder of decoder ``kind``: ``causal.<kind>_pose_encoder``, or the shipped one at this resolution."""
-    given = config["causal"].get(f"{kind}_pose_encoder") or ""
-    path = Path(given) if given else shipped_path(kind, config["experiment"]["resolution"])
-    if not path.is_file():
-        raise ConfigError(f"causal.{kind}_pose_encoder: no pose encoder at {path} (make one with "
-                          "`python -m master.experiment.pose_encoders FOLDER`)")
-    return str(path)
 
 
 def main(argv: list[str]) -> int:

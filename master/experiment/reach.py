@@ -19,10 +19,13 @@ from components.body import kinematics
 from components.body.arm_pose import JointPose, PosedArm
 from components.body.camera import Camera
 from components.body.plant import ArmPlant
+from master import models
 from master.cosim import ConfigError, System, simulate
 from master.experiment import config as configuration
 from master.experiment import wiring
+from master.experiment.protocol import per_trial
 from master.experiment.training_data import HALF_RANGES
+from master.experiment.scene import assemble, declared, model_parameters, model_parts, pose_encoders
 
 ATTRACTORS = ("auto", "pixels", "body")
 VIEWS = ("auto", "on", "off")
@@ -40,6 +43,7 @@ class ReachTrial:
     seed: int
     shoulder_offset: float
     elbow_offset: float
+    overrides: tuple = ()  # ((key, value), ...): this reach's own parameter values (protocol.Trial.overrides)
 
     @property
     def goal_pose(self) -> tuple[float, float]:
@@ -80,17 +84,16 @@ def load(path=None, quick: bool = False, model_name: str = "paper", overrides: d
 
 
 def attractor(config: dict) -> str:
-    """"pixels" or "body": the configured one, or the model's ("auto": pixels for the paper, body for causal)."""
+    """"pixels" or "body": the configured one, or the model's (``Model.reach_attractor``) for "auto"."""
     chosen = config["reach"]["attractor"]
-    if chosen == "auto":
-        return "body" if configuration.model_name(config) == "causal" else "pixels"
-    return chosen
+    return models.of(config).reach_attractor(config) if chosen == "auto" else chosen
 
 
 def view(config: dict) -> bool:
-    """Whether the camera sees the real arm: reach.view, "auto" = on for the causal model, off for the paper's."""
+    """Whether the camera sees the real arm: reach.view; "auto" = on for a model whose brain reads the seen arm's
+    pose (``Model.sees_pose``), off for the others (the paper's)."""
     chosen = config["reach"]["view"]
-    return configuration.model_name(config) == "causal" if chosen == "auto" else chosen == "on"
+    return models.of(config).sees_pose if chosen == "auto" else chosen == "on"
 
 
 def validate(config: dict) -> None:
@@ -116,9 +119,9 @@ def validate(config: dict) -> None:
         check_range(band, reach["ranges"][band])
     if reach["view"] not in VIEWS:
         raise ConfigError(f"reach.view = {reach['view']!r} is not one of {', '.join(VIEWS)}")
-    if configuration.model_name(config) == "causal" and reach["view"] == "off":
-        raise ConfigError("reach.view = \"off\": the causal model's brain needs the seen arm (its pose encoder "
-                          "reads the camera); use \"on\" or \"auto\"")
+    if models.of(config).sees_pose and reach["view"] == "off":
+        raise ConfigError(f"reach.view = \"off\": the {models.of(config).name} model's brain needs the seen arm (its "
+                          "pose encoder reads the camera); use \"on\" or \"auto\"")
 
 
 def check_range(band: str, values) -> None:
@@ -213,42 +216,26 @@ def links(kind: str, view: bool, pixel_decoder: bool) -> list[tuple[str, str]]:
 
 
 def pixel_decoder_seen(config: dict) -> bool:
-    """Whether a decoder reads the camera's image of the real arm (when it is seen): the paper model's always,
-    the causal model's when its pixel term weighs."""
-    return configuration.model_name(config) != "causal" or config["causal"]["pixel_weight"] > 0
+    """Whether a decoder reads the camera's image of the real arm (when it is seen): when the model's brain reads
+    the pixel term (``Model.reads_pixels``)."""
+    return models.of(config).reads_pixels(config)
 
 
 def connections(config: dict) -> list[tuple[str, str]]:
-    """The reach system's connections under ``config``, in step order: :func:`links`, and the causal model's
-    seen pose (camera -> pose encoder -> brain)."""
-    given = links(attractor(config), view(config), pixel_decoder_seen(config))
-    if configuration.model_name(config) == "causal":
-        given += [("camera.image", "pose_encoder.image"), ("pose_encoder.pose", "brain.seen_pose"),
-                  ("pose_encoder.pose_variance", "brain.seen_pose_variance")]
-    return given
-
-
-def encoder_file(kind: str, config: dict) -> str:
-    """The pose encoder of decoder ``kind`` (the causal model's setting, else the shipped one)."""
-    from master.experiment.pose_encoders import encoder_path, shipped_path
-
-    if "causal" in config:
-        return encoder_path(kind, config)
-    path = shipped_path(kind, config["experiment"]["resolution"])
-    if not path.is_file():
-        raise ConfigError(f"reach.attractor = \"body\": no shipped {kind} pose encoder at "
-                          f"{config['experiment']['resolution']} px ({path})")
-    return str(path)
+    """The reach system's candidate connections under ``config``, in step order: :func:`links`, then the
+    model's (``Model.links``: the causal model's seen pose, camera -> pose encoder -> brain)."""
+    return links(attractor(config), view(config), pixel_decoder_seen(config)) + list(models.of(config).links)
 
 
 def build_system(kind: str, path: str, config: dict, threads: int = 1) -> System:
-    """The reach system of decoder ``kind`` (checkpoint ``path``) under ``config``."""
+    """The reach system of decoder ``kind`` (checkpoint ``path``) under ``config``: the goal's arm and camera
+    and its term (:func:`links`), the seen arm and its camera when in view, the model's parts and brain, the
+    free body."""
     from components.vision.component import Decoder
     from components.vision.fast import LinearisedDecoder
     from master.experiment.decoders import check_kind, loaded
 
-    resolution, causal = config["experiment"]["resolution"], configuration.model_name(config) == "causal"
-    goal_term, seen = attractor(config), view(config)
+    resolution = config["experiment"]["resolution"]
     model = loaded(path, resolution, config["camera"]["blur"])
     check_kind(kind, path, model)
 
@@ -258,34 +245,26 @@ def build_system(kind: str, path: str, config: dict, threads: int = 1) -> System
                                      threads=threads)
         return Decoder(model, name=name, threads=threads)
 
+    encoders = pose_encoders(config, kind, threads)
     parts = [PosedArm("goal"), Camera("goal_camera", resolution=resolution)]
-    if goal_term == "pixels":
+    if attractor(config) == "pixels":
         parts.append(decoder("goal_decoder"))
     else:
         from components.brain.goal import GoalAttractor
-        from components.vision.pose_encoder import PoseEncoder, load_encoder
-        parts += [PoseEncoder(load_encoder(encoder_file(kind, config)), name="goal_encoder", resolution=resolution,
-                              threads=threads), GoalAttractor()]
-    if seen:
+        parts += [encoders("goal_encoder"), GoalAttractor()]
+    if view(config):
         parts += [JointPose("arm_pose"), Camera("camera", resolution=resolution)]
         if pixel_decoder_seen(config):
             parts.append(decoder("decoder"))
-    if causal:
-        from components.brain.causal_brain import CausalBrain
-        from components.vision.pose_encoder import PoseEncoder, load_encoder
-        parts += [PoseEncoder(load_encoder(encoder_file(kind, config)), resolution=resolution, threads=threads),
-                  CausalBrain()]
-    else:
-        from components.brain.integrator import Brain
-        parts.append(Brain())
-    parts.append(ArmPlant())
-    return System(parts, connections(config))
+    parts += [*model_parts(config, kind, threads), ArmPlant()]
+    return assemble(parts, connections(config))
 
 
 def parameters(trials: list[ReachTrial], config: dict, system: System) -> dict:
-    """Every parameter of the reach system: the experiment's sources for the brain, body, cameras and decoders
-    (:data:`master.experiment.wiring.PARAMETER_SOURCES`), the goal per trial, and the goal's precision."""
-    given = wiring.shared_parameters(config, ("brain", "body", "camera", "decoder"))
+    """Every parameter of the reach system: the experiment's sources for the body, cameras and decoders
+    (:data:`master.experiment.wiring.TASK_SOURCES`), the model's for its brain, the goal per trial, and the
+    goal's precision."""
+    given = wiring.shared_parameters(config, ("body", "camera", "decoder"))
     for key in ("blur", "ball_radius"):
         given[f"goal_camera.{key}"] = config["camera"][key]
     given["goal.shoulder"] = np.array([t.goal_pose[0] for t in trials])
@@ -295,11 +274,8 @@ def parameters(trials: list[ReachTrial], config: dict, system: System) -> dict:
         given["goal_decoder.visual_variance"] = config["decoder"]["visual_variance"] / ratio
     if "goal_attractor" in system.components:
         given["goal_attractor.precision_ratio"] = ratio
-    if configuration.model_name(config) == "causal":
-        from master.experiment import causal
-        given = causal.parameters(trials, config, given)
-    return {path: value for path, value in given.items() if path.split(".")[0] in system.components
-            and path.partition(".")[2] in system.components[path.split(".")[0]].variables}
+    given.update(model_parameters(config, [t.seed for t in trials], lambda key: per_trial(trials, config, key)))
+    return declared(given, system)
 
 
 def run_batch(kind: str, path: str, trials: list[ReachTrial], config: dict, threads: int = 1, progress=None,

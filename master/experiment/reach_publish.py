@@ -7,10 +7,11 @@ import time
 
 import numpy as np
 
+from master import models
 from master.cosim import SimulationError
-from master.experiment import config as configuration
 from master.experiment import reach
 from master.experiment.decoders import check_decoders, ensure_checkpoints
+from master.experiment.scene import encoder_path
 from master.experiment.parallel import JOB_THREADS, Workers, run_jobs
 from master.experiment.runner import bar_positions, step_bar, without_failures
 from master.outputs import tables
@@ -96,8 +97,8 @@ def run_into(out, config: dict, force: bool = False, progress: bool = False) -> 
     check_decoders(config)
     trials = reach.plan(config)
     for kind in config["experiment"]["decoders"]:  # the encoders and the wiring, before any work
-        if reach.attractor(config) == "body" or configuration.model_name(config) == "causal":
-            reach.encoder_file(kind, config)
+        if reach.attractor(config) == "body" or models.of(config).sees_pose:
+            encoder_path(kind, config)
     with output_folder(out, force) as staging, Workers() as workers:
         checkpoints, training_seconds = ensure_checkpoints(config, progress=progress, workers=workers)
         kinds = config["experiment"]["decoders"]
@@ -124,7 +125,7 @@ def run_into(out, config: dict, force: bool = False, progress: bool = False) -> 
         write_figures(staging / "figures", kept, times, per_step, final, radius)
         provenance = {
             "schema_version": tables.SCHEMA_VERSION, "command": "rhi reach",
-            "model": configuration.model_name(config), "attractor": reach.attractor(config),
+            "model": models.of(config).name, "attractor": reach.attractor(config),
             "configuration": config, "checkpoints": checkpoints,
             "seeds": {"master": config["experiment"]["seed"], "goals": [t.__dict__ for t in kept]},
             "released_agent": {f"{d}/{b}": {"reached": r, "farther_than_start": f, "goals": RELEASED_AGENT_GOALS}

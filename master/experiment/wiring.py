@@ -6,19 +6,20 @@ component parameter and that each plain key of ``defaults.toml`` equals the comp
 """
 from __future__ import annotations
 
-import re
-
 import numpy as np
 
 from components.body import kinematics
 from components.body.camera import Camera
 from components.body.plant import ArmPlant
 from components.body.rubber_arm import RubberArm
-from components.brain.integrator import Brain
-from components.stimulus import Stimulus
 from components.component import ComponentError
+from components.stimulus import Stimulus
+from master import models
 from master.cosim import ConfigError, System, simulate
 from master.experiment.protocol import Trial, per_trial, plan
+from master.models.base import config_key
+from master.models.paper import BRAIN_SOURCES
+from master.experiment.scene import assemble, model_parameters, model_parts
 
 # Gauss-Seidel order within one step (docs/design.md): the decoder reads the brain's mu of time t and the
 # image of time t; the brain then integrates; the body finally receives the new action.
@@ -48,12 +49,13 @@ RECORD = ["brain.mu", "brain.gamma", "brain.u_shoulder", "brain.u_elbow", "brain
           "decoder.visual_error", "stimulus.ball"]
 
 
-# component.parameter -> where its value comes from. A source is one of:
+# component.parameter -> where its value comes from, for the task's components (the model's brain declares its
+# own: master.models.Model.parameter_sources). A source is one of:
 #   "table.key"                  a key of defaults.toml (or the user's config), passed as is by parameters();
 #   "table.<name>... (per trial)" the trial's own value, from the [conditions]/[stimulations] entry it runs;
 #   "table.key (... )"           the key, used otherwise (hashed per trial, or given to the constructor);
 #   "derived: reason"            not a configuration key: parameters() passes the value DERIVED gives.
-PARAMETER_SOURCES = {
+TASK_SOURCES = {
     "rubber_arm.offset_x": "conditions.<condition> (per trial: the trial's condition)",
     "rubber_arm.offset_y": "rubber_arm.offset_y",
     "stimulus.period": "stimulus.period",
@@ -69,16 +71,6 @@ PARAMETER_SOURCES = {
     "decoder.visual_variance": "decoder.visual_variance",
     "decoder.relinearise_tolerance": "decoder.relinearise_tolerance (fast mode only: decoders.decoder_component "
                                      "gives it to LinearisedDecoder(relinearise_tolerance=...))",
-    "brain.proprioceptive_variance": "brain.proprioceptive_variance",
-    "brain.gamma0": "brain.gamma0",
-    "brain.mu0": "derived: the rest pose, components.body.kinematics.REST_POSE; the belief starts where the "
-                 "real arm rests (docs/design.md fixes the geometry; the decoders are trained around it)",
-    "brain.sync_sd": "brain.sync_sd",
-    "brain.async_density": "brain.async_density",
-    "brain.decay_rate": "brain.decay_rate",
-    "brain.action_limit": "brain.action_limit",
-    "brain.action_time_constant": "brain.action_time_constant",
-    "brain.spatial_sd": "brain.spatial_sd",
     "body.held": "body.held",
     "body.q0_shoulder": "derived: the rest pose's shoulder, components.body.kinematics.REST_POSE[0]; the real arm "
                         "starts at rest (docs/design.md fixes the geometry; the decoders are trained around it)",
@@ -93,6 +85,8 @@ PARAMETER_SOURCES = {
     "body.clamp_damping": "body.clamp_damping",
     "body.release_time": "body.release_time",
 }
+# The paper's whole system: the task's components and the paper model's brain.
+PARAMETER_SOURCES = {**TASK_SOURCES, **BRAIN_SOURCES}
 
 # The values of the "derived:" sources, and the trial field of the per-trial ones.
 DERIVED = {
@@ -104,30 +98,22 @@ PER_TRIAL = {"rubber_arm.offset_x": "offset_x", "stimulus.delay_min": "delay_min
              "stimulus.delay_max": "delay_max", "stimulus.seed": "seed"}
 CONSTRUCTED = ("camera.resolution", "decoder.relinearise_tolerance")  # given to the constructors instead
 
-_PLAIN_KEY = re.compile(r"[a-z_]+\.[a-z_0-9]+")
-
-
-def config_key(source: str) -> str | None:
-    """The configuration key a plain source names (``"brain.gamma0"``), else None."""
-    return source if _PLAIN_KEY.fullmatch(source) else None
-
 
 def build_system(decoder, config: dict, body=None) -> System:
-    """The rubber-hand system around a decoder component; ``body`` defaults to the native pymunk plant."""
-    if config.get("model", {}).get("name", "paper") == "causal":  # the pose encoder and the causal brain
-        from master.experiment import causal
-        return System(*causal.components(decoder, config, CONNECTIONS, body))
-    resolution = config["experiment"]["resolution"]
-    components = [RubberArm(), Stimulus(), Camera(resolution=resolution), decoder, Brain(),
-                  body if body is not None else ArmPlant()]
-    return System(components, CONNECTIONS)
+    """The rubber-hand system around a decoder component, with the configuration's model (its parts and brain);
+    ``body`` defaults to the native pymunk plant."""
+    model = models.of(config)
+    kind = decoder.model.metadata.get("kind", "conv") if hasattr(decoder, "model") else "conv"
+    parts = [RubberArm(), Stimulus(), Camera(resolution=config["experiment"]["resolution"]), decoder,
+             *model_parts(config, kind, getattr(decoder, "threads", None)), body if body is not None else ArmPlant()]
+    return assemble(parts, CONNECTIONS + list(model.links))
 
 
 def parameters(trials: list[Trial], config: dict) -> dict:
-    """Per-trial and shared parameters, as ``component.variable`` paths, as PARAMETER_SOURCES says:
-    every parameter but the CONSTRUCTED ones (fixed when the components are built)."""
+    """Per-trial and shared parameters, as ``component.variable`` paths: the task's components' as TASK_SOURCES
+    says (but the CONSTRUCTED ones, fixed when the components are built), then the model's brain's."""
     given = {}
-    for path, source in PARAMETER_SOURCES.items():
+    for path, source in TASK_SOURCES.items():
         if path in CONSTRUCTED:
             continue
         if path in PER_TRIAL:
@@ -137,14 +123,14 @@ def parameters(trials: list[Trial], config: dict) -> dict:
             given[path] = DERIVED[path]()
         else:
             given[path] = per_trial(trials, config, config_key(source))
-    return given
+    return {**given, **model_parameters(config, [t.seed for t in trials], lambda key: per_trial(trials, config, key))}
 
 
 def shared_parameters(config: dict, names) -> dict:
-    """The parameters of the components ``names`` that are the same for every trial, as PARAMETER_SOURCES
+    """The parameters of the task's components ``names`` that are the same for every trial, as TASK_SOURCES
     says: the derived ones and the plain configuration keys, not the per-trial nor the CONSTRUCTED ones."""
     given = {}
-    for path, source in PARAMETER_SOURCES.items():
+    for path, source in TASK_SOURCES.items():
         if path.split(".")[0] in names and path not in CONSTRUCTED and path not in PER_TRIAL:
             if path in DERIVED:
                 given[path] = DERIVED[path]()
@@ -156,16 +142,12 @@ def shared_parameters(config: dict, names) -> dict:
 
 def batchable_keys(config: dict) -> set[str]:
     """The configuration keys that may differ between the trials of one lockstep batch: the float keys that
-    set a component parameter as they are (PARAMETER_SOURCES, and the causal model's), each applied per trial.
-    Everything else (structure, sizes, checkpoints, the decoder's constructor settings) is the batch's own."""
-    from master.experiment import causal
-
-    sources = [s for p, s in PARAMETER_SOURCES.items() if p not in CONSTRUCTED]
-    if config.get("model", {}).get("name", "paper") == "causal":  # its brain declares its own parameters
-        declared = set(causal.CausalBrain().variables)
-        sources = [s for p, s in PARAMETER_SOURCES.items() if p not in CONSTRUCTED
-                   and (not p.startswith("brain.") or p.partition(".")[2] in declared)]
-        sources += [*causal.PARAMETER_SOURCES.values(), causal.DERIVED_FROM]
+    set a component parameter as they are (TASK_SOURCES and the model's sources), each applied per trial, and
+    those a model derives a parameter from (``Model.batchable``). Everything else (structure, sizes,
+    checkpoints, the decoder's constructor settings) is the batch's own."""
+    model = models.of(config)
+    sources = [s for p, s in TASK_SOURCES.items() if p not in CONSTRUCTED]
+    sources += [*model.parameter_sources.values(), *model.batchable]
     keys = set()
     for source in sources:
         key = config_key(source)
@@ -191,15 +173,12 @@ def run_batch(decoder, trials: list[Trial], config: dict, body=None, progress=No
     """Run ``trials`` (all with this decoder component) in lockstep; returns the master's Result."""
     experiment = config["experiment"]
     system = build_system(decoder, config, body)
-    given, record = parameters(trials, config), RECORD
-    if config.get("model", {}).get("name", "paper") == "causal":
-        from master.experiment import causal
-        given, record = causal.parameters(trials, config, given), RECORD + causal.EXTRA_RECORD
+    given = parameters(trials, config)
     for path in undeclared(given, system):
         del given[path]
     return simulate(system, stop_time=experiment["steps"] * experiment["step_size"],
                     step_size=experiment["step_size"], scheme=experiment["scheme"], batch_size=len(trials),
-                    parameters=given, record=record, progress=progress)
+                    parameters=given, record=RECORD + list(models.of(config).record), progress=progress)
 
 
 def check_parameters(config: dict) -> None:
@@ -214,38 +193,24 @@ def check_parameters(config: dict) -> None:
         camera = Camera(resolution=config["experiment"]["resolution"])
     except ComponentError as error:
         raise ConfigError(f"experiment.resolution: {error}") from None
-    brain = Brain()
-    if config.get("model", {}).get("name", "paper") == "causal":
-        from components.brain.causal_brain import CausalBrain
-        from master.experiment import causal
-
-        given, brain = causal.parameters(trials, config, given), CausalBrain()
-    components = {c.name: c for c in (RubberArm(), Stimulus(), camera, brain, ArmPlant())}
+    model = models.of(config)
+    components = {c.name: c for c in (RubberArm(), Stimulus(), camera, model.brain(), ArmPlant())}
     for component in components.values():
         component.instantiate(len(trials))
     for path, value in given.items():
         name, _, variable = path.partition(".")
-        if name not in components:
+        if name not in components or variable not in components[name].variables:
             continue
         try:
             components[name].set(variable, value)
         except ComponentError as error:
-            source = {**PARAMETER_SOURCES, **causal_sources(config)}.get(path, path).split()[0]
+            source = {**TASK_SOURCES, **model.parameter_sources}.get(path, path).split()[0]
             raise ConfigError(f"{source}: {error}") from None
     for component in components.values():
         try:
             component.check_parameters()
         except ComponentError as error:
             raise ConfigError(str(error)) from None
-
-
-def causal_sources(config: dict) -> dict:
-    """The causal model's parameter sources, when ``config`` runs it; else none."""
-    if config.get("model", {}).get("name", "paper") != "causal":
-        return {}
-    from master.experiment import causal
-
-    return causal.PARAMETER_SOURCES
 
 
 def check_reach(config: dict) -> None:

@@ -23,9 +23,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from master import models
 from master.cosim import ConfigError
 from master.experiment import config as configuration
-from master.experiment.wiring import PARAMETER_SOURCES, batchable_keys, config_key
+from master.experiment.wiring import TASK_SOURCES, batchable_keys
+from master.models.base import config_key
 from master.fit.data import MEASURES, Data, check_against
 
 PRIORS = ("uniform", "log-uniform", "normal")
@@ -100,10 +102,8 @@ class FitPlan:
 def parameter_key(written: str, config: dict) -> str:
     """The configuration key a fit file names, as a key (``brain.sync_sd``) or a component parameter
     (``brain.timing_noise_sd`` -> ``causal.timing_noise_sd``); ConfigError unless a fit can vary it."""
-    from master.experiment import causal
-
     key = written
-    sources = {**PARAMETER_SOURCES, **(causal.PARAMETER_SOURCES if "causal" in config else {})}
+    sources = {**TASK_SOURCES, **models.of(config).parameter_sources}
     if written in sources and config_key(sources[written]):
         key = config_key(sources[written])
     allowed = sorted(batchable_keys(config))
@@ -165,8 +165,7 @@ def read_plan(path: str, data: Data, model: str | None = None) -> FitPlan:
         if key not in FIT_KEYS:
             raise configuration.unknown_key(f"fit.{key}", FIT_KEYS, "fit")
     model = model or settings.get("model", "paper")
-    if model not in configuration.MODELS:
-        raise ConfigError(f"fit.model = {model!r} is not one of {', '.join(configuration.MODELS)}")
+    models.checked(model, "fit.model")
     quick = settings.get("quick", False)
     if not isinstance(quick, bool):
         raise ConfigError(f"fit.quick must be true or false, got {quick!r}")

@@ -18,17 +18,18 @@ from components.body import kinematics
 from components.body.camera import Camera
 from components.body.movement import MirroredArm, Movement
 from components.body.plant import ArmPlant
-from components.brain.integrator import Brain
 from components.brain.turning_points import TurningPoints
-from master.cosim import ConfigError, System, simulate
+from master import models
+from master.cosim import ConfigError, simulate
 from master.experiment import config as configuration
 from master.experiment import wiring
 from master.experiment.decoders import check_decoders, decoder_component, per_decoder
 from master.experiment.parallel import JOB_THREADS, Workers
-from master.experiment.protocol import rubber_pose
+from master.experiment.protocol import rubber_pose, trial_seed
 from master.outputs import tables
 from master.outputs.files import atomic_write, output_folder
 from master.outputs.provenance import package_versions
+from master.experiment.scene import assemble, declared, model_parameters, model_parts
 
 NAME = "moving-hand"
 HUMAN_TABLE = "moving_hand"  # its human references in human.toml
@@ -50,9 +51,7 @@ def shipped_file() -> Path:
 
 
 def load(path=None, model_name: str = "paper") -> dict:
-    """The defaults with the protocol's [moving_hand] table (and any other keys of the file) over them."""
-    if model_name != "paper":
-        raise ConfigError("rhi phenomenon moving-hand runs the paper's model only (--model paper)")
+    """The defaults, the model, and the protocol's [moving_hand] table (and any other keys of the file) over them."""
     given = configuration.read_toml(path if path is not None else shipped_file())
     protocol = given.pop("moving_hand", None)
     if not isinstance(protocol, dict):
@@ -60,6 +59,7 @@ def load(path=None, model_name: str = "paper") -> dict:
     shipped = configuration.read_toml(shipped_file())["moving_hand"]
     config = configuration.defaults()
     config.pop("quick")
+    config = configuration.with_model(config, model_name)
     config = configuration.merge({**config, "moving_hand": shipped}, {"moving_hand": protocol, **given})
     configuration.validate(config)
     moving = config["moving_hand"]
@@ -77,15 +77,16 @@ def load(path=None, model_name: str = "paper") -> dict:
     return config
 
 
+def seeds(config: dict, delays: list[float]) -> list[int]:
+    """A seed per delay (a model of a population draws each trial's participant from it)."""
+    return [trial_seed(config["experiment"]["seed"], NAME, f"{delay:g}", index) for index, delay in enumerate(delays)]
+
+
 def parameters(config: dict, delays: list[float]) -> dict:
-    """The brain's, body's, camera's and decoder's parameters as the experiment gives them; the rubber arm at
-    the condition's rest pose; the delays per trial; the free body."""
-    given = {}
-    for path, source in wiring.PARAMETER_SOURCES.items():
-        if path.split(".")[0] not in ("brain", "body", "camera", "decoder") or path in wiring.CONSTRUCTED:
-            continue
-        key = wiring.config_key(source)
-        given[path] = wiring.DERIVED[path]() if path in wiring.DERIVED else config[key.split(".")[0]][key.split(".")[1]]
+    """The body's, camera's and decoder's parameters as the experiment gives them, the model's brain's; the
+    rubber arm at the condition's rest pose; the delays per trial; the free body."""
+    given = wiring.shared_parameters(config, ("body", "camera", "decoder"))
+    given.update(model_parameters(config, seeds(config, delays), lambda key: config[key.split(".")[0]][key.split(".")[1]]))
     moving = config["moving_hand"]
     shoulder, elbow = rubber_pose(config["conditions"][moving["condition"]], config["rubber_arm"]["offset_y"])
     given.update({"body.held": False, "rubber_arm.delay": np.array(delays, dtype=float),
@@ -98,12 +99,14 @@ def decoder_delays(config: dict, kind: str, path: str) -> dict:
     """Every delay of one decoder in one lockstep batch (a job): drift and gamma per delay."""
     experiment, moving = config["experiment"], config["moving_hand"]
     delays = list(moving["delays"])
-    system = System([Movement(), MirroredArm(step_size=experiment["step_size"]), TurningPoints(),
-                     Camera(resolution=experiment["resolution"]), decoder_component(kind, path, config, threads=JOB_THREADS),
-                     Brain(), ArmPlant()], CONNECTIONS)
+    system = assemble([Movement(), MirroredArm(step_size=experiment["step_size"]), TurningPoints(),
+                       Camera(resolution=experiment["resolution"]),
+                       decoder_component(kind, path, config, threads=JOB_THREADS),
+                       *model_parts(config, kind, JOB_THREADS), ArmPlant()],
+                      CONNECTIONS + list(models.of(config).links))
     result = simulate(system, stop_time=experiment["steps"] * experiment["step_size"],
                       step_size=experiment["step_size"], scheme=experiment["scheme"], batch_size=len(delays),
-                      parameters=parameters(config, delays),
+                      parameters=declared(parameters(config, delays), system),
                       record=["brain.mu", "brain.gamma", "body.q_shoulder", "body.q_elbow"])
     return measures(result.times, result.values, moving["period"])
 
@@ -144,7 +147,7 @@ def figure(config: dict, found: dict[str, dict], path: Path) -> None:
                              (axes[1], "gamma", "gamma (common cause), relative to 0 s")):
         for kind, values in found.items():
             zero = values[key][delays.index(0.0)] if 0.0 in delays else 1.0
-            axis.plot(delays, values[key] / zero, "o-", label=f"paper model, {kind}")
+            axis.plot(delays, values[key] / zero, "o-", label=f"{models.of(config).name} model, {kind}")
         axis.axhline(0.5, color="gray", ls=":", lw=1, label="half the 0 s value")
         axis.set_xlim(-0.05, max(delays) + 0.05)
         draw_human(axis, references, with_labels=axis is axes[0])
@@ -153,7 +156,7 @@ def figure(config: dict, found: dict[str, dict], path: Path) -> None:
         axis.legend(fontsize="x-small")
     fig.suptitle("rhi phenomenon moving-hand: the rubber arm repeats the real arm's movement after a delay",
                  fontsize=10)
-    fig.text(0.01, 0.005, caption(references, "paper"), fontsize=6, va="bottom", wrap=True)
+    fig.text(0.01, 0.005, caption(references, models.of(config).name), fontsize=6, va="bottom", wrap=True)
     fig.tight_layout(rect=(0, 0.2, 1, 0.95))  # room for the caption (save's own tight layout would take it)
     try:
         atomic_write(path, lambda file: fig.savefig(file, format="png", dpi=110, metadata=METADATA))
@@ -170,7 +173,8 @@ def run_into(out, config: dict, force: bool = False) -> list[str]:
         atomic_write(staging / "moving_hand.csv", tables.csv_text(COLUMNS, rows(config, found)))
         figure(config, found, staging / "moving_hand.png")
         atomic_write(staging / "run.json", json.dumps({
-            "schema_version": tables.SCHEMA_VERSION, "command": f"rhi phenomenon {NAME}", "model": "paper",
+            "schema_version": tables.SCHEMA_VERSION, "command": f"rhi phenomenon {NAME}",
+            "model": models.of(config).name,
             "configuration": config, "checkpoints": checkpoints, "versions": package_versions(),
             "timings_s": {"total": time.perf_counter() - started}}, indent=2, default=str) + "\n")
     return ["moving_hand.csv", "moving_hand.png", "run.json"]

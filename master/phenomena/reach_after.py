@@ -19,13 +19,15 @@ from components.body import kinematics
 from components.body.arm_pose import PosedArm
 from components.body.camera import Camera
 from components.brain.goal import GoalOnset
-from master.cosim import ConfigError, System, simulate
+from master import models
+from master.cosim import ConfigError, simulate
 from master.experiment import config as configuration
 from master.experiment import wiring
 from master.experiment.decoders import check_decoders, decoder_component, loaded, per_decoder
 from master.experiment.parallel import JOB_THREADS, Workers
 from master.experiment.protocol import plan
 from master.outputs import tables
+from master.experiment.scene import assemble, declared
 from master.outputs.files import atomic_write, output_folder
 from master.outputs.provenance import package_versions
 
@@ -45,11 +47,11 @@ def shipped_file() -> Path:
 
 
 def load(path=None, model_name: str = "paper") -> dict:
-    """The defaults, the file's [reach_after] table and its other keys over them (the shipped file's first)."""
-    if model_name != "paper":
-        raise ConfigError("rhi phenomenon reach-after runs the paper's model only (--model paper)")
+    """The defaults, the model, the file's [reach_after] table and its other keys over them (the shipped file's
+    first)."""
     config = configuration.defaults()
     config.pop("quick")
+    config = configuration.with_model(config, model_name)
     shipped = configuration.read_toml(shipped_file())
     config = configuration.merge({**config, "reach_after": shipped.pop("reach_after")}, shipped)
     if path is not None:
@@ -88,8 +90,8 @@ def decoder_trials(config: dict, kind: str, path: str):
                     if config["decoder"]["fast"] else Decoder(model, name="goal_decoder", threads=JOB_THREADS))
     parts = list(base.components.values())
     parts[-2:-2] = [PosedArm("goal"), Camera("goal_camera", resolution=resolution), goal_decoder, GoalOnset()]
-    system = System(parts, wiring.CONNECTIONS + GOAL_LINKS)
-    given = wiring.parameters(trials, config)
+    system = assemble(parts, wiring.CONNECTIONS + list(models.of(config).links) + GOAL_LINKS)
+    given = declared(wiring.parameters(trials, config), system)
     shoulder, elbow = target_pose(config)
     given.update({"goal.shoulder": shoulder, "goal.elbow": elbow, "goal_onset.onset": config["reach_after"]["release"],
                   "goal_decoder.visual_variance": config["decoder"]["visual_variance"]
@@ -140,7 +142,8 @@ def run_into(out, config: dict, force: bool = False) -> list[str]:
         found = list(by_kind.values())
         atomic_write(staging / "reach_after.csv", tables.csv_text(COLUMNS, rows(found)))
         atomic_write(staging / "run.json", json.dumps({
-            "schema_version": tables.SCHEMA_VERSION, "command": f"rhi phenomenon {NAME}", "model": "paper",
+            "schema_version": tables.SCHEMA_VERSION, "command": f"rhi phenomenon {NAME}",
+            "model": models.of(config).name,
             "configuration": config, "checkpoints": checkpoints, "versions": package_versions(),
             "seeds": [t.__dict__ for trials, _ in found for t in trials],
             "timings_s": {"total": time.perf_counter() - started}}, indent=2, default=str) + "\n")

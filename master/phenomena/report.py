@@ -22,6 +22,7 @@ from master.cosim import ConfigError  # noqa: E402
 from master.outputs.figures import COLOURS, METADATA, STYLES  # noqa: E402
 from master.outputs.files import atomic_write  # noqa: E402
 from master.outputs.tables import csv_text, mean_sd, number  # noqa: E402
+from master import models as registry  # noqa: E402
 from master.phenomena import FILES, human_file  # noqa: E402
 from master.sweeps import plan as sweeps  # noqa: E402
 from master.sweeps.folder import read_records  # noqa: E402
@@ -31,7 +32,6 @@ HUMAN = "tab:green"
 OUTCOMES = {"drift_cm": True, "force_n": True, "gamma_final": False, "action_accel_mean_x_m_s2": True,
             "drift_half_time_s": True, "drift_half_decay_s": True}
 POPULATION = ("drift_cm", "drift_half_time_s", "drift_half_decay_s")  # also as median, 25th and 75th percentile
-MODELS = ("paper", "causal")
 STIMULATION_CODES = {"sync": 0.0, "async": 1.0, "vision": 2.0}  # the vision-only protocol's x
 
 
@@ -199,7 +199,7 @@ def figure(phenomenon: Phenomenon, found: list[dict], path: Path, descriptions: 
     """One row of panels per model (paper above causal), each with the human reference."""
     references = human_references(phenomenon.human)
     panels = PANELS[phenomenon.name]
-    models = [m for m in MODELS if any(r.get("model", "paper") == m for r in found)]
+    models = list(dict.fromkeys(r.get("model", "paper") for r in found))  # in the order they ran
     fig, axes = plt.subplots(len(models), len(panels), figsize=(5.0 * len(panels), 4.2 * len(models) + 0.8),
                              squeeze=False)
     for row_axes, model in zip(axes, models):
@@ -245,7 +245,7 @@ def describe(config: dict, sweep: sweeps.Sweep) -> str:
     text = (f"{', '.join(config['experiment']['decoders'])} decoders, "
             f"{'fast (linearised)' if config['decoder']['fast'] else 'exact'} mode, {length}, "
             f"{config['experiment']['trials']} trial(s) per point")
-    if "causal" in config:
+    if registry.of(config).trials_per_point(config):
         return text + " (one simulated participant each)"
     return text + (f", brain.action_time_constant = {config['brain']['action_time_constant']:g} s, "
                    f"brain.spatial_sd = {config['brain']['spatial_sd']:g} m")
@@ -263,8 +263,9 @@ def report(name: str, sweep_path: str | Path, out: Path, models: dict[str, Path]
     for model, folder in (models or {"paper": out}).items():
         sweep = sweeps.load(sweep_path, model=model, trials=(trials or {}).get(model))
         mine = rows(phenomenon, sweep, read_records(folder, sweep))
-        found += [{**r, "model": model} for r in mine]
-        descriptions[model] = describe(sweep.configs[0], sweep)
+        label = registry.get(model).name
+        found += [{**r, "model": label} for r in mine]
+        descriptions[label] = describe(sweep.configs[0], sweep)
     if not found:
         raise ConfigError(f"no successful trial in {out} to report {name} from")
     stem = phenomenon.file.removesuffix(".toml")

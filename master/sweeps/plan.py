@@ -42,6 +42,7 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+from master import models
 from master.experiment import config as configuration
 from master.cosim import ConfigError
 from master import experiment
@@ -143,8 +144,8 @@ def check_settings(settings: dict) -> None:
         raise ConfigError(f"sweep.quick must be true or false, got {settings['quick']!r}")
     if "preset" in settings and settings["preset"] not in configuration.PRESETS:
         raise ConfigError(f"sweep.preset = {settings['preset']!r} is not one of {', '.join(configuration.PRESETS)}")
-    if "model" in settings and settings["model"] not in configuration.MODELS:
-        raise ConfigError(f"sweep.model = {settings['model']!r} is not one of {', '.join(configuration.MODELS)}")
+    if "model" in settings:
+        models.checked(settings["model"], "sweep.model")
     if settings.get("quick") and "preset" in settings:
         raise ConfigError("sweep: give either sweep.quick or sweep.preset, not both")
     if not isinstance(settings.get("task", DEFAULT_TASK), str):

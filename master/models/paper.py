@@ -1,0 +1,42 @@
+"""The paper's model (Rood, van Gerven & Lanillos 2020): the free-energy brain of eqs. 6-9 and its parameters."""
+from __future__ import annotations
+
+import numpy as np
+
+from master.models.base import Model, TrialValues
+
+# brain.parameter -> where its value comes from (master.models.base.Model.parameter_sources).
+BRAIN_SOURCES = {
+    "brain.proprioceptive_variance": "brain.proprioceptive_variance",
+    "brain.gamma0": "brain.gamma0",
+    "brain.mu0": "derived: the rest pose, components.body.kinematics.REST_POSE; the belief starts where the "
+                 "real arm rests (docs/design.md fixes the geometry; the decoders are trained around it)",
+    "brain.sync_sd": "brain.sync_sd",
+    "brain.async_density": "brain.async_density",
+    "brain.decay_rate": "brain.decay_rate",
+    "brain.action_limit": "brain.action_limit",
+    "brain.action_time_constant": "brain.action_time_constant",
+    "brain.spatial_sd": "brain.spatial_sd",
+}
+
+
+def rest_belief(trials: TrialValues) -> np.ndarray:
+    """(2,) deg: the belief's start, the rest pose (``brain.mu0``'s derived source)."""
+    return np.array(trials.rest_pose, dtype=float)
+
+
+class PaperModel(Model):
+    """The paper's brain (:class:`components.brain.integrator.Brain`): vision as the decoder's pixel term,
+    weighed by gamma from the touches' timing (eqs. 8-9)."""
+
+    name = "paper"
+    summary = "the paper's model: pixel-space vision weighed by a common-cause belief from the touches' timing"
+    settings_file = "paper.toml"
+    parameter_sources = BRAIN_SOURCES
+
+    def brain(self):
+        from components.brain.integrator import Brain
+        return Brain()
+
+    def parameters(self, trials: TrialValues) -> dict:
+        return {**super().parameters(trials), "brain.mu0": rest_belief(trials)}
