@@ -1,17 +1,19 @@
 """The brains stepped by hand, without a master: for tests/test_brain*.py."""
 import math
+from pathlib import Path
 
 import numpy as np
 
 from components.brain import Brain
-from components.brain.causal_brain import CausalBrain
 from components.component import Status
+from master import models
 
 H = 0.02
+EXAMPLE_MODEL = f"{Path(__file__).resolve().parents[1] / 'examples' / 'my_model.py'}:FixedGamma"
 
-# Every brain class, for the tests every brain must pass (tests/test_brain_guards.py). One list: the
-# project's model registry is to take its place.
-BRAINS = [Brain, CausalBrain]
+# Every registered model's brain class and the example model's, for the tests every brain must pass
+# (tests/test_brain_guards.py).
+BRAINS = list(dict.fromkeys(type(models.get(name).brain()) for name in (*models.names(), EXAMPLE_MODEL)))
 
 
 def started(batch=1, inputs=None, kind=Brain, **parameters):

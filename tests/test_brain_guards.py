@@ -247,4 +247,5 @@ def test_a_failed_step_changes_nothing_a_retry_would_see(kind):
         advance(clean, n * H, **inputs)
         after, expected = outputs(failed), outputs(clean)
         assert all(np.array_equal(after[name], expected[name], equal_nan=True) for name in expected)
-    assert not np.array_equal(outputs(clean)["gamma"], started(kind=kind, batch=2).get("gamma"))  # the pairs did count
+    held = "gamma0" in clean.variables and np.array_equal(clean.get("gamma"), clean.get("gamma0"))  # a fixed gamma
+    assert held or not np.array_equal(outputs(clean)["gamma"], started(kind=kind, batch=2).get("gamma"))  # pairs counted

@@ -1,0 +1,137 @@
+"""Models as registered objects: the registry, a user's model in one file, and every task x every model run
+end to end from the command line at tiny size (the shipped 64 px decoders and pose encoders: nothing trained).
+
+Truth: the fixed-gamma example's gamma is the configuration's value at every step (its brain never updates it),
+so its synchronous and asynchronous trials, which differ only in their delays, give the same numbers to the
+last bit; the registry's refusals are read off the files written here."""
+import csv
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from master import models
+from master.commands.cli import main
+from master.cosim import ConfigError
+from master.experiment import config as configuration
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLE = f"{ROOT / 'examples' / 'my_model.py'}:FixedGamma"
+MODELS = ("paper", "causal", EXAMPLE)
+TINY = {  # each task at tiny size: one decoder, one condition, a few steps of 0.02 s
+    "experiment": "[experiment]\nsteps = 12\ntrials = 1\ndecoders = [\"conv\"]\nconditions = [\"left\"]\n",
+    "reach": "[experiment]\nsteps = 12\ndecoders = [\"conv\"]\n[reach]\ngoals = 1\nbands = [\"near\"]\n",
+    "moving-hand": "[experiment]\nsteps = 12\ndecoders = [\"conv\"]\n[moving_hand]\ndelays = [0.0, 0.1]\n"
+                   "period = 0.2\n",
+    "reach-after": "[experiment]\ndecoders = [\"conv\"]\nconditions = [\"left\"]\nstimulations = [\"sync\"]\n"
+                   "trials = 1\n[reach_after]\nrelease = 0.12\nwindow = 0.12\n",
+}
+
+
+def command(task: str, model: str, config: Path, out: Path) -> list[str]:
+    if task in ("moving-hand", "reach-after"):
+        return ["phenomenon", task, "--model", model, "--config", str(config), "--out", str(out)]
+    return [task, "--model", model, "--config", str(config), "--out", str(out)]
+
+
+@pytest.mark.parametrize("model", MODELS, ids=("paper", "causal", "example"))
+@pytest.mark.parametrize("task", TINY)
+def test_every_task_runs_every_model_from_the_command_line(task, model, tmp_path, capsys):
+    (tmp_path / "tiny.toml").write_text(TINY[task])
+    assert main(command(task, model, tmp_path / "tiny.toml", tmp_path / "out")) == 0, capsys.readouterr().err[-2000:]
+    tables = sorted((tmp_path / "out").glob("*.csv"))
+    assert tables, "no table written"
+    assert all(list(csv.DictReader(table.open())) for table in tables)  # each table has rows
+    run = (tmp_path / "out" / "run.json").read_text()
+    assert f'"model": "{models.get(model).name}"' in run
+
+
+def test_the_example_model_holds_gamma_and_so_ignores_the_timing(tmp_path, capsys):
+    (tmp_path / "tiny.toml").write_text("[experiment]\nsteps = 120\ntrials = 1\ndecoders = [\"conv\"]\n"
+                                        "conditions = [\"left\"]\n[fixed_gamma]\ngamma = 0.3\n")
+    assert main(["experiment", "--model", EXAMPLE, "--config", str(tmp_path / "tiny.toml"), "--out",
+                 str(tmp_path / "out")]) == 0, capsys.readouterr().err[-2000:]
+    rows = {row["stimulation"]: row for row in csv.DictReader((tmp_path / "out" / "summary.csv").open())}
+    assert float(rows["sync"]["gamma_final_mean"]) == 0.3 and float(rows["async"]["gamma_final_mean"]) == 0.3
+    assert rows["sync"]["drift_cm_mean"] == rows["async"]["drift_cm_mean"]  # the delays reach nothing else
+    assert float(rows["sync"]["drift_cm_mean"]) < 0  # vision pulls the belief toward the rubber hand (left)
+
+
+def test_the_example_model_runs_a_sweep_and_a_fit(quick_cache, tmp_path, monkeypatch, capsys):
+    from tests.test_fit import DATA, FIT
+
+    monkeypatch.setenv("RHI_CACHE", str(quick_cache))
+    (tmp_path / "sweep.toml").write_text(
+        f'[experiment]\nsteps = 8\ndecoders = ["conv"]\nconditions = ["left"]\n[sweep]\nquick = true\n'
+        f'model = "{EXAMPLE}"\nworkers = 1\n[sweep.grid]\n"fixed_gamma.gamma" = [0.1, 0.9]\n')
+    assert main(["sweep", "--config", str(tmp_path / "sweep.toml"), "--out", str(tmp_path / "sweep")]) == 0, \
+        capsys.readouterr().err[-2000:]
+    rows = list(csv.DictReader((tmp_path / "sweep" / "index.csv").open()))
+    assert sorted({float(row["gamma_final"]) for row in rows}) == [0.1, 0.9]  # each point's own gamma, held
+    fit = FIT.format(steps=8, simulations=20, calibration=0).replace('[fit.parameters."decoder.visual_variance"]',
+                                                                   '[fit.parameters."fixed_gamma.gamma"]')
+    fit = fit.replace('prior = "log-uniform"\nlow = 5.0\nhigh = 80.0', 'prior = "uniform"\nlow = 0.05\nhigh = 0.95')
+    (tmp_path / "fit.toml").write_text(fit)
+    (tmp_path / "data.csv").write_text(DATA)
+    assert main(["fit", "--data", str(tmp_path / "data.csv"), "--config", str(tmp_path / "fit.toml"), "--model",
+                 EXAMPLE, "--out", str(tmp_path / "fit")]) == 0, capsys.readouterr().err[-2000:]
+    samples = [float(row["fixed_gamma.gamma"]) for row in csv.DictReader((tmp_path / "fit" / "posterior.csv").open())]
+    assert len(samples) == 50 and all(0.05 <= value <= 0.95 for value in samples)  # within the prior's support
+
+
+def test_the_registry_names_the_built_in_models_and_resolves_a_file():
+    assert models.names()[:2] == ("paper", "causal")
+    assert models.get("causal") is models.get("causal")  # once per process
+    example = models.get(EXAMPLE)
+    assert example.name == "fixed-gamma" and example.source == EXAMPLE
+    config = configuration.load(model_name=EXAMPLE)
+    assert config["model"] == {"name": "fixed-gamma", "source": EXAMPLE} and config["fixed_gamma"]["gamma"] == 0.5
+    assert models.of(config) is example and models.of(configuration.load()).name == "paper"
+    assert "model" not in configuration.load()  # the defaults are the paper's model: nothing added
+
+
+@pytest.mark.parametrize("body, message", [
+    ("", "has no Mine"),
+    ("Mine = 3\n", "Mine is not a master.models.Model"),
+    ("from master.models import Model\nclass Mine(Model):\n    name = 'Bad Name'\n", "name must be lower-case"),
+    ("from master.models import Model\nclass Mine(Model):\n    name = 'mine'\n", "brain() failed: NotImplementedError"),
+    ("from master.models.paper import PaperModel\nclass Mine(PaperModel):\n    name = 'mine'\n"
+     "    parameter_sources = {'brain.nope': 'brain.gamma0'}\n", "names brain.nope, not a parameter its brain declares"),
+    ("from master.models.paper import PaperModel\nclass Mine(PaperModel):\n    name = 'mine'\n"
+     "    links = [('camera', 'brain.x')]\n", "links must be ('component.output', 'component.input') pairs"),
+    ("raise RuntimeError('boom')\n", "RuntimeError: boom"),
+])
+def test_a_bad_model_file_is_one_line(tmp_path, body, message):
+    (tmp_path / "mine.py").write_text(body)
+    with pytest.raises(ConfigError, match=re.escape(message)) as caught:
+        models.get(f"{tmp_path / 'mine.py'}:Mine")
+    assert "\n" not in str(caught.value)
+
+
+def test_a_bad_model_name_on_the_command_line_is_exit_2_and_one_line(tmp_path, capsys):
+    for name, message in (("nope", "model 'nope' is unknown; choose one of paper, causal"),
+                          (f"{tmp_path}/missing.py:Mine", "no file")):
+        assert main(["experiment", "--model", name, "--out", str(tmp_path / "out")]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and message in err[0], err
+    assert not (tmp_path / "out").exists()
+
+
+def test_no_model_name_is_tested_outside_the_registry():
+    """A model is chosen through the registry, never by comparing its name (docs/architecture.md)."""
+    pattern = re.compile(r"""model.*?[!=]=\s*["'](causal|paper)["']|["']causal["']\s+in\s+config|MODELS\s*=""")
+    found = [f"{path.relative_to(ROOT)}:{number}: {line.strip()}"
+             for path in sorted((ROOT / "master").rglob("*.py")) if "models" not in path.relative_to(ROOT).parts
+             for number, line in enumerate(path.read_text().splitlines(), 1) if pattern.search(line)]
+    assert not found, "\n".join(found)
+
+
+def test_the_model_parameters_reach_the_brain_per_trial():
+    """A batch whose trials carry their own fixed_gamma.gamma gives each its own brain.gamma0 (a fit's batch)."""
+    from master.experiment import make_trial, wiring
+
+    base = configuration.load(quick=True, model_name=EXAMPLE)
+    trials = [make_trial(base, "conv", "left", "sync", 0, (("fixed_gamma.gamma", value),)) for value in (0.2, 0.7)]
+    assert "fixed_gamma.gamma" in wiring.batchable_keys(base)
+    assert np.array_equal(wiring.parameters(trials, base)["brain.gamma0"], [0.2, 0.7])
