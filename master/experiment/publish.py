@@ -1,4 +1,5 @@
-"""The experiment into a folder: train what is missing, run the protocol, write every result file.
+"""The experiment in memory (:func:`run_experiment`) and into a folder (:func:`run_into`, ``rhi experiment``):
+train what is missing, run the protocol, write every result file.
 
 DIR is written in a staging folder beside it and renamed into place when complete
 (:mod:`master.outputs.files`), so it holds either a whole run or nothing from this one.
@@ -7,10 +8,13 @@ from __future__ import annotations
 
 import json
 import time
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from master import models
 from master.experiment import runner as experiment
+from master.experiment.context import RunContext
 from master.experiment.runner import body_factory
 from master.experiment.decoders import check_decoders, ensure_checkpoints, jacobian_pair
 from master.experiment.fast_check import verdicts
@@ -23,55 +27,151 @@ from master.outputs.provenance import package_versions
 from master.outputs.animation import frames, gif_bytes
 
 
+@dataclass
+class ExperimentResult:
+    """The protocol's run, in memory: what ``rhi experiment`` writes into DIR, before it is written.
+
+    Attributes
+    ----------
+    config : dict
+        The configuration it ran.
+    trials : list of Trial
+        The trials that ran to the end, in the protocol's order (failed ones left out: ``failures``).
+    times : numpy.ndarray
+        (steps + 1,) s.
+    per_step : dict of str to numpy.ndarray
+        Each measure per step and trial, (steps + 1, len(trials)) (:func:`master.experiment.measures.measures`).
+    final : dict of str to numpy.ndarray
+        Each measure at the end of the trial, (len(trials),).
+    summary : list of list
+        The rows of summary.csv (columns ``master.outputs.tables.SUMMARY_COLUMNS``).
+    failures : dict
+        Each failed trial and its error.
+    provenance : dict
+        What run.json records: the model, the body, checkpoints, fast-mode verdicts, seeds, versions, timings.
+    began : float
+        ``time.perf_counter()`` when the run began (run.json's total time runs from it).
+    """
+
+    config: dict
+    trials: list
+    times: np.ndarray
+    per_step: dict
+    final: dict
+    summary: list
+    failures: dict
+    provenance: dict = field(default_factory=dict)
+    began: float = 0.0
+
+    def write(self, out, force: bool = False) -> None:
+        """Publish DIR = ``out`` as ``rhi experiment`` does: whole or not at all (a staging folder renamed)."""
+        check_output(out, force)
+        with output_folder(out, force) as staging, Workers() as workers:
+            self.write_files(staging, workers)
+
+    def write_files(self, staging, workers: Workers) -> None:
+        """summary.csv, trials.csv, figures/ and run.json into the folder ``staging``, the files on ``workers``."""
+        trials, per_step, config = self.trials, self.per_step, self.config
+        atomic_write(staging / "summary.csv", tables.csv_text(tables.SUMMARY_COLUMNS, self.summary))
+        (staging / "figures").mkdir()
+        shown = next((i for i, t in enumerate(trials) if (t.condition, t.stimulation) == ("left", "sync")), 0)
+        name = f"trial_{trials[shown].decoder}_{trials[shown].condition}_{trials[shown].stimulation}.gif"
+        animated = {key: per_step[key][:, shown] for key in ANIMATED}
+        checkpoints = self.provenance["checkpoints"]
+        workers.map(call, [  # the files, side by side on the workers the run started (else here), the longest first
+            (write_trials, staging / "trials.csv", trials, self.times, per_step),
+            (write_jacobians, staging / "figures" / "h_jacobians.png", checkpoints, config),
+            (write_animation, staging / "figures" / name, trials[shown], animated, config["experiment"]["resolution"]),
+            *figures.panel_jobs(staging / "figures", trials, self.times, per_step, self.final, None)], start=False)
+        provenance = {**self.provenance, "figures": sorted(path.name for path in (staging / "figures").iterdir())}
+        provenance["timings_s"] = {**provenance["timings_s"], "total": time.perf_counter() - self.began}
+        atomic_write(staging / "run.json", json.dumps(provenance, indent=2, default=str) + "\n")
+
+
+def run_experiment(config: dict | None = None, body: str | None = None, context: RunContext | None = None,
+                   workers: Workers | None = None) -> ExperimentResult:
+    """The paper's protocol under ``config`` (default: the shipped configuration), in memory.
+
+    Trains the decoders the configuration needs and does not find, checks the fast mode, runs every trial in
+    lockstep batches (failures isolated), and measures them; ``result.write(DIR)`` publishes the folder
+    ``rhi experiment`` writes.
+
+    Parameters
+    ----------
+    config : dict, optional
+        A configuration (:func:`master.experiment.config.load`); any registered model (``[model]``).
+    body : str, optional
+        An FMU to use as the body (default: the native pymunk plant).
+    context : RunContext, optional
+        progress, device (cpu, cuda; resolved), processes (default: the usable cores).
+    workers : Workers, optional
+        Worker processes to run on (left open); default: workers of its own.
+
+    Returns
+    -------
+    ExperimentResult
+
+    Example::
+
+        from master.experiment import config, run_experiment
+        result = run_experiment(config.load(quick=True, model_name="causal"))
+        result.final["drift_cm"]         # (trials,) cm
+    """
+    from master.experiment import config as configuration
+
+    began = time.perf_counter()
+    config = configuration.load() if config is None else config
+    context = context or RunContext()
+    if workers is None:
+        with Workers(1 if context.device != "cpu" else context.processes) as own:
+            result = run_experiment(config, body, context, own)
+        result.began = began
+        return result
+    check_decoders(config, context.device)
+    declared = body_factory(body, config)[1]
+    checkpoints, training_seconds = ensure_checkpoints(config, progress=context.progress, device=context.device,
+                                                       workers=workers)
+    checked = time.perf_counter()
+    modes = verdicts(config, checkpoints, workers, context.progress)
+    check_seconds = time.perf_counter() - checked
+    trials, times, per_step, run_seconds, failures = experiment.run(
+        config, checkpoints, body, progress=context.progress, fast={kind: mode["fast"] for kind, mode in modes.items()},
+        device=context.device, workers=workers)
+    final = end_of_trial(times, per_step)
+    summary = tables.summary(trials, final, planned=tables.cells(plan(config)))
+    provenance = {
+        "schema_version": tables.SCHEMA_VERSION,
+        "command": "rhi experiment", "model": models.of(config).name,
+        "configuration": config, "body": body or "native pymunk plant",
+        "body_keys_not_declared": sorted(f"body.{key}" for key in config["body"]
+                                         if declared is not None and key not in declared),
+        "checkpoints": checkpoints, "fast_mode": modes, "device": context.device,
+        "seeds": {"master": config["experiment"]["seed"], "trials": [t.__dict__ for t in trials]},
+        "versions": package_versions(),
+        "timings_s": {"training": training_seconds, "fast_check": check_seconds, "trials": run_seconds},
+        "failed_trials": [{**trial.__dict__, "error": error} for trial, error in failures.items()],
+    }
+    return ExperimentResult(config, trials, times, per_step, final, summary, failures, provenance, began)
+
+
 def run_into(out, config: dict, body: str | None = None, force: bool = False, progress: bool = False,
              device: str = "cpu") -> dict:
     """Run the protocol of ``config`` and write DIR = ``out``; returns {failed trial: error}.
 
     body: an FMU to use as the body (None: the native pymunk plant). device: where the decoders train and run
-    (cpu, cuda; resolved). Everything that can be checked is
-    checked before the staging folder exists and before any training: the output folder, the decoders'
-    checkpoints (kind, resolution, camera) or training settings, the body FMU.
+    (cpu, cuda; resolved). Everything that can be checked is checked before the staging folder exists and
+    before any training: the output folder, the decoders' checkpoints (kind, resolution, camera) or training
+    settings, the body FMU.
     """
-    started = time.perf_counter()
+    began = time.perf_counter()
     check_output(out, force)
     check_decoders(config, device)
-    declared = body_factory(body, config)[1]
+    body_factory(body, config)
     with output_folder(out, force) as staging, Workers(1 if device != "cpu" else None) as workers:
-        checkpoints, training_seconds = ensure_checkpoints(config, progress=progress, device=device, workers=workers)
-        began = time.perf_counter()
-        modes = verdicts(config, checkpoints, workers, progress)
-        check_seconds = time.perf_counter() - began
-        trials, times, per_step, run_seconds, failures = experiment.run(
-            config, checkpoints, body, progress=progress, fast={kind: mode["fast"] for kind, mode in modes.items()},
-            device=device, workers=workers)
-        final = end_of_trial(times, per_step)
-        summary = tables.summary(trials, final, planned=tables.cells(plan(config)))
-        atomic_write(staging / "summary.csv", tables.csv_text(tables.SUMMARY_COLUMNS, summary))
-        (staging / "figures").mkdir()
-        shown = next((i for i, t in enumerate(trials) if (t.condition, t.stimulation) == ("left", "sync")), 0)
-        name = f"trial_{trials[shown].decoder}_{trials[shown].condition}_{trials[shown].stimulation}.gif"
-        animated = {key: per_step[key][:, shown] for key in ANIMATED}
-        workers.map(call, [  # the files, side by side on the workers the run started (else here), the longest first
-            (write_trials, staging / "trials.csv", trials, times, per_step),
-            (write_jacobians, staging / "figures" / "h_jacobians.png", checkpoints, config),
-            (write_animation, staging / "figures" / name, trials[shown], animated, config["experiment"]["resolution"]),
-            *figures.panel_jobs(staging / "figures", trials, times, per_step, final, None)], start=False)
-        provenance = {
-            "schema_version": tables.SCHEMA_VERSION,
-            "command": "rhi experiment", "model": config.get("model", {}).get("name", "paper"),
-            "configuration": config, "body": body or "native pymunk plant",
-            "body_keys_not_declared": sorted(f"body.{key}" for key in config["body"]
-                                             if declared is not None and key not in declared),
-            "checkpoints": checkpoints, "fast_mode": modes, "device": device,
-            "seeds": {"master": config["experiment"]["seed"], "trials": [t.__dict__ for t in trials]},
-            "versions": package_versions(),
-            "timings_s": {"training": training_seconds, "fast_check": check_seconds, "trials": run_seconds,
-                          "total": time.perf_counter() - started},
-            "figures": sorted(path.name for path in (staging / "figures").iterdir()),
-            "failed_trials": [{**trial.__dict__, "error": error} for trial, error in failures.items()],
-        }
-        atomic_write(staging / "run.json", json.dumps(provenance, indent=2, default=str) + "\n")
-    return failures
+        result = run_experiment(config, body, RunContext(progress=progress, device=device), workers)
+        result.began = began
+        result.write_files(staging, workers)
+    return result.failures
 
 
 ANIMATED = ("ball_x_m", "ball_y_m", "mu_shoulder_deg", "mu_elbow_deg")  # the measures the animation shows

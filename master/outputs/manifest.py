@@ -21,6 +21,8 @@ import os
 import stat
 from pathlib import Path, PurePosixPath
 
+from master.outputs.atomic import atomic_write
+
 NAME = ".rhi-manifest.json"
 IGNORED = (NAME, ".rhi-staging")  # not listed: the manifest itself, a staging folder's mark (files.STAGING_MARK)
 
@@ -216,8 +218,6 @@ class Manifest:
 
     def save(self) -> None:
         """Write the manifest into the folder, atomically."""
-        from master.outputs.files import atomic_write
-
         data = {"command": self.command, "folders": sorted(self.folders),
                 "files": {name: self.files[name] for name in sorted(self.files)}}
         atomic_write(self.folder / NAME, json.dumps(data, indent=1) + "\n")

@@ -1,0 +1,29 @@
+"""Run settings passed as one object, instead of a parameter of every function on the way."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class RunContext:
+    """How a run runs, not what it computes: none of these changes a number.
+
+    Attributes
+    ----------
+    progress : bool
+        Progress bars on standard error.
+    force : bool
+        Replace an output folder of rhi's that holds a different run.
+    device : str
+        Where the decoders train and run: ``"cpu"`` or ``"cuda"`` (resolved, not ``"auto"``).
+    processes : int or None
+        Most worker processes at once (default: the usable cores; 1: here, one after the other).
+    scheduler : str or None
+        A Dask scheduler's address for sweeps and fits (default: a process pool on this machine).
+    """
+
+    progress: bool = False
+    force: bool = False
+    device: str = "cpu"
+    processes: int | None = None
+    scheduler: str | None = None
