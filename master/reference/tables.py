@@ -54,7 +54,7 @@ MEANINGS = {
     "x": "the swept quantity: delay_s, distance_cm or time_s",
     "drift_half_time_s_mean": "when the drift first reaches half its final value, mean",
     "drift_half_time_s_sd": "its sample sd", "drift_relative": "mean drift relative to the protocol's reference",
-    "model": "the model: paper or causal (--model)",
+    "model": "the model: a name or FILE.py:Class (--model)",
     "drift_half_decay_s_mean": "seconds from the last touch until the drift falls to half its value then, mean",
     "drift_half_decay_s_sd": "its sample sd",
     "drift_cm_median": "final drift, median over the cell's trials (participants)",
