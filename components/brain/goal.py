@@ -105,9 +105,11 @@ class GoalAttractor(Component):
         ])
 
     def initialize(self):
+        """Publish the goal's pull at the start belief (a step of length 0)."""
         self.step(0.0, 0.0)
 
     def step(self, t, h):
+        """The goal's drive, error and stiffness at this step's belief mu (module notes)."""
         v = self.values
         for name in ("mu", "goal_pose", "goal_pose_variance"):
             if not np.all(np.isfinite(v[name])):
@@ -163,9 +165,11 @@ class GoalOnset(Component):
         ])
 
     def initialize(self):
+        """Publish the gated pull at the start time (a step of length 0)."""
         self.step(self.start_time, 0.0)
 
     def step(self, t, h):
+        """Pass the goal's drive, error and stiffness on from the onset time, zero before it."""
         v = self.values
         v["goal_drive"] = shown_from(t, v["onset"], np.asarray(v["drive"], dtype=float))
         v["goal_error"] = shown_from(t, v["onset"], np.asarray(v["error"], dtype=float))

@@ -63,12 +63,14 @@ class TurningPoints(Component):
         ])
 
     def initialize(self):
+        """No turning point seen or felt yet: the last positions, no direction, both event times -inf."""
         batch = self.batch_size
         self._last = {"seen": np.array(self.values["seen_pose"][:, 0], float), "felt": np.array(self.values["q_shoulder"], float)}
         self._direction = {"seen": np.zeros(batch), "felt": np.zeros(batch)}
         self.values["visual_time"], self.values["tactile_time"] = np.full(batch, -np.inf), np.full(batch, -np.inf)
 
     def step(self, t, h):
+        """A seen (felt) turning point's time becomes the visual (tactile) event time."""
         for key, now, output in (("seen", self.values["seen_pose"][:, 0], "visual_time"),
                                  ("felt", self.values["q_shoulder"], "tactile_time")):
             now = np.array(now, dtype=float)

@@ -57,6 +57,7 @@ class CausalModel(Model):
     record = ("brain.gamma_timing",)
 
     def brain(self):
+        """A new :class:`~components.brain.causal_brain.CausalBrain`."""
         return _brain_class()()
 
     @property
@@ -66,6 +67,7 @@ class CausalModel(Model):
         return {**{p: s for p, s in BRAIN_SOURCES.items() if p.partition(".")[2] in declared}, **OWN_SOURCES}
 
     def parameters(self, trials: TrialValues) -> dict:
+        """The plain sources' values, and the derived ones: coupling_sd per trial, the workspace, the seeds."""
         given = {**super().parameters(trials), "brain.mu0": rest_belief(trials)}
         spread = trials.value(DERIVED_FROM)
         given["brain.coupling_sd"] = (np.stack([coupling_sd(value) for value in spread]) if np.ndim(spread)
@@ -76,10 +78,13 @@ class CausalModel(Model):
         return given
 
     def trials_per_point(self, config: dict) -> int | None:
+        """``causal.participants``: one simulated participant a trial."""
         return config["causal"]["participants"]
 
     def reads_pixels(self, config: dict) -> bool:
+        """Only when ``causal.pixel_weight`` > 0."""
         return config["causal"]["pixel_weight"] > 0
 
     def pose_encoder_file(self, kind: str, config: dict) -> str:
+        """``causal.<kind>_pose_encoder``; "" for the shipped one."""
         return config["causal"].get(f"{kind}_pose_encoder") or ""

@@ -35,8 +35,10 @@ class PaperModel(Model):
     parameter_sources = BRAIN_SOURCES
 
     def brain(self):
+        """A new :class:`~components.brain.integrator.Brain`."""
         from components.brain.integrator import Brain
         return Brain()
 
     def parameters(self, trials: TrialValues) -> dict:
+        """The plain sources' values and the start belief at rest."""
         return {**super().parameters(trials), "brain.mu0": rest_belief(trials)}
