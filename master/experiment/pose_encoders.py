@@ -24,7 +24,6 @@ from components.vision import checkpoint
 from components.vision.networks import preset
 from components.vision.pose_encoder import PoseModel, coverage, load_encoder, save_encoder, train_encoder, \
     variance_scale
-from master.cosim import ConfigError
 from master.experiment import training_data
 from master.experiment.scene import shipped_path
 from master.experiment.training import prepare_data, train_settings
