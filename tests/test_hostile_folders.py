@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.faults import refused, rhi, snapshot, tiny_checkpoint
+from tests.faults import refused, rhi, tiny_checkpoint
 
 VICTIM = b"a file of the user's, outside the output folder\n"
 
@@ -42,12 +42,26 @@ def plant_link(folder: Path, outside: Path) -> None:
 
 
 def tree(root: Path) -> dict:
-    """Every entry under ``root``, links as links (not followed), and every entry of the folders a link under
+    """Every entry under ``root`` by os.lstat, relative name -> what it is: a file's size and sha256, a link's
+    target, a folder, or another kind (a FIFO, never opened); and every entry of the folders a link under
     ``root`` leads to, under the link's own name: what is there, whichever way it is reached."""
-    found = snapshot(root)
-    for name, entry in list(found.items()):
-        if entry[0] == "link" and (root / name).is_dir():
-            found.update({f"{name}/{inner}": value for inner, value in snapshot(root / name).items()})
+    import stat
+
+    found = {}
+    for folder, names, files in os.walk(root):
+        for name in names + files:
+            path = Path(folder) / name
+            key, mode = path.relative_to(root).as_posix(), os.lstat(path).st_mode
+            if stat.S_ISLNK(mode):
+                found[key] = ("link", os.readlink(path))
+                if path.is_dir():
+                    found.update({f"{key}/{inner}": value for inner, value in tree(path).items()})
+            elif stat.S_ISDIR(mode):
+                found[key] = ("folder",)
+            elif stat.S_ISREG(mode):
+                found[key] = ("file", hashlib.sha256(path.read_bytes()).hexdigest())
+            else:
+                found[key] = ("other", stat.S_IFMT(mode))
     return found
 
 
@@ -236,3 +250,19 @@ def test_out_file_with_force_replaces_a_file_rhi_wrote_of_its_kind(tmp_path, one
         assert (work / f"ours{suffix}").read_bytes() == first  # the same run, the same table
     else:
         assert zipfile.ZipFile(work / f"ours{suffix}").testzip() is None
+
+
+# ======================================================================================================
+# 4. A FIFO or a device where a file belongs is refused by its kind, before it is opened
+# ======================================================================================================
+@pytest.mark.parametrize("kind", ["fifo", "device"])
+def test_fit_data_that_is_a_fifo_or_a_device_is_refused_at_once(tmp_path, kind):
+    work = prepared(tmp_path)
+    (work / "fit.toml").write_text(FIT.format(checkpoint=""))
+    data = "/dev/zero" if kind == "device" else "pipe.csv"
+    if kind == "fifo":
+        os.mkfifo(work / "pipe.csv")  # nothing ever writes it: opening it for reading would wait forever
+    before = tree(tmp_path)
+    refused(rhi(tmp_path, "fit", "--data", data, "--config", "fit.toml", "--out", "out", timeout=30),
+            f"data file {data} is not a regular file")
+    assert changed_outside(before, tree(tmp_path), "\0") == []

@@ -20,6 +20,8 @@ from __future__ import annotations
 import csv
 import difflib
 import math
+import os
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -117,8 +119,11 @@ def read_rows(path: str | Path) -> tuple[list[tuple[int, list[str]]], list[str]]
     """The header and the (line, values) of each non-blank row; a ConfigError for an unreadable file."""
     name = Path(path).name
     try:
-        if Path(path).is_dir():
+        kind = os.stat(path).st_mode  # by its kind, before opening: a FIFO would wait for a writer forever
+        if stat.S_ISDIR(kind):
             raise ConfigError(f"data file {path} is a folder, not a CSV file")
+        if not stat.S_ISREG(kind):
+            raise ConfigError(f"data file {path} is not a regular file (a FIFO, a device or a socket)")
         with open(path, "rb") as file:
             raw = file.read(MAX_DATA_BYTES + 1)
     except FileNotFoundError:
