@@ -266,3 +266,57 @@ def test_fit_data_that_is_a_fifo_or_a_device_is_refused_at_once(tmp_path, kind):
     refused(rhi(tmp_path, "fit", "--data", data, "--config", "fit.toml", "--out", "out", timeout=30),
             f"data file {data} is not a regular file")
     assert changed_outside(before, tree(tmp_path), "\0") == []
+
+
+# ======================================================================================================
+# 5-6. Trial records and JSON read back from DIR are checked whole: a malformed one is one line, naming it
+# ======================================================================================================
+DEEP = "[" * 100_000 + "]" * 100_000  # JSON nested 100 000 deep: a RecursionError in json.loads
+BAD_RECORDS = {"empty_object": "{}", "array": "[]", "ok_without_outcome": '{"status": "ok"}',
+               "failed_without_error": '{"status": "failed"}', "outcome_not_numbers":
+               '{"status": "ok", "outcome": {"drift_cm": "far", "force_n": 0, "gamma_final": 0}}',
+               "not_json": "{not json", "nested_deep": DEEP}
+
+
+@pytest.mark.parametrize("name", [*BAD_RECORDS, "fifo"])
+def test_a_malformed_trial_record_in_a_sweep_folder_is_refused_naming_it(tmp_path, name):
+    from master.sweeps import plan as sweeps
+    from master.sweeps.folder import sweep_folder
+    from tests.sweep_files import sweep_file
+
+    work = prepared(tmp_path)
+    sweep = sweeps.load(sweep_file(work / "s.toml", grid={"conditions.left": [-0.1]}, trials=1, conditions=("left",),
+                                   workers=1))
+    with sweep_folder(work / "out", sweep, False):
+        pass
+    record = work / "out" / "trials" / f"{sweep.trials[0].id}.json"
+    if name == "fifo":
+        os.mkfifo(record)
+    else:
+        record.write_text(BAD_RECORDS[name])
+    before = tree(tmp_path)
+    refused(rhi(tmp_path, "sweep", "--config", "s.toml", "--out", "out", timeout=30),
+            f"trial record out/trials/{record.name} is not "
+            + ("a regular file" if name == "fifo" else "one rhi wrote"))
+    assert changed_outside(before, tree(tmp_path), "\0") == []  # nothing written, in DIR either
+
+
+@pytest.mark.parametrize("name", ["ok_without_outcome", "nested_deep"])
+def test_a_malformed_trial_record_in_a_fit_folder_is_refused_naming_it(tmp_path, name):
+    work = prepared(tmp_path)
+    out = fit_folder(work)
+    record = sorted((out / "simulations" / "trials").glob("*.json"))[3]
+    record.write_text(BAD_RECORDS[name])
+    before = tree(tmp_path)
+    refused(rhi(tmp_path, "fit", "--data", "data.csv", "--config", "fit.toml", "--out", "out"),
+            f"trial record out/simulations/trials/{record.name} is not one rhi wrote")
+    assert changed_outside(before, tree(tmp_path), "\0") == []
+
+
+def test_a_fit_json_nested_deep_is_refused_in_one_line(tmp_path):
+    work = prepared(tmp_path)
+    out = fit_folder(work)
+    (out / "fit.json").write_text(DEEP)
+    before = tree(tmp_path)
+    refused(rhi(tmp_path, "fit", "--data", "data.csv", "--config", "fit.toml", "--out", "out"), "holds no fit")
+    assert changed_outside(before, tree(tmp_path), "\0") == []

@@ -58,7 +58,7 @@ def prepare_folder(out: Path, identity: str) -> None:
     if out.is_dir() and any(out.iterdir()):
         try:
             old = json.loads(manifest.read_text(encoding="utf-8")) if not manifest.is_symlink() else None
-        except (OSError, ValueError):
+        except (OSError, ValueError, RecursionError):  # unreadable, not JSON, nested too deep: not a fit's
             old = None
         if not isinstance(old, dict) or old.get("command") != COMMAND:
             raise ConfigError(f"output folder {out} is not empty and holds no fit (no fit.json): choose another --out")

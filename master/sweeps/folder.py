@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import fcntl
 import json
+import os
 import shutil
+import stat
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -20,10 +22,12 @@ from master.cosim import ConfigError
 from master.outputs.files import atomic_write, check_name_length
 from master.outputs.provenance import package_versions
 from master.outputs.manifest import NAME as MANIFEST, Manifest
-from master.sweeps.plan import Sweep
+from master.sweeps.plan import DEFAULT_TASK, Sweep
+from master.sweeps.tables import MEASURES
 
 COMMAND = "rhi sweep"  # sweep.json's "command": the folder is a sweep's output
 OUTPUTS = ("sweep.json", "trials", "figures", "index.csv", "summary.csv")  # what a sweep writes into DIR
+MAX_RECORD_BYTES = 16 * 2**20  # a trial record read back; rhi's are a few KiB (a failed trial's traceback included)
 
 
 @contextmanager
@@ -71,11 +75,12 @@ def _prepared(out: Path, sweep: Sweep, force: bool, manifest: Path, lock):
         raise ConfigError(f"output folder {out} holds a different sweep (its file or the defaults changed); "
                           "use another --out, or --force to replace it")
     own = Manifest.read(out, COMMAND) or Manifest(out, COMMAND)
+    records = read_records(out, sweep)  # checked before anything is removed (start_over keeps every one of them)
     if previous != sweep.fingerprint:
         start_over(out, sweep, old or {}, own)
     for leftover in (out / "trials").glob(".*.tmp"):  # a write cut short by a kill; its trial reruns
         leftover.unlink()
-    yield read_records(out, sweep), own
+    yield records, own
 
 
 def check_folder(out: Path) -> None:
@@ -145,11 +150,67 @@ def start_over(out: Path, sweep: Sweep, old: dict, own: Manifest) -> None:
 
 
 def read_records(out: Path, sweep: Sweep) -> dict[str, dict]:
+    """The records in DIR/trials of the sweep's trials (a missing one: not run yet), each checked whole
+    (:func:`record_problem`): a file that is not a record as rhi writes one is refused, naming it, before any
+    trial runs (a torn file cannot happen with atomic writes)."""
     records = {}
     for trial in sweep.trials:
         path = out / "trials" / f"{trial.id}.json"
         try:
-            records[trial.id] = json.loads(path.read_text())
-        except (OSError, ValueError):  # missing; a torn file cannot happen with atomic writes
+            if not stat.S_ISREG(os.stat(path).st_mode):  # a FIFO would wait forever: never opened
+                raise ConfigError(f"trial record {path} is not a regular file; move it away and run the same "
+                                  "command again to rerun its trial")
+            with open(path, "rb") as file:
+                text = file.read(MAX_RECORD_BYTES + 1)
+        except FileNotFoundError:
             continue
+        except OSError as error:
+            raise ConfigError(f"trial record {path} cannot be read: {error.strerror or error}") from None
+        record, problem = None, f"over {MAX_RECORD_BYTES} bytes" if len(text) > MAX_RECORD_BYTES else None
+        if problem is None:
+            try:
+                record = json.loads(text.decode("utf-8"))
+            except RecursionError:
+                problem = "JSON nested too deep"
+            except ValueError:  # UnicodeDecodeError is one
+                problem = "not JSON"
+            else:
+                problem = record_problem(record, sweep.task == DEFAULT_TASK)
+        if problem:
+            raise ConfigError(f"trial record {path} is not one rhi wrote ({problem}); move it away and run the same "
+                              "command again to rerun its trial")
+        records[trial.id] = record
     return records
+
+
+def _number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def record_problem(record, default_task: bool = True) -> str | None:
+    """What makes ``record`` (a trial record read back) not one rhi writes (None: it is one): a JSON object,
+    either ``{"status": "failed", "error": "..."}`` or ``{"status": "ok", "outcome": {...}}``: an outcome whose
+    drift_cm, force_n and gamma_final (the tables' measures) are numbers, and of the experiment's own trial
+    function (``default_task``) a number for every key, those three among them (NaN and infinities too, as rhi
+    writes the times of events that never came); a chunk's ``cpu_s`` a number over its ``batch``, a whole
+    number of trials."""
+    if not isinstance(record, dict):
+        return "not a JSON object"
+    status = record.get("status")
+    if status == "failed":
+        return None if isinstance(record.get("error"), str) else "a failed trial without its error"
+    if status != "ok":
+        return "its status is neither ok nor failed"
+    outcome = record.get("outcome")
+    if not isinstance(outcome, dict):
+        return "a finished trial without its outcome"
+    missing = [key for key in MEASURES if key not in outcome] if default_task else []
+    if missing:
+        return f"its outcome lacks {missing[0]}"
+    wrong = [key for key, value in outcome.items() if (default_task or key in MEASURES) and not _number(value)]
+    if wrong:
+        return f"its outcome's {wrong[0][:40]} is not a number"
+    if "cpu_s" in record and not (_number(record["cpu_s"]) and isinstance(record.get("batch"), int)
+                                  and not isinstance(record["batch"], bool) and record["batch"] > 0):
+        return "its cpu_s is not a number over a batch of trials"
+    return None
