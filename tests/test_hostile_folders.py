@@ -320,3 +320,24 @@ def test_a_fit_json_nested_deep_is_refused_in_one_line(tmp_path):
     before = tree(tmp_path)
     refused(rhi(tmp_path, "fit", "--data", "data.csv", "--config", "fit.toml", "--out", "out"), "holds no fit")
     assert changed_outside(before, tree(tmp_path), "\0") == []
+
+
+# ======================================================================================================
+# 7. A fit's refusal advises what rhi fit can do: it has no --force
+# ======================================================================================================
+@pytest.mark.parametrize("folder, damage", [("simulations", "no_sweep_json"), ("simulations", "another_sweep"),
+                                            ("predictive", "no_sweep_json")])
+def test_a_fit_folder_whose_sweep_is_not_its_own_is_refused_without_advising_force(tmp_path, folder, damage):
+    work = prepared(tmp_path)
+    out = fit_folder(work)
+    sweep_json = out / folder / "sweep.json"
+    if damage == "no_sweep_json":
+        sweep_json.unlink()
+    else:  # rhi's file, for another sweep than this fit's
+        fingerprint = json.loads(sweep_json.read_text())["fingerprint"]
+        sweep_json.write_text(sweep_json.read_text().replace(fingerprint, "0" * len(fingerprint)))
+    before = tree(tmp_path)
+    done = rhi(tmp_path, "fit", "--data", "data.csv", "--config", "fit.toml", "--out", "out")
+    refused(done, f"out/{folder}")
+    assert "--force" not in done.stderr and "choose another --out" in done.stderr
+    assert changed_outside(before, tree(tmp_path), "\0") == []

@@ -49,9 +49,11 @@ def fingerprint(plan: FitPlan, sweep_fingerprint: str) -> str:
                            "estimator": named(plan.estimator)})
 
 
-def prepare_folder(out: Path, identity: str) -> None:
-    """DIR new, empty, or an earlier run of this same fit; ConfigError otherwise (before anything is written)."""
-    from master.sweeps.folder import check_folder
+def prepare_folder(out: Path, identity: str, simulations: str | None = None) -> None:
+    """DIR new, empty, or an earlier run of this same fit; ConfigError otherwise (before anything is written).
+    Its simulations/ and predictive/, when not empty, must be sweeps rhi wrote there, simulations/ the sweep of
+    fingerprint ``simulations`` (this fit's): rhi fit has no --force, and never writes over another's."""
+    from master.sweeps.folder import check_folder, read_manifest
 
     check_folder(out)
     manifest = out / "fit.json"
@@ -68,6 +70,17 @@ def prepare_folder(out: Path, identity: str) -> None:
         for name in OUTPUTS:
             if (out / name).is_symlink():
                 raise ConfigError(f"output {out / name} is a symbolic link; a fit writes only into folders of its own")
+        for name in ("simulations", "predictive"):
+            folder = out / name
+            if not folder.is_dir() or not any(folder.iterdir()):
+                continue
+            sweep = read_manifest(folder / "sweep.json")
+            if sweep is None:
+                raise ConfigError(f"output folder {folder} is not empty and holds no sweep rhi fit wrote (no "
+                                  "sweep.json, or another's); a fit never writes over it: choose another --out")
+            if name == "simulations" and simulations is not None and sweep["fingerprint"] != simulations:
+                raise ConfigError(f"output folder {folder} holds another sweep than this fit's simulations (its "
+                                  "sweep.json was changed); a fit never writes over it: choose another --out")
     try:
         out.mkdir(exist_ok=True)
         (out / "figures").mkdir(exist_ok=True)
@@ -87,7 +100,7 @@ def fit(data_path: str, config_path: str, out: Path, model: str | None = None, s
     sweep = participants_sweep(plan, drawn, "prior")
     identity = fingerprint(plan, sweep.fingerprint)
     created = not out.exists()
-    prepare_folder(out, identity)
+    prepare_folder(out, identity, sweep.fingerprint)
     try:
         with Pool(scheduler, settings["workers"], debug) as pool:
             return _fit(data, plan, drawn, sweep, out, pool, log, began, identity)
