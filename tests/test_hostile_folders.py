@@ -341,3 +341,23 @@ def test_a_fit_folder_whose_sweep_is_not_its_own_is_refused_without_advising_for
     refused(done, f"out/{folder}")
     assert "--force" not in done.stderr and "choose another --out" in done.stderr
     assert changed_outside(before, tree(tmp_path), "\0") == []
+
+
+# ======================================================================================================
+# 8. A huge value echoed in an error is cut: the one line stays a line
+# ======================================================================================================
+@pytest.mark.parametrize("where", ["scheme", "condition_with_spaces", "usage"])
+def test_a_huge_value_in_an_error_is_cut_to_a_short_line(tmp_path, where):
+    work = prepared(tmp_path)
+    texts = {"scheme": '[experiment]\nscheme = "' + "x" * 1_000_000 + '"\n',
+             "condition_with_spaces": '[conditions]\nfar = "' + "x " * 500_000 + '"\n[experiment]\nconditions = ["far"]\n'}
+    if where == "usage":  # one argument: at most 128 KiB on Linux
+        done = rhi(tmp_path, "experiment", "--trials", "9" * 100_000 + "x", "--out", "o")
+        says = "invalid int value"
+    else:
+        (work / "c.toml").write_text(texts[where])
+        done = rhi(tmp_path, "experiment", "--quick", "--config", "c.toml", "--out", "o")
+        says = {"scheme": "experiment.scheme = 'xxxx", "condition_with_spaces": "conditions.far = 'x x x"}[where]
+    refused(done, says)
+    assert len(done.stderr) < 2500, len(done.stderr)
+    assert "..." in done.stderr and done.stderr.startswith("rhi experiment: error: ")

@@ -16,6 +16,7 @@ import threading
 from components.component import ComponentError
 from master.commands import experiment as experiment_command
 from master.cosim import ConfigError, SimulationError
+from master.cosim.errors import one_line
 
 USER_ERRORS = (ConfigError, ComponentError)
 STDOUT_ERRORS = (errno.EPIPE, errno.ENOSPC, errno.EBADF, errno.EIO)
@@ -25,7 +26,7 @@ class Parser(argparse.ArgumentParser):
     """argparse, with a usage error as one line (``rhi experiment: error: ...``) and exit status 2."""
 
     def error(self, message):
-        self.exit(2, f"{self.prog}: error: {' '.join(message.split())} (see {self.prog} --help)\n")
+        self.exit(2, f"{self.prog}: error: {one_line(message)} (see {self.prog} --help)\n")
 
 
 class Terminated(KeyboardInterrupt):
@@ -228,7 +229,7 @@ def _fail(command: str, message, status: int, prefix: str = "error: ") -> int:
         except (OSError, ValueError):
             pass
     try:
-        print(f"rhi {command}: {prefix}{' '.join(str(message).split())}", file=sys.stderr, flush=True)
+        print(f"rhi {command}: {prefix}{one_line(message)}", file=sys.stderr, flush=True)
     except (OSError, ValueError):
         pass
     return status
