@@ -322,6 +322,25 @@ def test_a_fit_json_nested_deep_is_refused_in_one_line(tmp_path):
     assert changed_outside(before, tree(tmp_path), "\0") == []
 
 
+@pytest.mark.parametrize("command", ["experiment", "sweep"])
+def test_an_output_folder_s_own_json_nested_deep_is_refused_in_one_line(tmp_path, command):
+    """An experiment's .rhi-manifest.json and a sweep's sweep.json (these two were refused in one line already)."""
+    from tests.sweep_files import sweep_file
+
+    work = prepared(tmp_path)
+    (work / "out").mkdir()
+    if command == "experiment":
+        (work / "out" / ".rhi-manifest.json").write_text(DEEP)
+        arguments, says = ["experiment", "--quick", "--out", "out", "--force"], "is not an earlier rhi experiment output"
+    else:
+        (work / "out" / "sweep.json").write_text(DEEP)
+        sweep_file(work / "s.toml", trials=1, conditions=("left",), workers=1)
+        arguments, says = ["sweep", "--config", "s.toml", "--out", "out"], "holds a sweep.json that rhi sweep did not"
+    before = tree(tmp_path)
+    refused(rhi(tmp_path, *arguments), says)
+    assert changed_outside(before, tree(tmp_path), "\0") == []
+
+
 # ======================================================================================================
 # 7. A fit's refusal advises what rhi fit can do: it has no --force
 # ======================================================================================================
