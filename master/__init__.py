@@ -6,8 +6,8 @@ The one obvious call::
     result = simulate(System([a, b], [("a.y", "b.u")]), stop_time=30.0, step_size=0.02)
 
 Sub-packages, imports going one way (docs/architecture.md; tests/test_layering.py enforces it):
-``commands`` -> ``reference`` -> ``phenomena``, ``fit`` -> ``sweeps``, ``bench`` -> ``export`` -> ``experiment`` ->
-``models`` -> ``outputs`` -> ``cosim`` -> ``components``; no import circle among modules.
+``commands`` -> ``reference`` -> ``phenomena``, ``fit`` -> ``sweeps``, ``bench`` -> ``export`` -> ``tasks`` ->
+``decoders`` -> ``config`` -> ``models`` -> ``runtime`` -> ``outputs`` -> ``cosim`` -> ``components``; no import circle.
 """
 from master.cosim import ConfigError, Connection, Result, SimulationError, System, simulate
 

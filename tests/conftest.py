@@ -26,7 +26,7 @@ def pytest_collection_modifyitems(items):
 
 
 def train_quick_decoders(folder: Path) -> None:
-    code = ("from master.experiment import config; from master.experiment.decoders import ensure_checkpoints; "
+    code = ("from master import config; from master.decoders.cache import ensure_checkpoints; "
             "ensure_checkpoints(config.load(quick=True), progress=False)")
     done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env={**os.environ, "RHI_CACHE": str(folder)},
                           capture_output=True, text=True, timeout=600)

@@ -28,10 +28,10 @@ def outcomes() -> list[dict]:
 
 
 def mode_outcomes(mode: str) -> list[dict]:
-    from master.experiment import config as configuration
-    from master.experiment import runner
-    from master.experiment.decoders import checkpoint_path
-    from master.experiment.measures import end_of_trial
+    from master import config as configuration
+    from master.tasks.illusion import runner
+    from master.decoders.cache import checkpoint_path
+    from master.tasks.illusion.measures import end_of_trial
 
     config = configuration.load(overrides={"experiment.trials": 1, "experiment.steps": STEPS[mode]})
     kinds = config["experiment"]["decoders"]

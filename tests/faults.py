@@ -72,7 +72,7 @@ class Resources:
 def make_resources(folder: Path) -> Resources:
     """Tiny conv and VAE checkpoints at 32 px and the FMUs above, made in ``folder``."""
     from components.vision.training import TrainSettings
-    from master.experiment.training import train_decoder
+    from master.decoders.training import train_decoder
     from master.export.body import build_fmu
 
     settings = TrainSettings(preset="tiny", samples=40, epochs=1, batch_size=20, resolution=32, quality_poses=0,

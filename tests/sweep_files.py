@@ -58,9 +58,9 @@ def batched_file(path, checkpoints, grid=None, batch=None, workers=2, conditions
 
 def lockstep_truth(sweep) -> dict:
     """Every ok trial's drift, force and gamma from run_batch on its chunk's trials, here, on one core."""
-    from master.experiment import make_trial, measures, run_batch
-    from master.experiment.decoders import checkpoint_path, decoder_component
-    from master.experiment.measures import end_of_trial
+    from master.tasks.illusion import make_trial, measures, run_batch
+    from master.decoders.cache import checkpoint_path, decoder_component
+    from master.tasks.illusion.measures import end_of_trial
 
     truth = {}
     for chunk in sweep.chunks:

@@ -20,10 +20,10 @@ from components.body.contract import BODY_CONTRACT
 from components.fmu import extracted, guard_library
 from master.cosim import System, simulate
 from master.cosim.loop import tick_times
-from master.experiment import config as configuration
-from master.experiment import wiring
-from master.experiment.decoders import decoder_component
-from master.experiment.protocol import make_trial, plan
+from master import config as configuration
+from master.tasks.illusion import wiring
+from master.decoders.cache import decoder_component
+from master.config.protocol import make_trial, plan
 from master.export.agent import (OBSERVED, SEED, Agent, agent_connections, exposed, join_seed, parameter_paths,
                                  split_seed)
 from master.export.agent_fmu import MANIFEST, agent_from_resources, build_agent_fmu

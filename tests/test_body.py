@@ -8,7 +8,7 @@ from components.body.kinematics import FOREARM, REST_HAND, REST_POSE, SHOULDER, 
 from components.body.plant import ArmPlant
 from components.body.rubber_arm import RubberArm
 from components.component import ComponentError, Status
-from master.experiment.config import defaults
+from master.config import defaults
 
 # Poses whose hand positions are sums of the segment lengths, worked out by hand.
 HAND_COMPUTED = [

@@ -14,7 +14,9 @@ from components.vision import pose_encoder as pe
 from components.vision.networks import Encoder, preset
 from master.cosim import ConfigError
 from master import models
-from master.experiment import config as configuration, protocol, wiring
+from master import config as configuration
+from master.config import protocol
+from master.tasks.illusion import wiring
 
 
 def normal_log_pdf(x, mean, sd):
@@ -81,7 +83,7 @@ def test_variance_calibration_recovers_a_known_scale_and_then_covers():
 
 def test_the_shipped_pose_encoders_state_their_calibration():
     for kind in ("conv", "vae"):
-        model = pe.load_encoder(f"master/experiment/checkpoints/pose-{kind}-r64.pt")
+        model = pe.load_encoder(f"master/decoders/checkpoints/pose-{kind}-r64.pt")
         for level in ("50", "90"):  # measured on held-out poses when shipped; a stored number, checked for range
             assert all(0 < value < 1 for value in model.metadata[f"coverage_{level}"])
 
@@ -121,7 +123,7 @@ def test_the_causal_brain_never_reads_a_simulator_position(tiny_causal):
 
 
 def test_a_tiny_causal_run_and_its_gamma(tiny_causal):
-    from master.experiment.runner import batch_outcomes
+    from master.tasks.illusion.runner import batch_outcomes
 
     config = tiny_causal
     trials = protocol.plan(configuration.merge(config, {"experiment": {"decoders": ["conv"]}}))

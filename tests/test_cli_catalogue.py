@@ -34,7 +34,7 @@ SWEEP_HEAD = ('[experiment]\ndecoders = ["conv"]\nconditions = ["left"]\nstimula
 FULL_DISK_RUN = """
 import errno, os, sys
 os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})  # one core: the files are written here, where the patch is
-import master.experiment.publish as publish
+import master.tasks.illusion.publish as publish
 written = publish.atomic_write
 def atomic_write(path, data):  # the disk fills up while the results are written
     if str(path).endswith("trials.csv"):

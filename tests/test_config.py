@@ -1,7 +1,7 @@
 """Configuration: shipped defaults, user TOML, overrides; bad keys and values named."""
 import pytest
 
-from master.experiment import config
+from master import config
 from master.cosim import ConfigError
 
 

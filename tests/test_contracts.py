@@ -242,9 +242,9 @@ def test_the_linear_double_means_what_the_real_decoder_means():
 # -- the sweep's stand-in trial against the real one ----------------------------------------------------------
 @pytest.fixture(scope="module")
 def real_outcomes(quick_cache):
-    """master.experiment.trial_outcome on the --quick protocol with the session's conv decoder, three cells."""
-    from master.experiment import config as configuration
-    from master.experiment import trial_outcome
+    """master.tasks.illusion.trial_outcome on the --quick protocol with the session's conv decoder, three cells."""
+    from master import config as configuration
+    from master.tasks.illusion import trial_outcome
 
     config = configuration.load(quick=True)
     checkpoint = str(next(quick_cache.glob("conv-*.pt")))
@@ -257,7 +257,7 @@ def test_the_fake_sweep_outcome_means_what_the_real_trial_outcome_means(real_out
     same keys (a subset), plain floats, and the same meaning on a case both run: drift and force toward the
     rubber hand (negative Left, positive Right) under synchronous touch, gamma in [gamma0, 1] and higher for
     synchronous than asynchronous touch."""
-    from master.experiment import trial_outcome
+    from master.tasks.illusion import trial_outcome
 
     config, _, real = real_outcomes
     parameters = list(inspect.signature(fake_outcome).parameters)
@@ -277,15 +277,15 @@ def test_the_fake_sweep_outcome_means_what_the_real_trial_outcome_means(real_out
 
 def test_the_fake_and_the_real_trial_fail_alike_out_of_reach(real_outcomes):
     """A rubber hand out of the arm's reach fails the trial with a ComponentError saying so, in both."""
-    from master.experiment import config as configuration
-    from master.experiment import trial_outcome
+    from master import config as configuration
+    from master.tasks.illusion import trial_outcome
 
     _, checkpoint, _ = real_outcomes
     # merged past the configuration's checks, which refuse it before any trial runs (tests/test_hostile_inputs.py)
     config = configuration.merge(configuration.load(quick=True), {"conditions": {"left": 1.0}})
     with pytest.raises(ComponentError, match="out of reach"):
         fake_outcome(config, "conv", "left", "sync", 0)
-    # The real trial is a batch of one whose failure is a record (master.experiment.runner.batch_outcomes), raised
+    # The real trial is a batch of one whose failure is a record (master.tasks.illusion.runner.batch_outcomes), raised
     # as a RuntimeError carrying the record's "Type: message".
     with pytest.raises(RuntimeError, match="^ComponentError: .*out of reach"):
         trial_outcome(config, "conv", "left", "sync", 0, checkpoint=checkpoint)

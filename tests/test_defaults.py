@@ -1,6 +1,6 @@
 """One source of truth: every parameter of every component of the experiment is tied to defaults.toml.
 
-The table is master/experiment/wiring.py PARAMETER_SOURCES; these tests check that it covers the
+The table is master/config/sources.py PARAMETER_SOURCES (the task's TASK_SOURCES and the paper model's BRAIN_SOURCES); these tests check that it covers the
 components' parameters exactly, that each plain key's TOML value is the component's declared start
 value (same type), that parameters() passes exactly the configured value, and that the [train] and
 fast-mode defaults are the training and fast-decoder code's own.
@@ -19,8 +19,9 @@ from components.vision.component import Decoder, GenerativeModel
 from components.vision.fast import DEFAULT_TOLERANCE, LinearisedDecoder
 from components.vision.networks import build
 from components.vision.training import TrainSettings
-from master.experiment import config as configuration
-from master.experiment import protocol, wiring
+from master import config as configuration
+from master.config import protocol
+from master.tasks.illusion import wiring
 
 RESOLUTION = 16
 SOURCES = wiring.PARAMETER_SOURCES
@@ -72,9 +73,10 @@ def test_every_component_parameter_has_exactly_one_source(systems, declared):
     stale = sorted(set(SOURCES) - set(declared))
     assert not stale, f"wiring.PARAMETER_SOURCES names parameters no component declares: {stale}"
     # A dict literal keeps the last of two equal keys silently: read the tables' sources for duplicates.
+    from master.config import sources
     from master.models import paper
     keys = []
-    for module, name in ((wiring, "TASK_SOURCES"), (paper, "BRAIN_SOURCES")):
+    for module, name in ((sources, "TASK_SOURCES"), (paper, "BRAIN_SOURCES")):
         tree = ast.parse(inspect.getsource(module))
         table = next(node.value for node in ast.walk(tree) if isinstance(node, ast.Assign)
                      and any(getattr(target, "id", None) == name for target in node.targets))

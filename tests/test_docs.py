@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from docs_tables import DOCS, block, names, rows
-from master.experiment import config as configuration
+from master import config as configuration
 from master.reference.__main__ import blocks, regenerate
 from master.reference.tables import TABLES
 

@@ -10,11 +10,11 @@ from pathlib import Path
 
 import torch
 
-from master.experiment import config as configuration
-from master.experiment.decoders import decoder_component
-from master.experiment.measures import measures
-from master.experiment.protocol import Trial
-from master.experiment.wiring import run_batch
+from master import config as configuration
+from master.decoders.cache import decoder_component
+from master.tasks.illusion.measures import measures
+from master.config.protocol import Trial
+from master.tasks.illusion.wiring import run_batch
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "examples" / "orchestrate.py"

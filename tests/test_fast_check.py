@@ -1,14 +1,15 @@
-"""The fast mode's check (master.experiment.fast_check): its verdict's numbers, where it is kept, when it is redone."""
+"""The fast mode's check (master.tasks.illusion.fast_check): its verdict's numbers, where it is kept, when it is redone."""
 import json
 
 import numpy as np
 import pytest
 
-from master.experiment import config as configuration
-from master.experiment import fast_check, runner
-from master.experiment.decoders import checkpoint_path
-from master.experiment.measures import end_of_trial
-from master.experiment.protocol import make_trial
+from master import config as configuration
+from master.tasks.illusion import fast_check
+from master.tasks.illusion import runner
+from master.decoders.cache import checkpoint_path
+from master.tasks.illusion.measures import end_of_trial
+from master.config.protocol import make_trial
 
 
 @pytest.fixture

@@ -203,7 +203,7 @@ def test_a_batch_of_several_configurations_equals_each_alone(quick_cache, monkey
     trial equals the same trial run in a batch of its point alone (the exact mode: no shared linearisations;
     a batch's float32 sums depend on its size, so the reference batch has the same size: the other point's
     trials as partners with its own values)."""
-    from master.experiment import config as configuration
+    from master import config as configuration
     from master.sweeps import plan as sweeps
     from master.sweeps.runner import run_chunk
 
@@ -352,9 +352,10 @@ def test_a_latin_hypercube_holds_one_held_out_truth_in_each_stratum_of_every_pri
 def test_per_trial_parameters_of_a_batch_of_configurations():
     """wiring.parameters (the task's and the model's) give each trial its own values where trials carry them, and
     the configuration's own (a scalar, as before) where none differs; brain.coupling_sd is derived per trial."""
-    from master.experiment import config as configuration, make_trial
+    from master.tasks.illusion import make_trial
+    from master import config as configuration
     from master.models import causal
-    from master.experiment.wiring import batchable_keys, parameters
+    from master.tasks.illusion.wiring import batchable_keys, parameters
 
     base = configuration.load(quick=True, model_name="causal")
     assert {"decoder.visual_variance", "brain.sync_sd", "causal.peripersonal_sd",

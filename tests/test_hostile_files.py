@@ -309,7 +309,7 @@ def test_run_system_s_child_dies_with_its_parent(body_fmu, tmp_path):
 ])
 def test_a_config_that_asks_for_the_unbounded_is_refused_naming_the_limit(tmp_path, text, says):
     from master.cosim import ConfigError
-    from master.experiment import config
+    from master import config
 
     (tmp_path / "c.toml").write_text(text)
     with pytest.raises(ConfigError, match=re.escape(says)):
@@ -318,7 +318,7 @@ def test_a_config_that_asks_for_the_unbounded_is_refused_naming_the_limit(tmp_pa
 
 def test_config_files_are_bounded_in_size_and_must_be_regular(tmp_path):
     from master.cosim import ConfigError
-    from master.experiment import config
+    from master import config
 
     with pytest.raises(ConfigError, match="/dev/zero is not a regular file"):
         config.load("/dev/zero")
@@ -328,7 +328,7 @@ def test_config_files_are_bounded_in_size_and_must_be_regular(tmp_path):
 
 
 def test_inf_is_taken_where_the_docs_give_it_a_meaning_and_quoted_dotted_keys_are_dotted_keys(tmp_path):
-    from master.experiment import config
+    from master import config
 
     (tmp_path / "c.toml").write_text('"experiment.trials" = 3\n[brain]\naction_time_constant = inf\n'
                                      "spatial_sd = inf\n")

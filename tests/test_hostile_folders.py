@@ -145,7 +145,7 @@ def fit_folder(work: Path) -> Path:
     from master.sweeps.folder import sweep_folder
 
     from components.body.kinematics import REST_POSE
-    from master.experiment.training_data import HALF_RANGES
+    from master.decoders.training_data import HALF_RANGES
 
     checkpoint = tiny_checkpoint(work / "tiny.pt", rest_pose=list(REST_POSE), half_ranges=list(HALF_RANGES))
     (work / "fit.toml").write_text(FIT.format(checkpoint=checkpoint))
@@ -210,7 +210,7 @@ def out_file_commands(ssp: Path) -> dict:
 def agent_inputs(work: Path) -> None:
     """A 16 px tiny conv checkpoint and a configuration at 16 px with 2 steps, for the agent's exports."""
     from components.body.kinematics import REST_POSE
-    from master.experiment.training_data import HALF_RANGES
+    from master.decoders.training_data import HALF_RANGES
 
     tiny_checkpoint(work / "ckpt.pt", rest_pose=list(REST_POSE), half_ranges=list(HALF_RANGES))
     (work / "c.toml").write_text('[experiment]\ndecoders = ["conv"]\nresolution = 16\nsteps = 2\n'

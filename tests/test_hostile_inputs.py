@@ -19,7 +19,7 @@ from tests.faults import ENV, REPO, refused, rhi, snapshot
 
 
 def load(overrides: dict, model: str = "paper"):
-    from master.experiment import config
+    from master import config
 
     return config.load(overrides=overrides, model_name=model)
 
@@ -131,7 +131,7 @@ DAMAGED = {"not_json": "{not json", "not_an_object": "[1, 2]", "truncated": '{"f
 def verdict_setup(tmp_path, monkeypatch):
     """A quick configuration, a stand-in checkpoint (the key hashes its bytes), an empty shipped folder, and
     the check replaced by one that counts its calls and answers GOOD_VERDICT (no trial runs)."""
-    from master.experiment import fast_check
+    from master.tasks.illusion import fast_check
 
     (tmp_path / "cache").mkdir()
     (tmp_path / "shipped").mkdir()
@@ -148,7 +148,7 @@ def verdict_setup(tmp_path, monkeypatch):
 
 @pytest.mark.parametrize("damage", list(DAMAGED))
 def test_a_damaged_cached_verdict_is_checked_again_and_rewritten_with_one_note(verdict_setup, capsys, damage):
-    from master.experiment import fast_check
+    from master.tasks.illusion import fast_check
 
     config, checkpoints, cached, _, calls = verdict_setup
     cached.write_text(DAMAGED[damage])
@@ -164,7 +164,7 @@ def test_a_damaged_cached_verdict_is_checked_again_and_rewritten_with_one_note(v
 
 def test_a_damaged_shipped_verdict_is_a_clear_error_and_a_sound_one_is_used(verdict_setup):
     from master.cosim import ConfigError
-    from master.experiment import fast_check
+    from master.tasks.illusion import fast_check
 
     config, checkpoints, cached, shipped, calls = verdict_setup
     shipped.write_text(DAMAGED["not_an_object"])
@@ -176,7 +176,7 @@ def test_a_damaged_shipped_verdict_is_a_clear_error_and_a_sound_one_is_used(verd
 
 
 def test_every_shipped_verdict_is_sound():
-    from master.experiment import fast_check
+    from master.tasks.illusion import fast_check
 
     shipped = sorted(fast_check.SHIPPED.glob("fast-check-*.json"))
     assert shipped and all(fast_check.verdict_problem(path.read_text()) is None for path in shipped)
@@ -317,7 +317,7 @@ def test_a_phenomenon_report_file_rhi_did_not_write_is_never_written_over(tmp_pa
 def test_docs_safety_states_the_code_s_limits():
     from components.archives import LIMITS
     from components.vision import checkpoint
-    from master.experiment import config
+    from master import config
     from master.export import ssp_package
     from master.outputs import files
     from master.sweeps import plan, runner
@@ -349,8 +349,8 @@ def test_rhi_version_prints_the_installed_version(tmp_path):
     ("stimulus.period", 0.0, r"stimulus\.period: stimulus\.period = 0\.0 is outside its range"),
 ])
 def test_settings_are_checked_before_the_staging_folder_and_training(tmp_path, monkeypatch, key, value, says):
-    from master.experiment import config as configuration
-    from master.experiment.publish import run_into
+    from master import config as configuration
+    from master.tasks.illusion.publish import run_into
 
     import tempfile
 
@@ -367,8 +367,8 @@ def test_settings_are_checked_before_the_staging_folder_and_training(tmp_path, m
 
 def test_a_bad_checkpoint_is_found_before_the_other_decoder_is_trained(tmp_path, monkeypatch):
     from components.vision.checkpoint import CheckpointError
-    from master.experiment import config as configuration
-    from master.experiment.publish import run_into
+    from master import config as configuration
+    from master.tasks.illusion.publish import run_into
 
     monkeypatch.setenv("RHI_CACHE", str(tmp_path / "cache"))
     monkeypatch.chdir(tmp_path)

@@ -127,7 +127,7 @@ def test_experiment_force_never_removes_a_folder_where_an_output_file_belongs(tm
 
 def test_train_never_replaces_a_file_that_is_not_a_checkpoint(tmp_path):
     from master.cosim import ConfigError
-    from master.experiment.training import check_target
+    from master.decoders.training import check_target
 
     (tmp_path / "notes.txt").write_text("mine")
     (tmp_path / "notes.pt").write_text("mine")

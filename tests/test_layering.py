@@ -12,11 +12,11 @@ ROOT = Path(__file__).resolve().parents[1]
 
 # -- the rules, as data --------------------------------------------------------------------------
 # master's sub-packages by layer, top first. A sub-package may import itself and any lower layer;
-# never a higher layer, nor another member of its own layer (sweeps/bench). export sits on experiment: the
+# never a higher layer, nor another member of its own layer (sweeps/bench). export sits on tasks: the
 # agent it exports is the experiment's system without its body (master/export/agent.py). reference writes
 # docs/'s tables from everything below it.
-MASTER_LAYERS = [("commands",), ("reference",), ("phenomena", "fit"), ("sweeps", "bench"), ("export",), ("experiment",),
-                 ("models",), ("outputs",), ("cosim",)]
+MASTER_LAYERS = [("commands",), ("reference",), ("phenomena", "fit"), ("sweeps", "bench"), ("export",), ("tasks",),
+                 ("decoders",), ("config",), ("models",), ("runtime",), ("outputs",), ("cosim",)]
 # master's own files outside the sub-packages, and the sub-packages each may import.
 MASTER_FILES = {"master/__init__.py": ("cosim",), "master/__main__.py": ("commands",)}
 # ``from master import X`` (not a sub-package) reaches master/__init__.py, which re-exports this one:
@@ -143,18 +143,18 @@ def test_engine_knows_no_rubber_hand_words():
 
 
 @pytest.mark.parametrize("relative, source, expected", [
-    ("master/cosim/loop.py", "def f():\n    from master.experiment import wiring\n", "loop.py:2:"),
+    ("master/cosim/loop.py", "def f():\n    from master.tasks.illusion import wiring\n", "loop.py:2:"),
     ("master/cosim/loop.py", "import master\n", "master/cosim imports nothing"),
     ("master/cosim/loop.py", "from ..outputs import files\n", "master/cosim imports nothing"),
     ("master/cosim/loop.py", "from components.body import plant\n", "from components only"),
     ("master/cosim/loop.py", "import components.fmu\n", "from components only"),
-    ("master/outputs/files.py", "from master.experiment.measures import measures\n", "a layer above it"),
-    ("master/experiment/wiring.py", "from master.export import body\n", "a layer above it"),
+    ("master/outputs/files.py", "from master.tasks.illusion.measures import measures\n", "a layer above it"),
+    ("master/tasks/illusion/wiring.py", "from master.export import body\n", "a layer above it"),
     ("master/sweeps/plan.py", "import master.bench.suite\n", "a layer beside it"),
     ("master/sweeps/plan.py", "from master.phenomena import report\n", "a layer above it"),
     ("master/phenomena/report.py", "from master.commands import cli\n", "only master/__main__.py"),
     ("master/bench/suite.py", "from master.commands import cli\n", "only master/__main__.py"),
-    ("master/__init__.py", "from master.experiment import wiring\n", "imports only master.cosim"),
+    ("master/__init__.py", "from master.tasks.illusion import wiring\n", "imports only master.cosim"),
     ("master/extra.py", "", "outside the layer table"),
     ("components/stimulus.py", "from master.cosim import System\n", "never import master"),
     ("components/body/camera.py", "from components.vision.component import Decoder\n", "only the core"),
@@ -171,10 +171,10 @@ def test_the_checker_catches_each_kind_of_violation(relative, source, expected):
     ("master/cosim/loop.py", "from master.cosim.system import System\nfrom components.component import Status\n"),
     ("master/cosim/links.py", "from .system import split\n"),
     ("master/commands/cli.py", "from master.sweeps import plan\nfrom master.commands import bench\n"),
-    ("master/sweeps/runner.py", "from master.experiment import runner\nfrom master import ConfigError\n"),
+    ("master/sweeps/runner.py", "from master.tasks.illusion import runner\nfrom master import ConfigError\n"),
     ("master/phenomena/report.py", "from master.sweeps import plan\nfrom master.outputs import figures\n"),
     ("master/export/body.py", "from master.cosim import ConfigError\nimport numpy\n"),
-    ("master/export/agent.py", "from master.experiment import wiring\n"),
+    ("master/export/agent.py", "from master.tasks.illusion import wiring\n"),
     ("master/__main__.py", "from master.commands.cli import main\n"),
     ("components/body/variants.py", "from components.body.plant import ArmPlant\nfrom .kinematics import forward\n"),
     ("components/vision/component.py", "from components.model_description import to_xml\n"),
@@ -185,7 +185,7 @@ def test_the_checker_allows_what_the_table_allows(relative, source):
 
 # -- no import circles ---------------------------------------------------------------------------------
 def module_name(relative: str) -> str:
-    """``master/experiment/config.py`` -> ``master.experiment.config`` (a package's ``__init__`` is the package)."""
+    """``master/config/__init__.py`` -> ``master.config`` (a package's ``__init__`` is the package)."""
     parts = relative[:-3].split("/")
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 

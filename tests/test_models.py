@@ -14,7 +14,7 @@ import pytest
 from master import models
 from master.commands.cli import main
 from master.cosim import ConfigError
-from master.experiment import config as configuration
+from master import config as configuration
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = f"{ROOT / 'examples' / 'my_model.py'}:FixedGamma"
@@ -129,7 +129,8 @@ def test_no_model_name_is_tested_outside_the_registry():
 
 def test_the_model_parameters_reach_the_brain_per_trial():
     """A batch whose trials carry their own fixed_gamma.gamma gives each its own brain.gamma0 (a fit's batch)."""
-    from master.experiment import make_trial, wiring
+    from master.tasks.illusion import make_trial
+    from master.tasks.illusion import wiring
 
     base = configuration.load(quick=True, model_name=EXAMPLE)
     trials = [make_trial(base, "conv", "left", "sync", 0, (("fixed_gamma.gamma", value),)) for value in (0.2, 0.7)]

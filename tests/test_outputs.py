@@ -4,9 +4,9 @@ import pytest
 
 from master.outputs import files, tables as outputs
 from master.cosim import ConfigError
-from master.experiment import Trial, plan, trial_seed
-from master.experiment.config import load
-from master.experiment.measures import end_of_trial, half_time
+from master.tasks.illusion import Trial, plan, trial_seed
+from master.config import load
+from master.tasks.illusion.measures import end_of_trial, half_time
 
 
 def test_plan_covers_the_protocol_with_stable_seeds():
@@ -127,7 +127,7 @@ def test_staging_needs_an_existing_parent(tmp_path):
 def test_a_failing_trial_is_dropped_and_the_rest_rerun():
     """The batch is rerun without the trials a component blames; a failure blaming none stops the run."""
     from master.cosim import SimulationError
-    from master.experiment import without_failures
+    from master.tasks.illusion import without_failures
 
     trials = plan(load())[:6]
     bad = {trials[1], trials[4]}

@@ -28,10 +28,10 @@ from master.bench import training as training_bench
 from master.commands import experiment as experiment_command
 from master.commands.cli import build_parser, main
 from master.cosim import ConfigError
-from master.experiment import config as configuration
-from master.experiment import training_data
-from master.experiment.decoders import checkpoint_path, ensure_checkpoints
-from master.experiment.training import train_settings
+from master import config as configuration
+from master.decoders import training_data
+from master.decoders.cache import checkpoint_path, ensure_checkpoints
+from master.decoders.training import train_settings
 
 ROOT = Path(__file__).resolve().parents[1]
 # The TrainSettings fields a cached decoder's name was a hash of before the paper preset's keys existed.
@@ -336,7 +336,7 @@ def test_the_shipped_paper_calibration_sweep_runs_the_paper_preset(tmp_path):
 
 def test_the_trial_gif_is_enlarged_only_up_to_64_px():
     from master.outputs.animation import frames
-    from master.experiment.protocol import rubber_pose
+    from master.config.protocol import rubber_pose
     mu = np.tile(kinematics.REST_POSE, (21, 1))
     balls = np.tile([-0.45, 0.6], (21, 1))
     assert [frames(mu, rubber_pose(-0.15), balls, side)[0].size for side in (32, 64, 128)] == [(96, 96), (192, 192),
@@ -348,7 +348,7 @@ def test_the_documented_table_of_the_preset_is_the_shipped_file_and_the_defaults
     """docs/configuration.md's generated table (key | paper | default | why) against master/paper.toml."""
     from docs_tables import rows
 
-    from master.experiment.training import STOP_POSES
+    from master.decoders.training import STOP_POSES
     shown = {row[0].strip("`"): [cell.strip("`") for cell in row[1:3]] for row in rows("configuration.md", "paper-preset")}
     with open(ROOT / "master" / "paper.toml", "rb") as file:
         shipped = dict(flatten(tomllib.load(file)))

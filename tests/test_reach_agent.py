@@ -21,7 +21,8 @@ from components.body.plant import ArmPlant
 from components.component import ComponentError
 from master.commands.cli import main
 from master.cosim import System, simulate
-from master.experiment import reach, wiring
+from master.tasks.reach import task as reach
+from master.tasks.illusion import wiring
 from master.export.agent_fmu import MANIFEST, agent_from_resources
 from master.export.body import build_fmu
 from master.export.reach_agent import ReachAgent

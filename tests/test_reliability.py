@@ -100,8 +100,8 @@ def test_publish_leaves_alone_what_appeared_meanwhile(tmp_path):
 # -- a checkpoint of the wrong kind ---------------------------------------------------------------------
 def test_a_vae_checkpoint_in_the_conv_slot_is_refused_before_any_work(resources):
     from components.vision.checkpoint import CheckpointError
-    from master.experiment import config as configuration
-    from master.experiment.decoders import check_decoders, decoder_component
+    from master import config as configuration
+    from master.decoders.cache import check_decoders, decoder_component
 
     config = configuration.load(overrides={"decoder.conv_checkpoint": resources.vae, "experiment.decoders": ["conv"]},
                                 quick=True)
@@ -115,7 +115,7 @@ def test_a_vae_checkpoint_in_the_conv_slot_is_refused_before_any_work(resources)
 @pytest.mark.parametrize("key, value", [("decoders", ["conv", "conv"]), ("conditions", ["left", "left"]),
                                         ("stimulations", ["sync", "async", "sync"])])
 def test_a_list_naming_an_entry_twice_is_refused_naming_the_key(key, value):
-    from master.experiment import config as configuration
+    from master import config as configuration
 
     with pytest.raises(ConfigError, match=rf"experiment\.{key} lists {value[0]} more than once"):
         configuration.load(overrides={f"experiment.{key}": value})
@@ -123,13 +123,13 @@ def test_a_list_naming_an_entry_twice_is_refused_naming_the_key(key, value):
 
 # -- a cell whose every trial failed ----------------------------------------------------------------
 def test_a_cell_without_trials_has_an_empty_row_and_no_bar(tmp_path):
-    from master.experiment import Trial
+    from master.tasks.illusion import Trial
     from master.outputs import figures, tables
 
     planned = [Trial("conv", c, s, 0, 0, 0.0, 0.0, 0.1) for c in ("left", "center") for s in ("sync", "async")]
     kept = [t for t in planned if (t.condition, t.stimulation) != ("center", "sync")]
     steps = np.linspace(0, 1, 5)[:, None] * np.array([[1.0, 2.0, 3.0]])
-    from master.experiment.measures import end_of_trial
+    from master.tasks.illusion.measures import end_of_trial
 
     per_step = {"drift_cm": steps, "force_x_n": steps, "gamma": steps / 3, "action_accel_x_m_s2": steps,
                 "tactile_time_s": np.full_like(steps, -np.inf)}  # no touch: no half-decay
@@ -146,8 +146,8 @@ def test_a_cell_without_trials_has_an_empty_row_and_no_bar(tmp_path):
 def test_a_decoder_whose_whole_batch_failed_costs_only_its_trials(monkeypatch):
     """A failure blaming no trial ends that decoder's batch; the other decoder's trials still run."""
     from master.cosim import SimulationError
-    from master.experiment import config as configuration
-    from master.experiment import runner
+    from master import config as configuration
+    from master.tasks.illusion import runner
 
     config = configuration.load(quick=True)
 
@@ -157,7 +157,7 @@ def test_a_decoder_whose_whole_batch_failed_costs_only_its_trials(monkeypatch):
         return SimpleNamespace(times=np.arange(3.0))
 
     monkeypatch.setattr(runner, "run_batch", fake_run_batch)
-    monkeypatch.setattr("master.experiment.decoders.decoder_component", lambda kind, path, config, *how, **where: None)
+    monkeypatch.setattr("master.decoders.cache.decoder_component", lambda kind, path, config, *how, **where: None)
     monkeypatch.setattr(runner, "measures", lambda result: {"drift_cm": np.zeros((3, 6))})
     kept, _, per_step, _, failures = runner.run(config, {"conv": "c.pt", "vae": "v.pt"}, processes=1)
     assert {t.decoder for t in kept} == {"vae"} and len(failures) == 6
@@ -258,7 +258,7 @@ def test_unwritable_export_targets_are_refused_before_building(tmp_path, monkeyp
 
 # -- inputs that used to end in a traceback ----------------------------------------------------------
 def test_config_files_that_are_not_utf8_or_not_numbers_are_named(tmp_path):
-    from master.experiment import config as configuration
+    from master import config as configuration
 
     path = tmp_path / "c.toml"
     path.write_bytes(b"\xff\xfe[experiment]\n")
@@ -273,7 +273,7 @@ def test_config_files_that_are_not_utf8_or_not_numbers_are_named(tmp_path):
 
 
 def test_resolution_and_memory_have_upper_bounds_naming_the_memory():
-    from master.experiment import config as configuration
+    from master import config as configuration
 
     with pytest.raises(ConfigError, match=r"experiment\.resolution must be at most 1024 pixels, got 100000 \(it "
                                           r"would need about [\d.]+ TiB of memory\)"):
@@ -284,8 +284,8 @@ def test_resolution_and_memory_have_upper_bounds_naming_the_memory():
 
 
 def test_the_decoder_cache_must_be_a_folder(tmp_path, monkeypatch):
-    from master.experiment import config as configuration
-    from master.experiment.decoders import check_decoders
+    from master import config as configuration
+    from master.decoders.cache import check_decoders
 
     (tmp_path / "cache").write_text("a file")
     monkeypatch.setenv("RHI_CACHE", str(tmp_path / "cache"))
@@ -304,7 +304,7 @@ def test_an_fmu_whose_binary_does_not_load_is_refused_when_opened(resources):
 
 
 def test_train_checks_its_output_before_training(tmp_path):
-    from master.experiment.training import check_target
+    from master.decoders.training import check_target
 
     with pytest.raises(ConfigError, match="is a folder; name the checkpoint file"):
         check_target(tmp_path)
@@ -323,8 +323,8 @@ def test_train_checks_its_output_before_training(tmp_path):
     ("decoder.conv_checkpoint", "/", r"decoder\.conv_checkpoint: / is a folder, not a checkpoint file"),
 ])
 def test_named_messages(key, value, says):
-    from master.experiment import config as configuration
-    from master.experiment.decoders import check_decoders
+    from master import config as configuration
+    from master.decoders.cache import check_decoders
 
     with pytest.raises(ConfigError, match=says):
         check_decoders(configuration.load(overrides={key: value}))

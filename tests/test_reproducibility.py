@@ -8,7 +8,7 @@ import os
 import numpy as np
 import pytest
 
-from master.experiment import fast_check
+from master.tasks.illusion import fast_check
 from master.outputs.provenance import VECTOR_EXTENSIONS, cpu_description
 from tests import cross_cpu
 

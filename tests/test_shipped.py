@@ -8,10 +8,10 @@ import sys
 import pytest
 
 from components.vision import checkpoint
-from master.experiment import config as configuration
-from master.experiment import fast_check
-from master.experiment.decoders import SHIPPED, check_decoders, checkpoint_path
-from master.experiment.training import load_decoder, train_settings
+from master import config as configuration
+from master.tasks.illusion import fast_check
+from master.decoders.cache import SHIPPED, check_decoders, checkpoint_path
+from master.decoders.training import load_decoder, train_settings
 from tests.conftest import ROOT
 
 

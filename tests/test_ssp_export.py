@@ -14,10 +14,10 @@ import zipfile
 import pytest
 from fmpy.ssp.ssd import read_ssd
 
-from master.experiment import wiring
-from master.experiment.decoders import decoder_component
-from master.experiment.measures import measures
-from master.experiment.protocol import make_trial, plan
+from master.tasks.illusion import wiring
+from master.decoders.cache import decoder_component
+from master.tasks.illusion.measures import measures
+from master.config.protocol import make_trial, plan
 from master.export.agent import agent_connections, join_seed
 from master.export.body import build_fmu
 from master.export.ssp_check import read_ssp, trial_parameters

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from master.sweeps import plan as sweeps
-from master.experiment import config as configuration
+from master import config as configuration
 from master.commands.cli import main
 from master.commands.sweep import run_sweep
 from tests.sweep_files import ENV, args, batched_file, command, expected, lockstep_truth, records, single_core, sweep_file
@@ -144,9 +144,9 @@ def test_different_sweep_is_refused_and_force_keeps_shared_trials(dask_cluster, 
 
 
 def test_tiny_real_sweep_matches_the_trial_run_here(dask_cluster, tmp_path, monkeypatch):
-    """master.experiment.trial_outcome through the cluster: the same numbers as one call in this process."""
-    from master.experiment.decoders import ensure_checkpoints
-    from master.experiment import trial_outcome
+    """master.tasks.illusion.trial_outcome through the cluster: the same numbers as one call in this process."""
+    from master.decoders.cache import ensure_checkpoints
+    from master.tasks.illusion import trial_outcome
 
     monkeypatch.setenv("RHI_CACHE", str(tmp_path / "cache"))
     (tmp_path / "base.toml").write_text('[experiment]\ndecoders = ["conv"]\n[train]\nsamples = 200\nepochs = 2\n')

@@ -13,8 +13,8 @@ import pytest
 
 from master.sweeps import plan as sweeps
 from master.cosim import ConfigError
-from master.experiment import config as configuration
-from master.experiment import trial_seed
+from master import config as configuration
+from master.tasks.illusion import trial_seed
 from master.commands.sweep import run_sweep
 from tests.sweep_files import ENV, args, batched_file, command, expected, records, single_core, sweep_file
 
@@ -192,10 +192,10 @@ def test_a_failing_trial_costs_its_chunk_only_itself(quick_decoders, monkeypatch
     """batch_outcomes: a trial a component blames is recorded alone and the rest rerun without it; a
     failure that blames no trial (a rubber hand out of reach) reruns each trial alone. Against run_batch."""
     from master.cosim import SimulationError
-    from master.experiment import measures, plan, run_batch
-    from master.experiment import runner
-    from master.experiment.decoders import decoder_component
-    from master.experiment.measures import end_of_trial
+    from master.tasks.illusion import measures, plan, run_batch
+    from master.tasks.illusion import runner
+    from master.decoders.cache import decoder_component
+    from master.tasks.illusion.measures import end_of_trial
 
     config = configuration.load(quick=True, overrides={
         "experiment.decoders": ["conv"], "experiment.conditions": ["left", "right"], "experiment.trials": 2,

@@ -254,11 +254,11 @@ def test_bad_checkpoints_give_one_clear_error_naming_the_file(tmp_path, case, me
 
 def test_experiment_config_chooses_the_exact_or_the_fast_decoder(tmp_path):
     from components.vision.fast import LinearisedDecoder
-    from master.experiment import config as configuration
-    from master.experiment.decoders import decoder_component
+    from master import config as configuration
+    from master.decoders.cache import decoder_component
     from master.cosim import ConfigError
     from components.body.kinematics import REST_POSE
-    from master.experiment.training_data import HALF_RANGES
+    from master.decoders.training_data import HALF_RANGES
     path = tmp_path / "conv.pt"
     save(path, random_model(), {**METADATA, "rest_pose": list(REST_POSE), "half_ranges": list(HALF_RANGES)})
     exact = decoder_component("conv", str(path), configuration.load(overrides={"experiment.resolution": RES,

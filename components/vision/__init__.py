@@ -3,7 +3,7 @@
 Modules: :mod:`networks` (the shared decoder definition, the VAE encoder, presets),
 :mod:`training` (the seeded training loop), :mod:`checkpoint` (safe save and load),
 :mod:`component` (the co-simulation component, forward-mode Jacobians).
-Training data come from the body's camera; that wiring lives in ``master/experiment/training_data.py``.
+Training data come from the body's camera; that wiring lives in ``master/decoders/training_data.py``.
 """
 from components.vision.checkpoint import CheckpointError
 from components.vision.component import Decoder, GenerativeModel, jacobian_images

@@ -12,9 +12,9 @@ from components.body import kinematics
 from components.vision.component import GenerativeModel
 from components.vision.fast import DEFAULT_TOLERANCE
 from components.vision.networks import build
-from master import experiment
-from master.experiment import config as configuration
-from master.experiment.training_data import HALF_RANGES
+from master.tasks import illusion as experiment
+from master import config as configuration
+from master.decoders.training_data import HALF_RANGES
 
 
 @dataclass(frozen=True)

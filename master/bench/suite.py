@@ -37,7 +37,7 @@ from components.body import kinematics
 from components.vision.component import Decoder, GenerativeModel, available_cores
 from components.vision.fast import LinearisedDecoder
 from components.vision.optimised import optimised
-from master import experiment
+from master.tasks import illusion as experiment
 from master.bench.baseline import PaperStyleAgent
 from master.bench.fmu_overhead import master_overhead
 from master.bench.protocol import fast_error, peak_rss_mb, projected, protocol_in_child

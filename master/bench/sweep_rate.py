@@ -26,11 +26,11 @@ from components.body import kinematics
 from components.vision import checkpoint
 from components.vision.component import available_cores
 from components.vision.networks import build, preset, sizes_dict
-from master import experiment
-from master.experiment import config as configuration
-from master.experiment import runner
-from master.experiment.parallel import process_count
-from master.experiment.training_data import HALF_RANGES
+from master.tasks import illusion as experiment
+from master import config as configuration
+from master.tasks.illusion import runner
+from master.runtime.pool import process_count
+from master.decoders.training_data import HALF_RANGES
 from master.outputs.files import atomic_write
 
 KINDS = ("conv", "vae")
@@ -102,7 +102,7 @@ def sweep_run(text: str, folder: Path, trials: int, steps: int) -> dict:
 
 def trained_checkpoints(preset_name: str, resolution: int) -> dict[str, str] | None:
     """The trained decoders of the defaults at this network preset and resolution, cached or shipped; else None."""
-    from master.experiment.decoders import checkpoint_path
+    from master.decoders.cache import checkpoint_path
     config = configuration.load(overrides={"experiment.resolution": resolution, "train.preset": preset_name})
     paths = {kind: checkpoint_path(kind, config) for kind in KINDS}
     return paths if all(os.path.isfile(path) for path in paths.values()) else None

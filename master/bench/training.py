@@ -31,8 +31,8 @@ from torch import nn
 from components.vision.component import available_cores
 from components.vision.networks import build
 from components.vision.training import batch_loss
-from master.experiment import training_data
-from master.experiment.training import train_settings
+from master.decoders import training_data
+from master.decoders.training import train_settings
 
 PHASES = ("data", "encoder", "decoder_and_loss", "backward", "optimiser")
 BEFORE_BATCH = 32  # the batch size of the earlier measurements (CHANGELOG.md)

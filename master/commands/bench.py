@@ -10,7 +10,7 @@ from master.bench.report import table
 from master.bench.settings import QUICK, BenchSettings
 from master.bench.suite import run_suite
 from master.cosim import ConfigError
-from master.experiment.config import MAX_THREADS
+from master.config import MAX_THREADS
 
 
 def run_bench(args) -> int:
@@ -26,7 +26,7 @@ def run_bench(args) -> int:
         raise ConfigError(f"--checkpoint {checkpoint} does not exist")
     if getattr(args, "training", False):
         from master.bench import training
-        from master.experiment import config as configuration
+        from master import config as configuration
         quick = getattr(args, "quick", False)
         report = training.training_rates(configuration.load(quick=quick, preset_name=None if quick else "paper"),
                                          steps=2 if quick else 3, threads=threads)

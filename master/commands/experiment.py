@@ -6,7 +6,7 @@ import time
 from pathlib import Path
 
 from master import models
-from master.experiment import config as configuration
+from master import config as configuration
 from master.outputs.files import check_output
 
 
@@ -58,7 +58,7 @@ def run_experiment(args) -> int:
                                 preset_name=args.preset, model_name=args.model)
     check_output(args.out, args.force)
     from components.vision.component import resolve_device
-    from master.experiment.publish import run_into
+    from master.tasks.illusion.publish import run_into
 
     failures = run_into(args.out, config, body=args.body, force=args.force, progress=True,
                         device=resolve_device(args.device))

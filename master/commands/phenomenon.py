@@ -35,7 +35,7 @@ def run_phenomenon(args) -> int:
     from master.commands.sweep import run_sweep
     from master.phenomena.report import report
 
-    from master.experiment import config as configuration
+    from master import config as configuration
     from master.sweeps import plan
     from master.sweeps.folder import check_folder
 

@@ -22,14 +22,14 @@ def add_arguments(parser) -> None:
 
 
 def run_reach(args) -> int:
-    from master.experiment import reach
+    from master.tasks.reach import task as reach
 
     started = time.perf_counter()
     overrides = {key: value for key, value in (("reach.goals", args.goals), ("experiment.seed", args.seed))
                  if value is not None}
     config = reach.load(args.config, quick=args.quick, model_name=args.model, overrides=overrides)
     check_output(args.out, args.force)
-    from master.experiment.reach_publish import run_into
+    from master.tasks.reach.publish import run_into
 
     failures = run_into(args.out, config, force=args.force, progress=True)
     for trial, error in failures.items():

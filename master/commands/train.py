@@ -3,8 +3,8 @@
 It reads the configuration like `rhi experiment`: ``[train]`` and the camera's ``[camera] blur``."""
 from __future__ import annotations
 
-from master.experiment import config as configuration
-from master.experiment.training import check_target, train_decoder, train_settings
+from master import config as configuration
+from master.decoders.training import check_target, train_decoder, train_settings
 
 
 def run_train(args) -> int:

@@ -1,7 +1,7 @@
 """The agent (stimulus, rubber arm, camera, decoder, brain, wired as in the experiment) as ONE component.
 
 :class:`Agent` is a component whose inside is the experiment's system without its body
-(:func:`master.experiment.wiring.build_system`, every connection that does not touch the body), run
+(:func:`master.tasks.illusion.wiring.build_system`, every connection that does not touch the body), run
 by a :class:`master.cosim.Session` one communication step per :meth:`Agent.step`. Its ports are
 scalars, so that it can be an FMI 2.0 FMU (``master/export/agent_fmu.py``):
 
@@ -32,8 +32,8 @@ from components.body import kinematics
 from components.component import Component, ComponentError, StepFailure
 from components.variables import Variable
 from master.cosim import Connection, SimulationError, Session, System
-from master.experiment import wiring
-from master.experiment.protocol import make_trial
+from master.tasks.illusion import wiring
+from master.config.protocol import make_trial
 
 BODY = "body"  # the experiment's name for the body component
 SEED = "stimulus.seed"
@@ -160,7 +160,7 @@ class Agent(Component):
     kind : str
         ``conv`` or ``vae``: the decoder's kind (checked against the checkpoint).
     config : dict
-        A loaded configuration (``master.experiment.config.load``): the resolution, the camera's blur,
+        A loaded configuration (``master.config.load``): the resolution, the camera's blur,
         the decoder's mode, and the start values of the parameters.
     name : str
         The component's name.
@@ -191,7 +191,7 @@ class Agent(Component):
 
     def whole_system(self) -> System:
         """The task's whole system, its body included, with new components: here the experiment's."""
-        from master.experiment.decoders import decoder_component  # torch only when an agent is built
+        from master.decoders.cache import decoder_component  # torch only when an agent is built
 
         return wiring.build_system(decoder_component(self.kind, self.checkpoint, self.config), self.config)
 

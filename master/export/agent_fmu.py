@@ -140,8 +140,8 @@ def export_agent(out, config: dict, kind: str | None = None, task: str = "illusi
     (Path, str)
         The FMU and the checkpoint it carries.
     """
-    from master.experiment.decoders import check_decoders, ensure_checkpoints
-    from master.experiment.wiring import check_parameters
+    from master.decoders.cache import check_decoders, ensure_checkpoints
+    from master.tasks.illusion.wiring import check_parameters
     from master.export.tasks import task as task_named
 
     kind = kind or config["experiment"]["decoders"][0]
@@ -160,7 +160,7 @@ def export_agent(out, config: dict, kind: str | None = None, task: str = "illusi
 
 def check_carried(config: dict) -> None:
     """The reach agent FMU carries the decoder only: the goal's term must be the pixel attractor."""
-    from master.experiment import reach
+    from master.tasks.reach import task as reach
 
     if reach.attractor(config) != "pixels":
         raise ConfigError(f"reach.attractor = {config['reach']['attractor']!r} reads the goal with a pose encoder, "

@@ -25,7 +25,7 @@ from xml.etree import ElementTree as ET
 import numpy as np
 
 from master.cosim import ConfigError
-from master.experiment import wiring
+from master.tasks.illusion import wiring
 from master.export.agent import agent_connections
 from master.export.tasks import task as task_named
 from master.outputs.files import atomic_write, check_output_file

@@ -122,14 +122,14 @@ def unpack(package: Package, folder: Path) -> tuple[Path, dict]:
 
 def final_drift_cm(values: dict, agent: str = AGENT, body: str = BODY) -> float:
     """The drift after the last step (cm): x of the forward kinematics of the agent's mu minus x of the body's
-    sensed angles, as ``master.experiment.measures`` computes it."""
+    sensed angles, as ``master.tasks.illusion.measures`` computes it."""
     perceived, _ = kinematics.forward(values[f"{agent}.mu_shoulder"][-1], values[f"{agent}.mu_elbow"][-1])
     real, _ = kinematics.forward(values[f"{body}.q_shoulder"][-1], values[f"{body}.q_elbow"][-1])
     return float(100.0 * (perceived - real))
 
 
 def final_goal_distance_cm(values: dict, agent: str = AGENT, body: str = BODY) -> float:
-    """The hand's distance to the goal's after the last step (cm), as ``master.experiment.reach.measures``
+    """The hand's distance to the goal's after the last step (cm), as ``master.tasks.reach.task.measures``
     computes it: the body's hand and the reach agent's goal hand."""
     return float(100.0 * np.hypot(values[f"{body}.hand_x"][-1] - values[f"{agent}.goal_hand_x"][-1],
                                   values[f"{body}.hand_y"][-1] - values[f"{agent}.goal_hand_y"][-1]))

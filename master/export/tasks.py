@@ -1,8 +1,8 @@
 """The tasks an agent FMU and an SSP package carry (``--task``): what differs between them, in one place.
 
-- ``illusion``: the experiment (master/experiment/wiring.py); its configuration ``config.load``, one
+- ``illusion``: the experiment (master/tasks/illusion/wiring.py); its configuration ``config.load``, one
   parameter file per trial of the protocol (``conv_left_sync_0``: its condition, delays and seed);
-- ``reach``: the free arm reaching to a seen goal (master/experiment/reach.py); its configuration
+- ``reach``: the free arm reaching to a seen goal (master/tasks/reach/task.py); its configuration
   ``reach.load`` (``body.held = false``), one parameter file per goal of the reach plan (``conv_near_0``:
   the goal pose).
 
@@ -14,9 +14,10 @@ from __future__ import annotations
 import numpy as np
 
 from master.cosim import ConfigError
-from master.experiment import config as configuration
-from master.experiment import reach, wiring
-from master.experiment.protocol import Trial, make_trial, plan
+from master import config as configuration
+from master.tasks.reach import task as reach
+from master.tasks.illusion import wiring
+from master.config.protocol import Trial, make_trial, plan
 from master.export.agent import SEED, SEED_HIGH, SEED_LOW, body_links, exposed, split_seed
 
 

@@ -25,8 +25,8 @@ import numpy as np
 
 from master import models
 from master.cosim import ConfigError
-from master.experiment import config as configuration
-from master.experiment.wiring import TASK_SOURCES, batchable_keys
+from master import config as configuration
+from master.tasks.illusion.wiring import TASK_SOURCES, batchable_keys
 from master.models.base import config_key
 from master.fit.data import MEASURES, Data, check_against
 

@@ -2,7 +2,7 @@
 
 A model is a :class:`Model`: it names its brain, the components it adds to a task's system (a pose
 encoder, say), the connections it adds (as data), the parameter sources it adds, and what it records.
-Every task (the tasks) assembles its system from a model through :func:`master.experiment.scene.assemble`,
+Every task (the tasks) assembles its system from a model through :func:`master.tasks.scene.assemble`,
 so a model written once runs in ``rhi experiment``, ``sweep``, ``phenomenon``, ``fit``, ``reach`` and
 ``export-agent`` with no other change.
 

@@ -4,7 +4,7 @@ persistent common-cause state and a population of participants (docs/model.md).
 Its system is a task's with the pose encoder added (the camera's image in, the seen pose and its variance
 into the brain) and the causal brain in the paper brain's place. The causal brain declares no input for a
 simulator position, so the task's links that would hand it one (the rubber hand, the body's hand) are left
-out by the assembly (:func:`master.experiment.scene.assemble`). Its parameters the paper's brain also has come
+out by the assembly (:func:`master.tasks.scene.assemble`). Its parameters the paper's brain also has come
 from ``[brain]`` as for the paper; the rest from ``[causal]`` (master/models/causal.toml) or derived here.
 """
 from __future__ import annotations

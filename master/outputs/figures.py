@@ -140,10 +140,10 @@ def gamma_over_time(trials, times, gamma, path):
 def panel_jobs(folder: Path, trials, times, per_step: dict[str, np.ndarray], final: dict[str, np.ndarray],
                jacobians: dict | None) -> list[tuple]:
     """Every panel as a job ``(function, *arguments)`` that writes one file of ``folder``: :func:`write_all`
-    runs them in turn, the experiment on its workers (``master.experiment.parallel.call``).
+    runs them in turn, the experiment on its workers (``master.runtime.pool.call``).
 
     per_step: the measures per step, (steps + 1, B); final: the per-trial values behind summary.csv
-    (master.experiment.measures.end_of_trial), so the bars show exactly what the table reports.
+    (master.tasks.illusion.measures.end_of_trial), so the bars show exactly what the table reports.
     jacobians: the images of panel h (None: no panel h).
     """
     accel = per_step["action_accel_x_m_s2"]

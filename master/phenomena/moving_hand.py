@@ -21,15 +21,16 @@ from components.body.plant import ArmPlant
 from components.brain.turning_points import TurningPoints
 from master import models
 from master.cosim import ConfigError, simulate
-from master.experiment import config as configuration
-from master.experiment import wiring
-from master.experiment.decoders import check_decoders, decoder_component, per_decoder
-from master.experiment.parallel import JOB_THREADS, Workers
-from master.experiment.protocol import rubber_pose, trial_seed
+from master import config as configuration
+from master.tasks.illusion import wiring
+from master.decoders.cache import check_decoders, decoder_component, per_decoder
+from master.runtime.pool import JOB_THREADS, Workers
+from master.config.protocol import rubber_pose, trial_seed
 from master.outputs import tables
 from master.outputs.files import atomic_write, output_folder
 from master.outputs.provenance import package_versions
-from master.experiment.scene import assemble, declared, model_parameters, model_parts
+from master.config.sources import model_parameters
+from master.tasks.scene import assemble, declared, model_parts
 
 NAME = "moving-hand"
 HUMAN_TABLE = "moving_hand"  # its human references in human.toml

@@ -21,13 +21,13 @@ from components.body.camera import Camera
 from components.brain.goal import GoalOnset
 from master import models
 from master.cosim import ConfigError, simulate
-from master.experiment import config as configuration
-from master.experiment import wiring
-from master.experiment.decoders import check_decoders, decoder_component, loaded, per_decoder
-from master.experiment.parallel import JOB_THREADS, Workers
-from master.experiment.protocol import plan
+from master import config as configuration
+from master.tasks.illusion import wiring
+from master.decoders.cache import check_decoders, decoder_component, loaded, per_decoder
+from master.runtime.pool import JOB_THREADS, Workers
+from master.config.protocol import plan
 from master.outputs import tables
-from master.experiment.scene import assemble, declared
+from master.tasks.scene import assemble, declared
 from master.outputs.files import atomic_write, output_folder
 from master.outputs.provenance import package_versions
 

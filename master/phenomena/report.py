@@ -28,7 +28,7 @@ from master.sweeps import plan as sweeps  # noqa: E402
 from master.sweeps.folder import read_records  # noqa: E402
 
 HUMAN = "tab:green"
-# per-trial outcome keys (master.experiment.trial_outcome) -> the table's mean (and sd) columns
+# per-trial outcome keys (master.tasks.illusion.trial_outcome) -> the table's mean (and sd) columns
 OUTCOMES = {"drift_cm": True, "force_n": True, "gamma_final": False, "action_accel_mean_x_m_s2": True,
             "drift_half_time_s": True, "drift_half_decay_s": True}
 POPULATION = ("drift_cm", "drift_half_time_s", "drift_half_decay_s")  # also as median, 25th and 75th percentile

@@ -89,7 +89,7 @@ def summary_columns() -> str:
 
 def trials_columns() -> str:
     """trials.csv's header, from the code that writes it, run on a recording of one step and one trial."""
-    from master.experiment.measures import measures
+    from master.tasks.illusion.measures import measures
     from master.outputs.tables import trials_csv
 
     pairs = ("brain.mu", "brain.action_rate", "stimulus.ball")
@@ -188,7 +188,7 @@ PORTS = ["port", "causality", "type", "unit", "range", "start", "meaning"]
 
 def agent_ports(task: str = "illusion") -> str:
     """The ports of ``task``'s agent (``master.export.tasks``), under the task's default configuration."""
-    from master.experiment.decoders import checkpoint_path
+    from master.decoders.cache import checkpoint_path
     from master.export.agent_fmu import make_agent
     from master.export.tasks import TASKS
 

@@ -8,7 +8,7 @@ plus a ``[sweep]`` table saying what varies::
     quick = true                   # start from the [quick] defaults, like `rhi experiment --quick`
     # preset = "paper"             # or from a shipped preset, like `rhi experiment --preset paper`
     model = "causal"               # the model (master/models/NAME.toml), like `rhi experiment --model`; paper by default
-    task = "master.experiment:trial_outcome"   # the trial function (module:function), this by default
+    # task = "package.module:function"       # a trial function of one's own; the experiment's trial by default
     batch = 10                     # at most this many trials per task (default: all of a point's decoder)
     workers = 2                    # processes of the local pool (default: one per core)
     [sweep.grid]                   # every combination, in file order, the last key varying fastest
@@ -43,11 +43,19 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from master import models
-from master.experiment import config as configuration
+from master import config as configuration
 from master.cosim import ConfigError
-from master import experiment
+from master.tasks import illusion as experiment
 
+# The default task's name. It is part of every trial's identity (its id, a folder's fingerprint), so it keeps
+# the name it had before the experiment became master/tasks/illusion; MOVED_TASKS says where it lives now.
 DEFAULT_TASK = "master.experiment:trial_outcome"
+MOVED_TASKS = {DEFAULT_TASK: "master.tasks.illusion:trial_outcome"}
+
+
+def task_location(name: str) -> str:
+    """Where the task ``name`` (``module:function``) is imported from."""
+    return MOVED_TASKS.get(name, name)
 SWEEP_KEYS = ("trials", "quick", "preset", "model", "task", "batch", "workers", "grid", "points")
 BATCHING = "lockstep-chunks/1"  # in the fingerprint of a batched sweep: folders of per-trial sweeps differ
 
@@ -120,7 +128,7 @@ def listed_points(points) -> list[dict]:
 
 def resolve_task(name: str):
     """The callable named ``module:function``; a ConfigError naming it when it cannot be imported."""
-    module_name, _, function_name = name.partition(":")
+    module_name, _, function_name = task_location(name).partition(":")
     if not module_name or not function_name:
         raise ConfigError(f"sweep.task must be 'module:function', got {name!r}")
     try:
@@ -194,9 +202,9 @@ def chunk_cells(configs: list[dict], batch: int | None,
 
 def check_batchable(configs: list[dict], points_per_batch: int) -> None:
     """ConfigError unless the points of each group of ``points_per_batch`` differ only where a lockstep batch
-    lets its trials differ: the batchable parameter keys (:func:`master.experiment.wiring.batchable_keys`),
+    lets its trials differ: the batchable parameter keys (:func:`master.tasks.illusion.wiring.batchable_keys`),
     the master seed, the conditions' offsets and the stimulations' delays (each trial's own)."""
-    from master.experiment.wiring import batchable_keys
+    from master.tasks.illusion.wiring import batchable_keys
 
     def shared(config: dict) -> str:
         kept = {table: dict(values) if isinstance(values, dict) else values for table, values in config.items()

@@ -23,10 +23,10 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from master.cosim import ConfigError
-from master.experiment.runner import failed_record
+from master.tasks.illusion.runner import failed_record
 from master.outputs.files import atomic_write
 from master.sweeps import lifeline
-from master.sweeps.plan import DEFAULT_TASK, Sweep, TrialSpec
+from master.sweeps.plan import DEFAULT_TASK, Sweep, TrialSpec, task_location
 
 # Dask's settings for workers whose tasks are long, single-threaded and CPU-bound (docs/sweeps.md): no
 # statistical profiler (by default it takes the GIL every 10 ms to walk the running task's stack), and
@@ -136,7 +136,7 @@ def check_workers(client, task: str) -> None:
     if not client.scheduler_info().get("workers"):
         print(f"rhi sweep: waiting for a Dask worker to connect to {client.scheduler.address}", file=sys.stderr)
         client.wait_for_workers(1)
-    module = task.partition(":")[0]
+    module = task_location(task).partition(":")[0]
     answers = client.run(worker_check, module, on_error="return")
     for worker, answer in answers.items():
         if isinstance(answer, BaseException):
@@ -154,7 +154,7 @@ def check_decoders(sweep: Sweep) -> None:
     for the experiment's own trial function; a ConfigError naming the point otherwise."""
     if sweep.task != DEFAULT_TASK:
         return
-    from master.experiment.decoders import check_decoders as check
+    from master.decoders.cache import check_decoders as check
 
     from master.sweeps.plan import describe
     for number, config in enumerate(sweep.configs):
@@ -169,7 +169,7 @@ def prepare_decoders(sweep: Sweep) -> None:
     the workers (a remote worker must see the same checkpoint paths, see docs/sweeps.md)."""
     if sweep.task != DEFAULT_TASK:
         return
-    from master.experiment.decoders import ensure_checkpoints
+    from master.decoders.cache import ensure_checkpoints
 
     for config in sweep.configs:  # a checkpoint already there is not trained again
         ensure_checkpoints(config)
@@ -209,14 +209,14 @@ def run_trial(task, config: dict, trial: TrialSpec) -> dict:
 def run_chunk(config: dict, trials: list[TrialSpec], configs: list[dict] | None = None) -> list[dict]:
     """Runs on a worker: the chunk's trials (one point, or with ``configs`` each trial's point's configuration,
     one decoder) in one lockstep batch, each failure isolated to its trial
-    (:func:`master.experiment.runner.batch_outcomes`); one result per trial, in order. Never raises.
+    (:func:`master.tasks.illusion.runner.batch_outcomes`); one result per trial, in order. Never raises.
     ``elapsed_s`` is the whole chunk's time, the worker's one-time imports excluded (as the experiment's
     batches count theirs)."""
-    from master.experiment import make_trial
-    from master.experiment.runner import batch_outcomes
-    from master.experiment.wiring import batchable_keys
+    from master.tasks.illusion import make_trial
+    from master.tasks.illusion.runner import batch_outcomes
+    from master.tasks.illusion.wiring import batchable_keys
 
-    importlib.import_module("master.experiment.decoders")  # torch: once per worker, before the clock starts
+    importlib.import_module("master.decoders.cache")  # torch: once per worker, before the clock starts
 
     steady_malloc()
     started, began, cpu = time.time(), time.perf_counter(), time.process_time()

@@ -1,8 +1,10 @@
-"""The rubber-hand system: its components, their connections in step order, and their parameters.
+"""Where every component parameter's value comes from, and the values for a batch of trials.
 
-:data:`PARAMETER_SOURCES` says, for every parameter of every component, where its value comes
-from; :func:`parameters` follows it, and tests/test_defaults.py checks that it covers every
-component parameter and that each plain key of ``defaults.toml`` equals the component's start value.
+:data:`TASK_SOURCES` says it for the task's components and each model's ``parameter_sources`` for its brain
+(:mod:`master.models`); :func:`parameters` follows both, and tests/test_defaults.py checks that they cover
+every component parameter and that each plain key of ``defaults.toml`` equals the component's start value.
+:func:`check_parameters` sets them on the components before any work, so a value out of a component's range
+is refused naming its key.
 """
 from __future__ import annotations
 
@@ -15,39 +17,10 @@ from components.body.rubber_arm import RubberArm
 from components.component import ComponentError
 from components.stimulus import Stimulus
 from master import models
-from master.cosim import ConfigError, System, simulate
-from master.experiment.protocol import Trial, per_trial, plan
-from master.models.base import config_key
+from master.config.protocol import HALF_RANGES, Trial, per_trial, plan
+from master.cosim import ConfigError, System
+from master.models.base import TrialValues, config_key
 from master.models.paper import BRAIN_SOURCES
-from master.experiment.scene import assemble, model_parameters, model_parts
-
-# Gauss-Seidel order within one step (docs/design.md): the decoder reads the brain's mu of time t and the
-# image of time t; the brain then integrates; the body finally receives the new action.
-CONNECTIONS = [
-    ("rubber_arm.hand", "stimulus.target"),
-    ("rubber_arm.pose", "camera.arm_pose"),
-    ("stimulus.ball", "camera.ball"),
-    ("camera.image", "decoder.image"),
-    ("brain.mu", "decoder.mu"),
-    ("decoder.visual_drive", "brain.visual_drive"),
-    ("decoder.visual_error", "brain.visual_error"),
-    ("decoder.visual_stiffness", "brain.visual_stiffness"),
-    ("stimulus.visual_time", "brain.visual_time"),
-    ("stimulus.tactile_time", "brain.tactile_time"),
-    ("rubber_arm.hand", "brain.seen_hand"),            # read only by the spatial extension (brain.spatial_sd)
-    ("body.hand_x", "brain.hand_x"),
-    ("body.hand_y", "brain.hand_y"),
-    ("body.q_shoulder", "brain.q_shoulder"),
-    ("body.q_elbow", "brain.q_elbow"),
-    ("brain.u_shoulder", "body.u_shoulder"),
-    ("brain.u_elbow", "body.u_elbow"),
-]
-
-RECORD = ["brain.mu", "brain.gamma", "brain.u_shoulder", "brain.u_elbow", "brain.action_rate",
-          "brain.free_energy", "body.q_shoulder", "body.q_elbow", "body.hand_x", "body.hand_y",
-          "body.force_x", "body.force_y", "stimulus.visual_time", "stimulus.tactile_time",
-          "decoder.visual_error", "stimulus.ball"]
-
 
 # component.parameter -> where its value comes from, for the task's components (the model's brain declares its
 # own: master.models.Model.parameter_sources). A source is one of:
@@ -97,16 +70,6 @@ DERIVED = {
 PER_TRIAL = {"rubber_arm.offset_x": "offset_x", "stimulus.delay_min": "delay_min",
              "stimulus.delay_max": "delay_max", "stimulus.seed": "seed"}
 CONSTRUCTED = ("camera.resolution", "decoder.relinearise_tolerance")  # given to the constructors instead
-
-
-def build_system(decoder, config: dict, body=None) -> System:
-    """The rubber-hand system around a decoder component, with the configuration's model (its parts and brain);
-    ``body`` defaults to the native pymunk plant."""
-    model = models.of(config)
-    kind = decoder.model.metadata.get("kind", "conv") if hasattr(decoder, "model") else "conv"
-    parts = [RubberArm(), Stimulus(), Camera(resolution=config["experiment"]["resolution"]), decoder,
-             *model_parts(config, kind, getattr(decoder, "threads", None)), body if body is not None else ArmPlant()]
-    return assemble(parts, CONNECTIONS + list(model.links))
 
 
 def parameters(trials: list[Trial], config: dict) -> dict:
@@ -169,16 +132,15 @@ def undeclared(given: dict, system: System) -> list[str]:
     return [path for path in given if path.startswith("body.") and path.partition(".")[2] not in variables]
 
 
-def run_batch(decoder, trials: list[Trial], config: dict, body=None, progress=None):
-    """Run ``trials`` (all with this decoder component) in lockstep; returns the master's Result."""
-    experiment = config["experiment"]
-    system = build_system(decoder, config, body)
-    given = parameters(trials, config)
-    for path in undeclared(given, system):
-        del given[path]
-    return simulate(system, stop_time=experiment["steps"] * experiment["step_size"],
-                    step_size=experiment["step_size"], scheme=experiment["scheme"], batch_size=len(trials),
-                    parameters=given, record=RECORD + list(models.of(config).record), progress=progress)
+def trial_values(config: dict, seeds, value) -> TrialValues:
+    """What a model's parameters are computed from: the configuration, the trials' seeds (B,) and ``value(key)``."""
+    return TrialValues(config, np.asarray(seeds, dtype=np.int64), value, tuple(kinematics.REST_POSE),
+                       tuple(HALF_RANGES))
+
+
+def model_parameters(config: dict, seeds, value) -> dict:
+    """The model's brain parameters for trials of these ``seeds`` (:meth:`master.models.Model.parameters`)."""
+    return models.of(config).parameters(trial_values(config, seeds, value))
 
 
 def check_parameters(config: dict) -> None:

@@ -24,10 +24,10 @@ from pathlib import Path
 import numpy as np
 
 from components.body import camera, kinematics
+from master.config.protocol import HALF_RANGES
 from master.cosim import ConfigError
 from master.outputs.files import atomic_write
 
-HALF_RANGES = (40.0, 50.0)  # deg: shoulder, elbow, about the rest pose (docs/design.md)
 CHUNK = 256                 # poses rendered per call (bounds memory at 256 x 256)
 
 

@@ -12,6 +12,9 @@ import numpy as np
 
 from components.body import kinematics
 
+HALF_RANGES = (40.0, 50.0)  # deg: shoulder, elbow, about the rest pose: the arm's working ranges in every task, and so
+#                                the decoders' training ranges (docs/design.md)
+
 @dataclass(frozen=True)
 class Trial:
     """One trial of the protocol and everything that makes it differ from the others."""
@@ -40,7 +43,7 @@ def make_trial(config: dict, decoder: str, condition: str, stimulation: str, ind
     """The trial of this cell and repetition under ``config``: its seed, rubber-hand offset and delay law.
 
     overrides: ``((key, value), ...)``, the trial's own values of parameter keys in a batch of several
-    configurations (:func:`master.experiment.wiring.parameters` gives them to the components per trial).
+    configurations (:func:`master.tasks.illusion.wiring.parameters` gives them to the components per trial).
     """
     delays = config["stimulations"][stimulation]
     return Trial(decoder, condition, stimulation, index,

@@ -2,7 +2,7 @@
 
 One batch per decoder: every condition x stimulation x trial of that decoder advances together
 (the batch dimension), so one decoder call serves them all; the decoders' batches run side by side,
-each in its own process (:mod:`master.experiment.parallel`).
+each in its own process (:mod:`master.runtime.pool`).
 """
 from __future__ import annotations
 
@@ -12,10 +12,10 @@ from contextlib import contextmanager
 import numpy as np
 
 from master.cosim import SimulationError
-from master.experiment.measures import end_of_trial, measures
-from master.experiment.parallel import JOB_THREADS, Workers, process_count, run_jobs
-from master.experiment.protocol import Trial, make_trial, plan
-from master.experiment.wiring import run_batch
+from master.tasks.illusion.measures import end_of_trial, measures
+from master.runtime.pool import JOB_THREADS, Workers, process_count, run_jobs
+from master.config.protocol import Trial, make_trial, plan
+from master.tasks.illusion.wiring import run_batch
 
 
 def without_failures(run_trials, trials: list[Trial]):
@@ -97,7 +97,7 @@ def decoder_batch(config: dict, kind: str, checkpoint: str, trials: list[Trial],
 
     Returns (kept trials, {"times", "measures"} or None, seconds, {failed trial: error}).
     """
-    from master.experiment.decoders import decoder_component  # torch is imported only when a run needs it
+    from master.decoders.cache import decoder_component  # torch is imported only when a run needs it
 
     make_body = body_factory(body, config)[0]
 
@@ -161,7 +161,7 @@ def batch_outcomes(config: dict, decoder: str, trials: list[Trial], checkpoint: 
     """
     import traceback
 
-    from master.experiment.decoders import checkpoint_path, decoder_component
+    from master.decoders.cache import checkpoint_path, decoder_component
 
     def run_trials(batch: list[Trial]) -> list[dict]:
         path = checkpoint or checkpoint_path(decoder, config, must_exist=True)
@@ -213,7 +213,7 @@ def bar_positions(jobs: int, progress: bool, processes: int | None = None,
 @contextmanager
 def step_bar(description: str, total: int, position: int | None):
     """A progress bar of ``total`` steps on line ``position`` of the terminal, removed when done; yields its
-    ``update(done, total)`` callback for :func:`master.experiment.wiring.run_batch` (None, and no bar,
+    ``update(done, total)`` callback for :func:`master.tasks.illusion.wiring.run_batch` (None, and no bar,
     when ``position`` is None)."""
     if position is None:
         yield None

@@ -2,28 +2,29 @@
 
 The one obvious call, in memory (``result.write(DIR)`` publishes what ``rhi experiment`` writes)::
 
-    from master.experiment import config, run_experiment
+    from master.tasks.illusion import run_experiment
+    from master import config
     result = run_experiment(config.load(quick=True))
     result.final["drift_cm"]                   # (trials,) cm, in the order of result.trials
 
 By hand, one lockstep batch::
 
-    from master.experiment.decoders import decoder_component
+    from master.decoders.cache import decoder_component
     trials = plan(cfg)
     batch = run_batch(decoder_component("conv", path, cfg), trials, cfg)
     drift = measures(batch)["drift_cm"]        # (steps + 1, len(trials))
 """
-from master.experiment.context import RunContext
-from master.experiment.measures import measures
-from master.experiment.protocol import Trial, make_trial, plan, rubber_pose, trial_seed
-from master.experiment.runner import run, trial_outcome, without_failures
-from master.experiment.wiring import CONNECTIONS, RECORD, build_system, parameters, run_batch
+from master.runtime.context import RunContext
+from master.tasks.illusion.measures import measures
+from master.config.protocol import Trial, make_trial, plan, rubber_pose, trial_seed
+from master.tasks.illusion.runner import run, trial_outcome, without_failures
+from master.tasks.illusion.wiring import CONNECTIONS, RECORD, build_system, parameters, run_batch
 
 
 def run_experiment(config=None, body=None, context=None, workers=None):
-    """The protocol in memory: :func:`master.experiment.publish.run_experiment` (imported when called: it
+    """The protocol in memory: :func:`master.tasks.illusion.publish.run_experiment` (imported when called: it
     brings the figures and the decoders' training)."""
-    from master.experiment.publish import run_experiment as run_protocol
+    from master.tasks.illusion.publish import run_experiment as run_protocol
     return run_protocol(config, body, context, workers)
 
 __all__ = ["run_experiment", "RunContext", "Trial", "make_trial", "plan", "rubber_pose", "trial_seed", "CONNECTIONS", "RECORD", "build_system",

@@ -13,14 +13,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from master import models
-from master.experiment import runner as experiment
-from master.experiment.context import RunContext
-from master.experiment.runner import body_factory
-from master.experiment.decoders import check_decoders, ensure_checkpoints, jacobian_pair
-from master.experiment.fast_check import verdicts
-from master.experiment.parallel import Workers, call
-from master.experiment.measures import end_of_trial
-from master.experiment.protocol import plan, rubber_pose
+from master.tasks.illusion import runner as experiment
+from master.runtime.context import RunContext
+from master.tasks.illusion.runner import body_factory
+from master.decoders.cache import check_decoders, ensure_checkpoints, jacobian_pair
+from master.tasks.illusion.fast_check import verdicts
+from master.runtime.pool import Workers, call
+from master.tasks.illusion.measures import end_of_trial
+from master.config.protocol import plan, rubber_pose
 from master.outputs import figures, tables
 from master.outputs.files import atomic_write, check_output, output_folder
 from master.outputs.provenance import package_versions
@@ -40,7 +40,7 @@ class ExperimentResult:
     times : numpy.ndarray
         (steps + 1,) s.
     per_step : dict of str to numpy.ndarray
-        Each measure per step and trial, (steps + 1, len(trials)) (:func:`master.experiment.measures.measures`).
+        Each measure per step and trial, (steps + 1, len(trials)) (:func:`master.tasks.illusion.measures.measures`).
     final : dict of str to numpy.ndarray
         Each measure at the end of the trial, (len(trials),).
     summary : list of list
@@ -99,7 +99,7 @@ def run_experiment(config: dict | None = None, body: str | None = None, context:
     Parameters
     ----------
     config : dict, optional
-        A configuration (:func:`master.experiment.config.load`); any registered model (``[model]``).
+        A configuration (:func:`master.config.load`); any registered model (``[model]``).
     body : str, optional
         An FMU to use as the body (default: the native pymunk plant).
     context : RunContext, optional
@@ -113,11 +113,12 @@ def run_experiment(config: dict | None = None, body: str | None = None, context:
 
     Example::
 
-        from master.experiment import config, run_experiment
+        from master.tasks.illusion import run_experiment
+        from master import config
         result = run_experiment(config.load(quick=True, model_name="causal"))
         result.final["drift_cm"]         # (trials,) cm
     """
-    from master.experiment import config as configuration
+    from master import config as configuration
 
     began = time.perf_counter()
     config = configuration.load() if config is None else config

@@ -27,8 +27,8 @@ from components.vision import checkpoint, training
 from components.vision.component import GenerativeModel, resolve_device
 from components.vision.optimised import optimised
 from master.cosim import ConfigError
-from master.experiment import training_data
-from master.experiment.quality import hand_error, read_off_error
+from master.decoders import training_data
+from master.decoders.quality import hand_error, read_off_error
 from master.outputs.files import atomic_write, check_output_file
 
 SIGNATURE_TOLERANCE = 1e-3  # relative; the signature moves by far more when the camera changes

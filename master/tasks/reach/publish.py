@@ -9,11 +9,11 @@ import numpy as np
 
 from master import models
 from master.cosim import SimulationError
-from master.experiment import reach
-from master.experiment.decoders import check_decoders, ensure_checkpoints
-from master.experiment.scene import encoder_path
-from master.experiment.parallel import JOB_THREADS, Workers, run_jobs
-from master.experiment.runner import bar_positions, step_bar, without_failures
+from master.tasks.reach import task as reach
+from master.decoders.cache import check_decoders, ensure_checkpoints
+from master.tasks.scene import encoder_path
+from master.runtime.pool import JOB_THREADS, Workers, run_jobs
+from master.tasks.illusion.runner import bar_positions, step_bar, without_failures
 from master.outputs import tables
 from master.outputs.files import atomic_write, check_output, output_folder
 from master.outputs.provenance import package_versions
@@ -90,7 +90,7 @@ def trials_text(trials, times, per_step: dict[str, np.ndarray], every: int) -> s
 
 def run_into(out, config: dict, force: bool = False, progress: bool = False) -> dict:
     """Run every reach of ``config`` and write DIR = ``out``; returns {failed trial: error}."""
-    from master.experiment.reach_figures import write_figures
+    from master.tasks.reach.figures import write_figures
 
     started = time.perf_counter()
     check_output(out, force)

@@ -3,13 +3,13 @@
 For each decoder the causal model reads the seen arm's pose with an encoder
 (:mod:`components.vision.pose_encoder`): the ``vae`` slot uses the VAE's own trained encoder, the
 ``conv`` slot an encoder of the same shape trained by Gaussian NLL on the same rendered data as the
-decoders (:func:`master.experiment.training.prepare_data`, the ``[train]`` settings). Both are then
+decoders (:func:`master.decoders.training.prepare_data`, the ``[train]`` settings). Both are then
 calibrated on CALIBRATION_POSES held-out poses (their own seed) and their coverage is measured on
 COVERAGE_POSES others (another seed). The held-out images are those the brain sees: the arm with
 the ball somewhere on its way to the hand (:func:`held_out`).
 
-``python -m master.experiment.pose_encoders OUT_FOLDER`` trains and calibrates both at the default
-settings and prints their coverage (the shipped files, master/experiment/checkpoints/pose-*.pt).
+``python -m master.decoders.pose_encoders OUT_FOLDER`` trains and calibrates both at the default
+settings and prints their coverage (the shipped files, master/decoders/checkpoints/pose-*.pt).
 """
 from __future__ import annotations
 
@@ -24,13 +24,34 @@ from components.vision import checkpoint
 from components.vision.networks import preset
 from components.vision.pose_encoder import PoseModel, coverage, load_encoder, save_encoder, train_encoder, \
     variance_scale
-from master.experiment import training_data
-from master.experiment.scene import shipped_path
-from master.experiment.training import prepare_data, train_settings
+from master import models
+from master.cosim import ConfigError
+from master.decoders import training_data
+from master.decoders.training import prepare_data, train_settings
 
 CALIBRATION_POSES, CALIBRATION_SEED = 500, 101
 COVERAGE_POSES, COVERAGE_SEED = 500, 202
 BALL_REACH = 0.25  # m: the ball is anywhere from the hand to this far forward of it (the stimulus' ball_distance)
+
+
+SHIPPED = Path(__file__).parent / "checkpoints"
+
+
+def shipped_path(kind: str, resolution: int) -> Path:
+    return SHIPPED / f"pose-{kind}-r{resolution}.pt"
+
+
+def encoder_path(kind: str, config: dict) -> str:
+    """The pose encoder of decoder slot ``kind``: the model's own (``causal.<kind>_pose_encoder``, say), or the
+    shipped one at this resolution; ConfigError when there is none."""
+    given = models.of(config).pose_encoder_file(kind, config)
+    path = Path(given) if given else shipped_path(kind, config["experiment"]["resolution"])
+    if not path.is_file():
+        what = f"no pose encoder at {path}" if given else \
+            f"no shipped {kind} pose encoder at {config['experiment']['resolution']} px ({path})"
+        raise ConfigError(f"{what}: the brain or the reach's goal reads the seen arm's pose (make one with "
+                          "`python -m master.decoders.pose_encoders FOLDER`)")
+    return str(path)
 
 
 def held_out(samples: int, seed: int, resolution: int, blur: float) -> tuple[np.ndarray, np.ndarray]:
@@ -84,8 +105,8 @@ def build(kind: str, config: dict, decoder_checkpoint: str, cache: Path, epochs:
 
 
 def main(argv: list[str]) -> int:
-    from master.experiment import config as configuration
-    from master.experiment.decoders import cache_folder, checkpoint_path
+    from master import config as configuration
+    from master.decoders.cache import cache_folder, checkpoint_path
 
     out = Path(argv[0])
     out.mkdir(parents=True, exist_ok=True)

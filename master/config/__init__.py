@@ -274,7 +274,7 @@ def validate(config: dict) -> None:
         raise ConfigError(f"this run would need about {size(needed)} of memory ({what}), more than this machine's "
                           f"{size(available)}; lower experiment.resolution, experiment.steps or experiment.trials "
                           "(or train.samples)")
-    from master.experiment.wiring import check_parameters  # the components' own ranges (substeps, period, ...)
+    from master.config.sources import check_parameters  # the components' own ranges (substeps, period, ...)
 
     check_parameters(config)
     check_step_size(config)  # after the components' ranges: it reads stimulus.period and [brain]

@@ -5,7 +5,7 @@ trained with the ``[train]`` settings at the experiment's resolution on the came
 ``[camera] blur``, named by a hash of what made it (the settings, and the blur when it is not the
 default): the package ships the checkpoints of the default settings (``SHIPPED``, which `rhi train`
 reproduces byte for byte, docs/decoders.md), and any other is trained once, the decoders side by side
-(:mod:`master.experiment.parallel`), and cached under ``$RHI_CACHE`` (default ``~/.cache/rhi``),
+(:mod:`master.runtime.pool`), and cached under ``$RHI_CACHE`` (default ``~/.cache/rhi``),
 so a changed setting trains a new one and an unchanged one is reused.
 Either way a loaded checkpoint is checked against the camera at the configured blur.
 """
@@ -26,8 +26,8 @@ from components.body import camera, kinematics
 from components.vision.checkpoint import CheckpointError
 from components.vision.component import Decoder, GenerativeModel, jacobian_images
 from master.cosim import ConfigError
-from master.experiment.parallel import Workers, run_jobs
-from master.experiment.training import load_decoder, prepare_data, train_decoder, train_settings
+from master.runtime.pool import Workers, run_jobs
+from master.decoders.training import load_decoder, prepare_data, train_decoder, train_settings
 
 KINDS = ("conv", "vae")  # the decoder slots of [decoder] and experiment.decoders
 SHIPPED = Path(__file__).parent / "checkpoints"  # the default decoders, named as the cache names them

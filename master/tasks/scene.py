@@ -3,19 +3,14 @@
 Every task builds its system with :func:`model_system`: the task's components (its world: arms, cameras,
 stimuli, decoders), the model's (:meth:`master.models.Model.parts`, then its brain), then the task's
 components after the brain (the body), wired by the task's links and the model's, and given the task's
-parameters and the model's (:func:`model_parameters`).
+parameters and the model's (:func:`master.config.sources.model_parameters`).
 """
 from __future__ import annotations
 
-from pathlib import Path
-
-import numpy as np
-
-from components.body import kinematics
 from master import models
 from master.cosim import ConfigError, System
-from master.experiment.training_data import HALF_RANGES
-from master.models.base import Scene, TrialValues
+from master.decoders.pose_encoders import encoder_path
+from master.models.base import Scene
 
 
 def assemble(parts: list, links) -> System:
@@ -49,26 +44,6 @@ def assemble(parts: list, links) -> System:
     return System(parts, kept)
 
 
-SHIPPED_POSE_ENCODERS = Path(__file__).parent / "checkpoints"
-
-
-def shipped_path(kind: str, resolution: int) -> Path:
-    return SHIPPED_POSE_ENCODERS / f"pose-{kind}-r{resolution}.pt"
-
-
-def encoder_path(kind: str, config: dict) -> str:
-    """The pose encoder of decoder slot ``kind``: the model's own (``causal.<kind>_pose_encoder``, say), or the
-    shipped one at this resolution; ConfigError when there is none."""
-    given = models.of(config).pose_encoder_file(kind, config)
-    path = Path(given) if given else shipped_path(kind, config["experiment"]["resolution"])
-    if not path.is_file():
-        what = f"no pose encoder at {path}" if given else \
-            f"no shipped {kind} pose encoder at {config['experiment']['resolution']} px ({path})"
-        raise ConfigError(f"{what}: the brain or the reach's goal reads the seen arm's pose (make one with "
-                          "`python -m master.experiment.pose_encoders FOLDER`)")
-    return str(path)
-
-
 def pose_encoders(config: dict, kind: str, threads: int | None):
     """``make(name)``: a pose encoder component reading decoder slot ``kind``'s image at the run's resolution
     (the model's own checkpoint or the shipped one, :func:`encoder_path`)."""
@@ -83,17 +58,6 @@ def model_parts(config: dict, kind: str, threads: int | None = None) -> list:
     """The model's components for decoder slot ``kind``: its parts (a pose encoder, say), then its brain."""
     model = models.of(config)
     return [*model.parts(Scene(config, kind, threads, pose_encoders(config, kind, threads))), model.brain()]
-
-
-def trial_values(config: dict, seeds, value) -> TrialValues:
-    """What a model's parameters are computed from: the configuration, the trials' seeds (B,) and ``value(key)``."""
-    return TrialValues(config, np.asarray(seeds, dtype=np.int64), value, tuple(kinematics.REST_POSE),
-                       tuple(HALF_RANGES))
-
-
-def model_parameters(config: dict, seeds, value) -> dict:
-    """The model's brain parameters for trials of these ``seeds`` (:meth:`master.models.Model.parameters`)."""
-    return models.of(config).parameters(trial_values(config, seeds, value))
 
 
 def declared(given: dict, system: System) -> dict:

@@ -21,11 +21,12 @@ from components.body.camera import Camera
 from components.body.plant import ArmPlant
 from master import models
 from master.cosim import ConfigError, System, simulate
-from master.experiment import config as configuration
-from master.experiment import wiring
-from master.experiment.protocol import per_trial
-from master.experiment.training_data import HALF_RANGES
-from master.experiment.scene import assemble, declared, model_parameters, model_parts, pose_encoders
+from master import config as configuration
+from master.tasks.illusion import wiring
+from master.config.protocol import per_trial
+from master.decoders.training_data import HALF_RANGES
+from master.config.sources import model_parameters
+from master.tasks.scene import assemble, declared, model_parts, pose_encoders
 
 ATTRACTORS = ("auto", "pixels", "body")
 VIEWS = ("auto", "on", "off")
@@ -233,7 +234,7 @@ def build_system(kind: str, path: str, config: dict, threads: int = 1) -> System
     free body."""
     from components.vision.component import Decoder
     from components.vision.fast import LinearisedDecoder
-    from master.experiment.decoders import check_kind, loaded
+    from master.decoders.cache import check_kind, loaded
 
     resolution = config["experiment"]["resolution"]
     model = loaded(path, resolution, config["camera"]["blur"])
@@ -262,7 +263,7 @@ def build_system(kind: str, path: str, config: dict, threads: int = 1) -> System
 
 def parameters(trials: list[ReachTrial], config: dict, system: System) -> dict:
     """Every parameter of the reach system: the experiment's sources for the body, cameras and decoders
-    (:data:`master.experiment.wiring.TASK_SOURCES`), the model's for its brain, the goal per trial, and the
+    (:data:`master.tasks.illusion.wiring.TASK_SOURCES`), the model's for its brain, the goal per trial, and the
     goal's precision."""
     given = wiring.shared_parameters(config, ("body", "camera", "decoder"))
     for key in ("blur", "ball_radius"):
