@@ -17,7 +17,7 @@ import pytest
 from master.bench import suite as bench
 from master.bench.settings import QUICK
 from master.bench.report import table
-from master.commands.bench import run_bench
+from master.commands.bench import run as run_bench
 from master.commands.cli import build_parser
 from master.cosim import ConfigError
 from master.bench.baseline import PaperStyleAgent

@@ -73,3 +73,20 @@ def test_bad_input_is_one_line_on_stderr_and_exit_status_2(command, tmp_path):
     assert len(lines) == 1 and lines[0].startswith(f"rhi {command}: error: ") and expected in lines[0], result.stderr
     assert "Traceback" not in result.stderr
     assert sorted(p.name for p in Path(tmp_path).iterdir()) == ["bad.toml"]  # nothing half-written
+
+
+def test_every_command_is_one_module_of_the_table():
+    """cli.COMMANDS names each command's module, which defines HELP, add_arguments and run; every module of
+    master/commands but cli.py is one of them, and `rhi --help` lists exactly the table's commands."""
+    import importlib
+
+    from master.commands.cli import COMMANDS, build_parser
+
+    folder = Path(importlib.import_module("master.commands").__file__).parent
+    modules = {path.stem for path in folder.glob("*.py")} - {"__init__", "cli"}
+    assert modules == set(COMMANDS.values())
+    for module_name in COMMANDS.values():
+        module = importlib.import_module(f"master.commands.{module_name}")
+        assert isinstance(module.HELP, str) and callable(module.add_arguments) and callable(module.run)
+    listed = build_parser()._subparsers._group_actions[0].choices
+    assert list(listed) == list(COMMANDS)

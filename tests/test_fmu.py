@@ -23,7 +23,7 @@ from components.body.contract import BODY_CONTRACT
 from components.fmu import FMUComponent, check_contract, extracted, guard_library
 from components.vision.component import Decoder
 from master import ConfigError, SimulationError, System, simulate
-from master.commands.export_body import run_export
+from master.commands.export_body import run as run_export
 from master.export.body import build_fmu
 from tests.toys import Constant
 

@@ -18,7 +18,7 @@ import pytest
 from master.sweeps import plan as sweeps
 from master import config as configuration
 from master.commands.cli import main
-from master.commands.sweep import run_sweep
+from master.commands.sweep import run as run_sweep
 from tests.sweep_files import ENV, args, batched_file, command, expected, lockstep_truth, records, single_core, sweep_file
 
 DASK = Path(sys.executable).with_name("dask")

@@ -15,7 +15,7 @@ from master.sweeps import plan as sweeps
 from master.cosim import ConfigError
 from master import config as configuration
 from master.tasks.illusion import trial_seed
-from master.commands.sweep import run_sweep
+from master.commands.sweep import run as run_sweep
 from tests.sweep_files import ENV, args, batched_file, command, expected, records, single_core, sweep_file
 
 

@@ -14,7 +14,7 @@ from components.vision.component import GenerativeModel
 from components.vision.training import TrainSettings, kl_to_prior, train
 from master.decoders import training_data
 from master.cosim import ConfigError
-from master.commands.train import run_train
+from master.commands.train import run as run_train
 from master import config as configuration
 from master.decoders.quality import fit_camera, fit_decoder
 from master.decoders.training import load_decoder, train_settings

@@ -6,15 +6,32 @@ import os
 import sys
 from dataclasses import replace
 
-from master.bench.report import table
-from master.bench.settings import QUICK, BenchSettings
-from master.bench.suite import run_suite
 from master.cosim import ConfigError
 from master.config import MAX_THREADS
 
 
-def run_bench(args) -> int:
+HELP = "measure speed"
+
+
+def add_arguments(parser) -> None:
+    """`rhi bench`'s arguments."""
+    parser.add_argument("--json", action="store_true", help="print the results as JSON (for machines)")
+    parser.add_argument("--quick", action="store_true", help="tiny settings: a smoke test in seconds")
+    parser.add_argument("--threads", type=int, default=0, metavar="N",
+                        help="torch threads (default: all cores; 1 on a machine busy with other work)")
+    parser.add_argument("--checkpoint", metavar="CKPT", default="",
+                        help="trained conv decoder for the fast mode's drift error (default: the cached default)")
+    parser.add_argument("--training", action="store_true",
+                        help="instead: samples/s of the paper decoders' training step at 256x256, before and after "
+                             "the paper preset's settings, phase by phase (--quick: tiny, 32x32)")
+
+
+def run(args) -> int:
     """The ``rhi bench`` command: args.json, and optionally args.quick, args.threads."""
+    from master.bench.report import table
+    from master.bench.settings import QUICK, BenchSettings
+    from master.bench.suite import run_suite
+
     settings = QUICK if getattr(args, "quick", False) else BenchSettings()
     threads = getattr(args, "threads", 0) or 0
     if not 0 <= threads <= MAX_THREADS:

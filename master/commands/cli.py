@@ -1,4 +1,4 @@
-"""The ``rhi`` command line. Each subcommand lives in its own function.
+"""The ``rhi`` command line: a table of commands (:data:`COMMANDS`), each a module of its own.
 
 Exit status: 0 done; 2 refused (bad input: one line on stderr, nothing written); 1 a run that failed in
 part or could not finish (a failed trial, a full disk, a closed stdout: one line each, what completed is
@@ -8,13 +8,13 @@ from __future__ import annotations
 
 import argparse
 import errno
+import importlib
 import os
 import signal
 import sys
 import threading
 
 from components.component import ComponentError
-from master.commands import experiment as experiment_command
 from master.cosim import ConfigError, SimulationError
 from master.cosim.errors import one_line
 
@@ -50,99 +50,25 @@ def _version() -> str:
         return "(not installed)"
 
 
+# Every command: its name -> its module in master/commands, which defines HELP, add_arguments(parser) and run(args)
+# (the exit status). A module imports only what parsing needs at its top; what running needs, in run().
+COMMANDS = {"train": "train", "experiment": "experiment", "export-body": "export_body", "export-agent": "export_agent",
+            "export-system": "export_system", "run-system": "run_system", "sweep": "sweep",
+            "phenomenon": "phenomenon", "fit": "fit", "reach": "reach", "bench": "bench"}
+
+
 def build_parser() -> argparse.ArgumentParser:
+    """The ``rhi`` parser: a subcommand per entry of :data:`COMMANDS`, ``args.run`` its module's ``run``."""
     parser = Parser(
         prog="rhi", description="A deep active inference model of the rubber-hand illusion, as a co-simulation.")
     parser.add_argument("--debug", action="store_true", help="show full tracebacks on errors")
     parser.add_argument("--version", action="version", version=f"rhi {_version()}")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-
-    train = commands.add_parser("train", help="train a visual decoder")
-    train.add_argument("--decoder", choices=("conv", "vae"), required=True)
-    train.add_argument("--config", metavar="FILE")
-    experiment_command.add_preset(train)
-    experiment_command.add_device(train)
-    train.add_argument("--out", metavar="CKPT", required=True)
-    train.set_defaults(run=lambda args: __import__("master.commands.train", fromlist=["_"]).run_train(args))
-
-    experiment = commands.add_parser("experiment", help="run the paper's rubber-hand protocol")
-    experiment_command.add_arguments(experiment)
-    experiment.set_defaults(run=experiment_command.run_experiment)
-
-    export = commands.add_parser("export-body", help="export the body plant as an FMI 2.0 FMU")
-    export.add_argument("--variant", metavar="NAME",
-                        help="native (default: the pymunk plant), kinematic, or kinematic-c (the kinematic arm in C)")
-    export.add_argument("--out", metavar="FILE.fmu", required=True)
-    export.add_argument("--force", action="store_true", help="replace an existing --out FILE, if rhi wrote it")
-    export.set_defaults(run=lambda args: __import__("master.commands.export_body", fromlist=["_"]).run_export(args))
-
-    module = "master.commands.export_agent"
-    agent = commands.add_parser("export-agent", help="export the agent (stimulus, rubber arm, camera, decoder, brain; "
-                                                     "--task reach: the reach's) as an FMI 2.0 FMU")
-    __import__(module, fromlist=["_"]).add_common(agent)
-    agent.add_argument("--out", metavar="FILE.fmu", required=True)
-    agent.set_defaults(run=lambda args: __import__(module, fromlist=["_"]).run_export_agent(args))
-
-    system = commands.add_parser("export-system", help="export the experiment as an SSP 1.0 package (agent and "
-                                                       "body FMUs, a parameter file per trial)")
-    __import__(module, fromlist=["_"]).add_common(system)
-    system.add_argument("--body-variant", metavar="NAME",
-                        help="the body to export with it: native (default, the pymunk plant), kinematic, kinematic-c")
-    system.add_argument("--body", metavar="FMU", help="a body FMU of one's own (the body contract) instead")
-    system.add_argument("--trial", metavar="C/S/I", help="the trial the SSD binds, CONDITION/STIMULATION/INDEX "
-                                                        "(default: the protocol's first, e.g. left/sync/0; --task "
-                                                        "reach: BAND/INDEX, default the plan's first, e.g. near/0)")
-    system.add_argument("--out", metavar="FILE.ssp", required=True)
-    system.set_defaults(run=lambda args: __import__(module, fromlist=["_"]).run_export_system(args))
-
-    run_system = commands.add_parser("run-system", help="run an SSP package under FMPy's or libcosim's master")
-    run_system.add_argument("ssp", metavar="FILE.ssp")
-    run_system.add_argument("--master", choices=("fmpy", "libcosim"), default="libcosim")
-    run_system.add_argument("--trial", metavar="NAME", help="the agent's parameter file resources/trials/NAME.ssv "
-                                                            "instead of the bound one (e.g. conv_right_sync_0, or "
-                                                            "a reach's conv_near_1)")
-    run_system.add_argument("--steps", type=int, metavar="N", help="steps (default: the SSD's stop time)")
-    run_system.add_argument("--out", metavar="FILE.csv", required=True, help="every connector, one row per step")
-    run_system.add_argument("--force", action="store_true", help="replace an existing --out FILE, if rhi wrote it")
-    run_system.set_defaults(run=lambda args: __import__(module, fromlist=["_"]).run_run_system(args))
-
-    sweep = commands.add_parser("sweep", help="run a parameter sweep, locally or on a Dask cluster")
-    sweep.add_argument("--config", metavar="FILE", required=True, help="the sweep file (TOML, see docs/sweeps.md)")
-    sweep.add_argument("--scheduler", metavar="ADDRESS",
-                       help="a Dask scheduler, tcp://HOST:PORT (default: a process pool on this machine)")
-    sweep.add_argument("--out", metavar="DIR", required=True)
-    sweep.add_argument("--force", action="store_true", help="replace a different sweep in DIR")
-    sweep.add_argument("--model", metavar="NAME",
-                       help="the model, instead of the sweep file's sweep.model (default there: paper; a name or "
-                            "FILE.py:Class, docs/model.md)")
-    sweep.set_defaults(run=lambda args: __import__("master.commands.sweep", fromlist=["_"]).run_sweep(args))
-
-    phenomenon = commands.add_parser("phenomenon", help="a human phenomenon (temporal window, distance, time "
-                                                        "course): the model beside the human data")
-    __import__("master.commands.phenomenon", fromlist=["_"]).add_arguments(phenomenon)
-    phenomenon.set_defaults(
-        run=lambda args: __import__("master.commands.phenomenon", fromlist=["_"]).run_phenomenon(args))
-
-    fit = commands.add_parser("fit", help="fit the model to participants' data by simulation-based inference, "
-                                          "calibrated on held-out simulations")
-    __import__("master.commands.fit", fromlist=["_"]).add_arguments(fit)
-    fit.set_defaults(run=lambda args: __import__("master.commands.fit", fromlist=["_"]).run_fit(args))
-
-    reach = commands.add_parser("reach", help="the free arm reaching to a seen goal: near and far goals per decoder")
-    __import__("master.commands.reach", fromlist=["_"]).add_arguments(reach)
-    reach.set_defaults(run=lambda args: __import__("master.commands.reach", fromlist=["_"]).run_reach(args))
-
-    bench = commands.add_parser("bench", help="measure speed")
-    bench.add_argument("--json", action="store_true", help="print the results as JSON (for machines)")
-    bench.add_argument("--quick", action="store_true", help="tiny settings: a smoke test in seconds")
-    bench.add_argument("--threads", type=int, default=0, metavar="N",
-                       help="torch threads (default: all cores; 1 on a machine busy with other work)")
-    bench.add_argument("--checkpoint", metavar="CKPT", default="",
-                       help="trained conv decoder for the fast mode's drift error (default: the cached default)")
-    bench.add_argument("--training", action="store_true",
-                       help="instead: samples/s of the paper decoders' training step at 256x256, before and after "
-                            "the paper preset's settings, phase by phase (--quick: tiny, 32x32)")
-    bench.set_defaults(run=lambda args: __import__("master.commands.bench", fromlist=["_"]).run_bench(args))
+    for name, module_name in COMMANDS.items():
+        module = importlib.import_module(f"master.commands.{module_name}")
+        command = commands.add_parser(name, help=module.HELP)
+        module.add_arguments(command)
+        command.set_defaults(run=module.run)
     return parser
 
 

@@ -10,7 +10,11 @@ from master import config as configuration
 from master.outputs.files import check_output
 
 
+HELP = "run the paper's rubber-hand protocol"
+
+
 def add_arguments(parser) -> None:
+    """`rhi experiment`'s arguments."""
     parser.add_argument("--config", metavar="FILE", help="TOML file overriding master/defaults.toml")
     parser.add_argument("--body", metavar="FMU", help="an FMI 2.0 co-simulation FMU to use as the body")
     scale = parser.add_mutually_exclusive_group()
@@ -52,7 +56,7 @@ def overrides(args) -> dict:
     return {key: value for key, value in pairs.items() if value is not None}
 
 
-def run_experiment(args) -> int:
+def run(args) -> int:
     started = time.perf_counter()
     config = configuration.load(args.config, overrides(args), quick=args.quick,  # before torch loads: fast refusals
                                 preset_name=args.preset, model_name=args.model)

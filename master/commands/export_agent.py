@@ -1,10 +1,20 @@
-"""`rhi export-agent`, `rhi export-system` and `rhi run-system`: arguments in, the written file printed.
+"""`rhi export-agent`: arguments in, the written file printed; the options and checks export-system and run-system
+share with it.
 
 An existing --out FILE is replaced only with --force, and only if rhi wrote it (:func:`check_out`)."""
 from __future__ import annotations
 
 import os
 import time
+
+
+HELP = "export the agent (stimulus, rubber arm, camera, decoder, brain; --task reach: the reach's) as an FMI 2.0 FMU"
+
+
+def add_arguments(parser) -> None:
+    """`rhi export-agent`'s arguments."""
+    add_common(parser)
+    parser.add_argument("--out", metavar="FILE.fmu", required=True)
 
 
 def add_common(parser) -> None:
@@ -45,7 +55,7 @@ def load(args) -> dict:
     return task(args.task).load(args.config, overrides, args.quick)
 
 
-def run_export_agent(args) -> int:
+def run(args) -> int:
     """The ``rhi export-agent`` command: args.out, .config, .quick, .decoder, .checkpoint."""
     from master.export.agent_fmu import export_agent
 
@@ -54,34 +64,4 @@ def run_export_agent(args) -> int:
     path, checkpoint = export_agent(args.out, load(args), args.decoder, args.task)
     print(f"wrote {path} ({os.path.getsize(path) / 1024:.0f} KiB, decoder {checkpoint}) "
           f"in {time.perf_counter() - started:.1f} s")
-    return 0
-
-
-def run_export_system(args) -> int:
-    """The ``rhi export-system`` command: as export-agent, and .body_variant, .body, .trial."""
-    from master.export.system import export_system
-
-    started = time.perf_counter()
-    check_out(args, "SSP file", ".ssp")
-    path = export_system(args.out, load(args), args.decoder, args.body_variant or "native", args.body, args.trial,
-                         args.task)
-    print(f"wrote {path} ({os.path.getsize(path) / 1024:.0f} KiB: SystemStructure.ssd, the agent and body FMUs, a "
-          f"parameter file per trial) in {time.perf_counter() - started:.1f} s")
-    return 0
-
-
-def run_run_system(args) -> int:
-    """The ``rhi run-system`` command: args.ssp, .master, .trial, .steps, .out."""
-    from master.export.system import final_drift_cm, final_goal_distance_cm, run_ssp, write_csv
-
-    started = time.perf_counter()
-    check_out(args, "CSV file", ".csv")
-    values = run_ssp(args.ssp, args.master, args.trial, args.steps)
-    write_csv(args.out, values)
-    print(f"wrote {args.out} ({len(values['time'])} steps under {args.master}) in "
-          f"{time.perf_counter() - started:.1f} s")
-    if {"agent.goal_hand_x", "body.hand_x"} <= set(values):  # the reach
-        print(f"final distance to the goal: {final_goal_distance_cm(values):.6f} cm")
-    elif {"agent.mu_shoulder", "body.q_shoulder"} <= set(values):
-        print(f"final drift: {final_drift_cm(values):.6f} cm")
     return 0

@@ -4,12 +4,21 @@ from __future__ import annotations
 import os
 import time
 
-from master.export.body import export_body
+HELP = "export the body plant as an FMI 2.0 FMU"
 
 
-def run_export(args) -> int:
+def add_arguments(parser) -> None:
+    """`rhi export-body`'s arguments."""
+    parser.add_argument("--variant", metavar="NAME",
+                        help="native (default: the pymunk plant), kinematic, or kinematic-c (the kinematic arm in C)")
+    parser.add_argument("--out", metavar="FILE.fmu", required=True)
+    parser.add_argument("--force", action="store_true", help="replace an existing --out FILE, if rhi wrote it")
+
+
+def run(args) -> int:
     """The ``rhi export-body`` command: args.variant (None: native), args.out, args.force (replace an FMU rhi wrote)."""
     from master.commands.export_agent import check_out
+    from master.export.body import export_body
 
     started = time.perf_counter()
     check_out(args, "FMU file", ".fmu")

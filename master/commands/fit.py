@@ -9,7 +9,11 @@ from __future__ import annotations
 from pathlib import Path
 
 
+HELP = "fit the model to participants' data by simulation-based inference, calibrated on held-out simulations"
+
+
 def add_arguments(parser) -> None:
+    """`rhi fit`'s arguments."""
     parser.add_argument("--data", metavar="FILE.csv", required=True,
                         help="one row per participant x observation: participant, the design, drift_cm (force_n)")
     parser.add_argument("--config", metavar="FIT.toml", required=True,
@@ -22,7 +26,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--out", metavar="DIR", required=True)
 
 
-def run_fit(args) -> int:
+def run(args) -> int:
+    """`rhi fit`: the fit into DIR, its verdict printed; the exit status."""
     import importlib.util
 
     from master.cosim import ConfigError

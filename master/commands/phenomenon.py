@@ -8,7 +8,6 @@ point), then writes DIR/NAME.csv and DIR/NAME.png, the models beside the human r
 """
 from __future__ import annotations
 
-import argparse
 import time
 from pathlib import Path
 
@@ -18,7 +17,11 @@ from master.phenomena import NAMES, sweep_file
 OWN_PROTOCOLS = ("moving-hand", "reach-after")  # not sweeps: master/phenomena/moving_hand.py, reach_after.py
 
 
+HELP = "a human phenomenon (temporal window, distance, time course, ...): the models beside the human data"
+
+
 def add_arguments(parser) -> None:
+    """`rhi phenomenon`'s arguments."""
     parser.add_argument("name", choices=NAMES + OWN_PROTOCOLS, help="the phenomenon")
     parser.add_argument("--config", metavar="FILE",
                         help="a sweep file to use instead of the shipped one (copy master/phenomena/NAME.toml)")
@@ -31,8 +34,9 @@ def add_arguments(parser) -> None:
                              "a name or FILE.py:Class, docs/model.md)")
 
 
-def run_phenomenon(args) -> int:
-    from master.commands.sweep import run_sweep
+def run(args) -> int:
+    """`rhi phenomenon NAME`: its protocol (or its sweep per model, then the report); the exit status."""
+    from master.commands.sweep import sweep_and_report
     from master.phenomena.report import report
 
     from master import config as configuration
@@ -60,9 +64,8 @@ def run_phenomenon(args) -> int:
     folders, status = {}, 0
     for model in chosen:
         folders[model] = Path(args.out) / registry.get(model).name
-        status = max(status, run_sweep(argparse.Namespace(
-            config=str(path), out=str(folders[model]), scheduler=args.scheduler, force=args.force, debug=args.debug,
-            model=model, trials=trials.get(model))))
+        status = max(status, sweep_and_report(path, folders[model], args.scheduler, args.force, args.debug, model,
+                                              trials.get(model)))
     written = report(args.name, path, Path(args.out), folders, trials)
     for name in written:
         own.add(name)

@@ -9,7 +9,11 @@ from master.commands.experiment import add_model
 from master.outputs.files import check_output
 
 
+HELP = "the free arm reaching to a seen goal: near and far goals per decoder"
+
+
 def add_arguments(parser) -> None:
+    """`rhi reach`'s arguments."""
     parser.add_argument("--config", metavar="FILE", help="TOML file overriding master/defaults.toml and "
                                                          "master/reach.toml (reach.goals, reach.ranges, ...)")
     add_model(parser)
@@ -21,7 +25,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--force", action="store_true", help="replace DIR if it holds an earlier rhi output")
 
 
-def run_reach(args) -> int:
+def run(args) -> int:
+    """`rhi reach`: every reach into DIR, the table printed; the exit status."""
     from master.tasks.reach import task as reach
 
     started = time.perf_counter()

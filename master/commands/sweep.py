@@ -7,25 +7,46 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from master.sweeps import plan as sweeps
-from master.sweeps.run import run_into
-
 MAX_LISTED = 50  # failures listed on the terminal; index.csv has all of them
+HELP = "run a parameter sweep, locally or on a Dask cluster"
 
 
-def run_sweep(args) -> int:
+def add_arguments(parser) -> None:
+    """`rhi sweep`'s arguments."""
+    parser.add_argument("--config", metavar="FILE", required=True, help="the sweep file (TOML, see docs/sweeps.md)")
+    parser.add_argument("--scheduler", metavar="ADDRESS",
+                        help="a Dask scheduler, tcp://HOST:PORT (default: a process pool on this machine)")
+    parser.add_argument("--out", metavar="DIR", required=True)
+    parser.add_argument("--force", action="store_true", help="replace a different sweep in DIR")
+    parser.add_argument("--model", metavar="NAME",
+                        help="the model, instead of the sweep file's sweep.model (default there: paper; a name or "
+                             "FILE.py:Class, docs/model.md)")
+
+
+def run(args) -> int:
     """The command: 0 when every trial succeeded, 1 when some failed (each listed on one line)."""
-    sweep = sweeps.load(args.config, getattr(args, "model", None), getattr(args, "trials", None))
+    return sweep_and_report(args.config, args.out, args.scheduler, getattr(args, "force", False),
+                            getattr(args, "debug", False), getattr(args, "model", None))
+
+
+def sweep_and_report(path, out, scheduler: str | None = None, force: bool = False, debug: bool = False,
+                     model: str | None = None, trials: int | None = None) -> int:
+    """Run the sweep file ``path`` into ``out`` (resumably) and print what was done; 0 when every trial succeeded,
+    1 when some failed. model, trials: instead of the file's ``sweep.model`` and ``sweep.trials``."""
+    from master.sweeps import plan as sweeps
+    from master.sweeps.run import run_into
+
+    sweep = sweeps.load(path, model, trials)
     task = sweeps.resolve_task(sweep.task)
-    out = Path(args.out)
-    records, now = run_into(sweep, task, out, args.scheduler, getattr(args, "force", False), args.debug)
+    out = Path(out)
+    records, now = run_into(sweep, task, out, scheduler, force, debug)
     ok = sum(record["status"] == "ok" for record in records.values())
     failures = [(t, records[t.id]) for t in sweep.trials if records.get(t.id, {}).get("status") == "failed"]
     for trial, record in failures[:MAX_LISTED]:
         print(f"rhi sweep: failed: point {trial.point} ({sweeps.describe(sweep.points[trial.point])}) "
               f"{trial.decoder}/{trial.condition}/{trial.stimulation} trial {trial.index} "
               f"[{trial.id}]: {record['error']}", file=sys.stderr)
-        if args.debug and record.get("traceback"):
+        if debug and record.get("traceback"):
             print(record["traceback"], file=sys.stderr)
     if len(failures) > MAX_LISTED:
         print(f"rhi sweep: ... and {len(failures) - MAX_LISTED} more failures, listed in {out / 'index.csv'}",

@@ -4,13 +4,25 @@ It reads the configuration like `rhi experiment`: ``[train]`` and the camera's `
 from __future__ import annotations
 
 from master import config as configuration
-from master.decoders.training import check_target, train_decoder, train_settings
+from master.commands.experiment import add_device, add_preset
+
+HELP = "train a visual decoder"
 
 
-def run_train(args) -> int:
+def add_arguments(parser) -> None:
+    """`rhi train`'s arguments."""
+    parser.add_argument("--decoder", choices=("conv", "vae"), required=True)
+    parser.add_argument("--config", metavar="FILE")
+    add_preset(parser)
+    add_device(parser)
+    parser.add_argument("--out", metavar="CKPT", required=True)
+
+
+def run(args) -> int:
     """The body of `rhi train`: args has .decoder, .config, .out, and optionally .preset and .device
     (default auto); everything checked before training."""
     from components.vision.component import resolve_device
+    from master.decoders.training import check_target, train_decoder, train_settings
 
     config = configuration.load(args.config, preset_name=getattr(args, "preset", None))
     settings = train_settings(config)
