@@ -1,6 +1,7 @@
 """examples/tutorial.ipynb runs, at the tiny size (RHI_TUTORIAL_SIZE=tiny), in a kernel of this Python (nbclient):
-its quick experiment gives the illusion's drift signs, the FMU body reproduces the native plant, and the engine
-stepped by hand gives the experiment's drift."""
+its run in memory gives the illusion's drift signs, both models draw the believed hand toward the rubber hand under
+synchronous touch, the fit's estimate lies in its prior's support, the FMU body reproduces the native plant, and
+the engine stepped by hand gives the experiment's drift. The notebook ships with the outputs of its full size."""
 import re
 from pathlib import Path
 
@@ -43,3 +44,28 @@ def test_the_tutorial_runs_and_its_numbers_hold(tmp_path, monkeypatch):
     assert bodies["FMU body"] == bodies["native body"] == bodies["by hand"], bodies
     assert sum(output.output_type == "display_data" for cell in notebook.cells if cell.cell_type == "code"
                for output in cell.outputs) == 2  # the two figures
+    models_hold(text)
+    median, low, high = map(float, re.search(r"^me: decoder\.visual_variance median (\S+), 90 % interval (\S+) to "
+                                             r"(\S+)$", text, re.MULTILINE).groups())
+    assert 5.0 <= low <= median <= high <= 80.0  # within the log-uniform prior's support [5, 80]
+
+
+def models_hold(text: str) -> None:
+    """Both models' Left and Right lines: synchronous touch draws the believed hand toward the rubber hand."""
+    found = {(model, condition): (float(sync), float(late)) for model, condition, sync, late in re.findall(
+        r"^ *(paper|causal) +(left|right): drift sync (\S+) cm, async (\S+) cm$", text, re.MULTILINE)}
+    assert set(found) == {(m, c) for m in ("paper", "causal") for c in ("left", "right")}, text
+    for model in ("paper", "causal"):
+        assert found[(model, "left")][0] < 0 < found[(model, "right")][0], found
+
+
+def test_the_tutorial_ships_with_the_outputs_of_its_full_size():
+    """Every code cell of the stored notebook has run (outputs a reader on the web sees): its numbers show the
+    illusion at the paper's 30 s trials, and its two figures are there."""
+    notebook = nbformat.read(NOTEBOOK, as_version=4)
+    code = [cell for cell in notebook.cells if cell.cell_type == "code"]
+    assert all(cell.outputs for cell in code[1:]), "a code cell without outputs"  # the first only sets names
+    text = printed(notebook)
+    assert "failed trials: 0" in text and "after 1500 steps" in text, text
+    models_hold(text)
+    assert sum(output.output_type == "display_data" for cell in code for output in cell.outputs) == 2
