@@ -10,6 +10,7 @@ from pathlib import Path
 
 
 def add_arguments(parser) -> None:
+    """Add `rhi fit`'s arguments to ``parser``."""
     parser.add_argument("--data", metavar="FILE.csv", required=True,
                         help="one row per participant x observation: participant, the design, drift_cm (force_n)")
     parser.add_argument("--config", metavar="FIT.toml", required=True,
@@ -23,6 +24,7 @@ def add_arguments(parser) -> None:
 
 
 def run_fit(args) -> int:
+    """Run `rhi fit` (ConfigError without the sbi package) and print its summary; returns the exit status, 0."""
     import importlib.util
 
     from master.cosim import ConfigError

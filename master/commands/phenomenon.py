@@ -19,6 +19,7 @@ OWN_PROTOCOLS = ("moving-hand", "reach-after")  # not sweeps: master/phenomena/m
 
 
 def add_arguments(parser) -> None:
+    """Add `rhi phenomenon`'s arguments to ``parser``."""
     parser.add_argument("name", choices=NAMES + OWN_PROTOCOLS, help="the phenomenon")
     parser.add_argument("--config", metavar="FILE",
                         help="a sweep file to use instead of the shipped one (copy master/phenomena/NAME.toml)")
@@ -32,6 +33,8 @@ def add_arguments(parser) -> None:
 
 
 def run_phenomenon(args) -> int:
+    """Run `rhi phenomenon NAME`: its own protocol, or its sweep once per model and the report; returns the exit
+    status (the sweeps' highest: 1 when a trial failed)."""
     from master.commands.sweep import run_sweep
     from master.phenomena.report import report
 

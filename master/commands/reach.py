@@ -10,6 +10,7 @@ from master.outputs.files import check_output
 
 
 def add_arguments(parser) -> None:
+    """Add `rhi reach`'s arguments to ``parser``."""
     parser.add_argument("--config", metavar="FILE", help="TOML file overriding master/defaults.toml and "
                                                          "master/reach.toml (reach.goals, reach.ranges, ...)")
     add_model(parser)
@@ -22,6 +23,7 @@ def add_arguments(parser) -> None:
 
 
 def run_reach(args) -> int:
+    """Run `rhi reach` into ``args.out``; returns the exit status (0, or 1 when a reach failed and was left out)."""
     from master.tasks.reach import task as reach
 
     started = time.perf_counter()
