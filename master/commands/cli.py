@@ -26,6 +26,7 @@ class Parser(argparse.ArgumentParser):
     """argparse, with a usage error as one line (``rhi experiment: error: ...``) and exit status 2."""
 
     def error(self, message):
+        """Exit with status 2 and the usage error as one line on stderr, pointing to ``--help``."""
         self.exit(2, f"{self.prog}: error: {one_line(message)} (see {self.prog} --help)\n")
 
 
@@ -58,7 +59,7 @@ COMMANDS = {"train": "train", "experiment": "experiment", "export-body": "export
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The ``rhi`` parser: a subcommand per entry of :data:`COMMANDS`, ``args.run`` its module's ``run``."""
+    """The ``rhi`` parser: the global options (``--debug``, ``--version``) and each subcommand with its ``run``."""
     parser = Parser(
         prog="rhi", description="A deep active inference model of the rubber-hand illusion, as a co-simulation.")
     parser.add_argument("--debug", action="store_true", help="show full tracebacks on errors")
@@ -73,6 +74,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run ``rhi`` with ``argv`` (None: ``sys.argv[1:]``) and return its exit status (the module's: 0, 1, 2, 130, 143);
+    a usage error exits with 2 from the parser."""
     # Torch's OpenMP threads spin while they wait at barriers by default, which made training about
     # 10x slower on cores shared with other processes; passive waiting costs little on free cores.
     # OpenMP reads this once, when torch loads: here, before any command imports torch (this module

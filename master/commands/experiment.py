@@ -14,7 +14,7 @@ HELP = "run the paper's rubber-hand protocol"
 
 
 def add_arguments(parser) -> None:
-    """`rhi experiment`'s arguments."""
+    """Add `rhi experiment`'s arguments to ``parser``."""
     parser.add_argument("--config", metavar="FILE", help="TOML file overriding master/defaults.toml")
     parser.add_argument("--body", metavar="FMU", help="an FMI 2.0 co-simulation FMU to use as the body")
     scale = parser.add_mutually_exclusive_group()
@@ -33,23 +33,27 @@ def add_arguments(parser) -> None:
 
 
 def add_preset(parser) -> None:
+    """Add ``--preset NAME`` (a shipped configuration, one of ``master.config.PRESETS``) to ``parser``."""
     parser.add_argument("--preset", choices=configuration.PRESETS,
                         help="a shipped configuration merged over the defaults, under --config: paper = 256x256 "
                              "and the paper's decoders (master/paper.toml)")
 
 
 def add_model(parser) -> None:
+    """Add ``--model NAME`` (a registered model or ``FILE.py:Class``; default ``paper``) to ``parser``."""
     parser.add_argument("--model", default="paper", metavar="NAME",
                         help=f"the model (docs/model.md): {models.described()}; default: paper")
 
 
 def add_device(parser) -> None:
+    """Add ``--device`` (auto, cpu or cuda; default auto: where decoders train and run) to ``parser``."""
     parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto",
                         help="where decoders train and run: auto = cuda when torch sees a GPU, else cpu "
                              "(default: auto)")
 
 
 def overrides(args) -> dict:
+    """The configuration keys the options set, ``{"experiment.trials": 3, ...}``; an option not given is left out."""
     pairs = {"experiment.trials": args.trials, "experiment.steps": args.steps, "experiment.seed": args.seed,
              "experiment.resolution": args.resolution, "decoder.conv_checkpoint": args.conv_checkpoint,
              "decoder.vae_checkpoint": args.vae_checkpoint}
@@ -57,6 +61,7 @@ def overrides(args) -> dict:
 
 
 def run(args) -> int:
+    """Run `rhi experiment` into ``args.out``; returns the exit status (0, or 1 when a trial failed, left out)."""
     started = time.perf_counter()
     config = configuration.load(args.config, overrides(args), quick=args.quick,  # before torch loads: fast refusals
                                 preset_name=args.preset, model_name=args.model)

@@ -13,7 +13,7 @@ HELP = "fit the model to participants' data by simulation-based inference, calib
 
 
 def add_arguments(parser) -> None:
-    """`rhi fit`'s arguments."""
+    """Add `rhi fit`'s arguments to ``parser``."""
     parser.add_argument("--data", metavar="FILE.csv", required=True,
                         help="one row per participant x observation: participant, the design, drift_cm (force_n)")
     parser.add_argument("--config", metavar="FIT.toml", required=True,
@@ -27,7 +27,7 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    """`rhi fit`: the fit into DIR, its verdict printed; the exit status."""
+    """Run `rhi fit` (ConfigError without the sbi package) and print its summary; returns the exit status, 0."""
     import importlib.util
 
     from master.cosim import ConfigError

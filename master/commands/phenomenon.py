@@ -21,7 +21,7 @@ HELP = "a human phenomenon (temporal window, distance, time course, ...): the mo
 
 
 def add_arguments(parser) -> None:
-    """`rhi phenomenon`'s arguments."""
+    """Add `rhi phenomenon`'s arguments to ``parser``."""
     parser.add_argument("name", choices=NAMES + OWN_PROTOCOLS, help="the phenomenon")
     parser.add_argument("--config", metavar="FILE",
                         help="a sweep file to use instead of the shipped one (copy master/phenomena/NAME.toml)")
@@ -35,7 +35,8 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    """`rhi phenomenon NAME`: its protocol (or its sweep per model, then the report); the exit status."""
+    """Run `rhi phenomenon NAME`: its own protocol, or its sweep once per model and the report; returns the exit
+    status (the sweeps' highest: 1 when a trial failed)."""
     from master.commands.sweep import sweep_and_report
     from master.phenomena.report import report
 

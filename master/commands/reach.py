@@ -13,7 +13,7 @@ HELP = "the free arm reaching to a seen goal: near and far goals per decoder"
 
 
 def add_arguments(parser) -> None:
-    """`rhi reach`'s arguments."""
+    """Add `rhi reach`'s arguments to ``parser``."""
     parser.add_argument("--config", metavar="FILE", help="TOML file overriding master/defaults.toml and "
                                                          "master/reach.toml (reach.goals, reach.ranges, ...)")
     add_model(parser)
@@ -26,7 +26,7 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    """`rhi reach`: every reach into DIR, the table printed; the exit status."""
+    """Run `rhi reach` into ``args.out``; returns the exit status (0, or 1 when a reach failed and was left out)."""
     from master.tasks.reach import task as reach
 
     started = time.perf_counter()

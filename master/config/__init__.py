@@ -28,6 +28,7 @@ PRESETS = ("paper",)  # --preset NAME merges master/NAME.toml over the defaults
 
 
 def defaults() -> dict:
+    """The shipped defaults, ``master/defaults.toml``, read afresh (its ``[quick]`` table included)."""
     with resources.files("master").joinpath("defaults.toml").open("rb") as file:
         return tomllib.load(file)
 
@@ -138,6 +139,10 @@ def merge(base: dict, overrides: dict, where: str = "") -> dict:
 
 
 def check_type(path: str, value, default):
+    """``value`` of config key ``path`` checked against the type of its ``default``, and returned.
+
+    A float default takes an int too (returned as a float) and must be finite (``inf`` only for ``INFINITE_KEYS``);
+    numbers must be within ``2**63``; a default list of names takes only names. ConfigError otherwise."""
     if isinstance(default, bool):
         ok = isinstance(value, bool)
     elif isinstance(default, float):

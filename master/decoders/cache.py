@@ -34,6 +34,7 @@ SHIPPED = Path(__file__).parent / "checkpoints"  # the default decoders, named a
 
 
 def cache_folder() -> Path:
+    """The decoder cache: ``$RHI_CACHE``, or ``~/.cache/rhi`` when it is unset or empty."""
     return Path(os.environ.get("RHI_CACHE") or Path.home() / ".cache" / "rhi")
 
 

@@ -38,6 +38,7 @@ SHIPPED = Path(__file__).parent / "checkpoints"
 
 
 def shipped_path(kind: str, resolution: int) -> Path:
+    """The shipped pose encoder of decoder slot ``kind`` at ``resolution`` px: ``checkpoints/pose-KIND-rRES.pt``."""
     return SHIPPED / f"pose-{kind}-r{resolution}.pt"
 
 
@@ -105,6 +106,8 @@ def build(kind: str, config: dict, decoder_checkpoint: str, cache: Path, epochs:
 
 
 def main(argv: list[str]) -> int:
+    """``python -m master.decoders.pose_encoders OUT_FOLDER``: build both pose encoders at the default settings into
+    ``argv[0]`` and print their calibration; returns the exit status, 0."""
     from master import config as configuration
     from master.decoders.cache import cache_folder, checkpoint_path
 

@@ -33,6 +33,24 @@ CHUNK = 256                 # poses rendered per call (bounds memory at 256 x 25
 
 @dataclass(frozen=True)
 class TrainingData:
+    """A rendered training set: poses and their camera images, and what made them.
+
+    Attributes
+    ----------
+    poses : numpy.ndarray
+        (N, 2) float64, deg: shoulder, elbow.
+    images : numpy.ndarray
+        (N, R, R) float32 in [0, 1]: the real arm alone, no ball.
+    rest_pose : tuple of float
+        (shoulder, elbow) deg, the centre of the poses' ranges.
+    half_ranges : tuple of float
+        (shoulder, elbow) deg: the poses are uniform over ``rest_pose +- half_ranges``.
+    seed : int
+        The seed the poses were drawn with.
+    content_hash : str
+        sha256 of the arrays (:func:`content_hash`).
+    """
+
     poses: np.ndarray        # (N, 2) float64 deg: shoulder, elbow
     images: np.ndarray       # (N, R, R) float32 in [0, 1]
     rest_pose: tuple[float, float]
@@ -42,6 +60,7 @@ class TrainingData:
 
     @property
     def resolution(self) -> int:
+        """R, the images' side in pixels."""
         return int(self.images.shape[-1])
 
 

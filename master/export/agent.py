@@ -288,6 +288,7 @@ class Agent(Component):
         self._start()  # again after a failed start: the parameters may have been mended since
 
     def step(self, t, h):
+        """Set the body's inputs inside, step the inner session from ``t`` by ``h`` (s) and publish its outputs."""
         session = self._session
         for name, paths in self.inputs.items():
             for path in paths:
@@ -310,5 +311,6 @@ class Agent(Component):
         self.values[PERCEIVED[0]], self.values[PERCEIVED[1]] = np.asarray(x, float), np.asarray(y, float)
 
     def terminate_hook(self):
+        """Close the inner session, if one was built."""
         if self._session is not None:
             self._session.close()

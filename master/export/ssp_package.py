@@ -50,11 +50,14 @@ for _prefix, _uri in NS.items():
 
 
 def qualified(tag: str) -> str:
+    """``"ssd:System"`` as ElementTree names it: ``"{namespace}System"``, the prefix's namespace from ``NS``."""
     prefix, _, name = tag.partition(":")
     return f"{{{NS[prefix]}}}{name}"
 
 
 def format_value(kind: str, value) -> str:
+    """``value`` (a scalar or a one-element array) as an SSV value of FMI type ``kind``: ``true`` or ``false``, an
+    integer, or a real (``repr``; ``INF``, ``-INF``, ``NaN``)."""
     if kind == "Boolean":
         return "true" if bool(np.asarray(value).item()) else "false"
     if kind == "Integer":
@@ -64,6 +67,7 @@ def format_value(kind: str, value) -> str:
 
 
 def parse_value(kind: str, text: str):
+    """An SSV value ``text`` of FMI type ``kind``: a bool (``true`` or ``1``), an int or a float."""
     if kind == "Boolean":
         return text in ("true", "1")
     return int(text) if kind == "Integer" else float(text)

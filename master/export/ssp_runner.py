@@ -102,6 +102,8 @@ def libcosim_run(request: dict) -> dict:
 
 
 def main(path: str) -> int:
+    """Run the request of the JSON file ``path`` under its master (FMPy or libcosim) and save the result to its
+    ``out`` (.npz); returns the exit status, 0."""
     die_with_parent()
     with open(path, encoding="utf-8") as file:
         request = json.load(file)

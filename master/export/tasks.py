@@ -45,9 +45,11 @@ class Illusion:
     trial_form = "CONDITION/STIMULATION/INDEX, e.g. left/sync/0"
 
     def load(self, path, overrides: dict, quick: bool) -> dict:
+        """The experiment's configuration (``master.config.load``): the file ``path``, ``overrides``, ``quick``."""
         return configuration.load(path, overrides, quick=quick)
 
     def trials(self, config: dict, kind: str) -> list[Trial]:
+        """The protocol's trials of decoder ``kind``, in the protocol's order."""
         return [t for t in plan(config) if t.decoder == kind]
 
     def trial_name(self, trial: Trial) -> str:
@@ -70,6 +72,8 @@ class Illusion:
         return body_links()
 
     def agent_values(self, trial: Trial, config: dict, declared: dict, starts: dict) -> dict:
+        """The agent FMU's parameters for ``trial``, ``{name: (type, value)}`` (:func:`agent_parameters`; ``starts``
+        unused)."""
         return agent_parameters(trial, config, declared)
 
 
@@ -82,6 +86,7 @@ class Reach:
     trial_form = "BAND/INDEX, e.g. near/0"
 
     def load(self, path, overrides: dict, quick: bool) -> dict:
+        """The reach's configuration (``master.tasks.reach.task.load``): the file ``path``, overrides, quick."""
         return reach.load(path, quick=quick, overrides=overrides)
 
     def trials(self, config: dict, kind: str) -> list[reach.ReachTrial]:

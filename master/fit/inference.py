@@ -94,6 +94,7 @@ def to_flow(parameters: list[Parameter], settings: dict, theta: np.ndarray):
 
 
 def truncated_normal_class():
+    """The class of :func:`TruncatedNormal`'s distributions, defined when called (torch is imported only then)."""
     import torch
     from torch.distributions import constraints
 
@@ -129,6 +130,18 @@ def truncated_normal_class():
 
 
 def TruncatedNormal(mean, sd, low, high):  # noqa: N802: a distribution's constructor
+    """A normal restricted to [low, high], one-dimensional, as a torch distribution.
+
+    Parameters
+    ----------
+    mean, sd, low, high : float
+        The normal's mean and sd and the bounds, in the inference space's units.
+
+    Returns
+    -------
+    torch.distributions.Distribution
+        Batch shape (1,); ``sample`` by the inverse distribution function, ``log_prob`` -inf outside the bounds.
+    """
     return truncated_normal_class()(mean, sd, low, high)
 
 
@@ -201,18 +214,23 @@ class NoTracker:
     log_dir = None
 
     def log_metric(self, name, value, step=None):
+        """Ignore a metric."""
         pass
 
     def log_metrics(self, metrics, step=None):
+        """Ignore metrics."""
         pass
 
     def log_params(self, params):
+        """Ignore parameters."""
         pass
 
     def add_figure(self, name, figure, step=None):
+        """Ignore a figure."""
         pass
 
     def flush(self):
+        """Nothing to write."""
         pass
 
 

@@ -63,9 +63,33 @@ class Parameter:
         return self.prior == "log-uniform"
 
     def to_inference(self, values):
+        """Values of the parameter in the inference space.
+
+        Parameters
+        ----------
+        values : array_like
+            Any shape, in the parameter's own units.
+
+        Returns
+        -------
+        numpy.ndarray
+            The same shape, float: their logarithm for a log-uniform prior, else the values.
+        """
         return np.log(values) if self.log else np.asarray(values, dtype=float)
 
     def from_inference(self, values):
+        """Values of the inference space in the parameter's own units, the inverse of :meth:`to_inference`.
+
+        Parameters
+        ----------
+        values : array_like
+            Any shape, in the inference space.
+
+        Returns
+        -------
+        numpy.ndarray
+            The same shape, float: their exponential for a log-uniform prior, else the values.
+        """
         return np.exp(values) if self.log else np.asarray(values, dtype=float)
 
     def quantile(self, unit):
@@ -80,6 +104,7 @@ class Parameter:
         return low + np.asarray(unit, dtype=float) * (high - low)
 
     def describe(self) -> dict:
+        """The parameter for run.json: its key and prior, a normal's mean and sd, and its finite bounds."""
         text = {"key": self.key, "prior": self.prior}
         if self.prior == "normal":
             text.update(mean=self.mean, sd=self.sd)
@@ -91,6 +116,24 @@ class Parameter:
 
 @dataclass(frozen=True)
 class FitPlan:
+    """A checked fit file: the parameters to fit, the configuration every simulation starts from, the settings.
+
+    Attributes
+    ----------
+    parameters : list of Parameter
+        The fitted parameters and their priors.
+    base : dict
+        The configuration every simulation starts from, the data's design included.
+    settings : dict
+        ``[fit]``'s whole numbers, and its model, quick, workers and calibration design.
+    measures : list of str
+        The summary statistics' measures per design cell (drift_cm, force_n), in that order.
+    noise : dict of str to float
+        Measure -> sd of the observation noise added to a simulated cell mean, in the measure's unit.
+    estimator : dict
+        ``fit.estimator``'s settings, the defaults filled in.
+    """
+
     parameters: list[Parameter]
     base: dict                           # the configuration every simulation starts from (design included)
     settings: dict                       # [fit]'s whole numbers, model, quick, workers
@@ -118,6 +161,8 @@ def parameter_key(written: str, config: dict) -> str:
 
 
 def read_parameter(written: str, spec, config: dict) -> Parameter:
+    """The :class:`Parameter` that ``fit.parameters.WRITTEN = spec`` describes, checked: a key a fit can vary, the
+    prior's keys and finite numbers, and finite bounds that are valid values of the key; ConfigError otherwise."""
     where = f"fit.parameters.{written}"
     if not isinstance(spec, dict):
         raise ConfigError(f"{where} must be a table with a prior (uniform, log-uniform or normal)")

@@ -53,6 +53,22 @@ def posterior_csv(parameters: list[Parameter], participants: list[str], samples:
 
 
 def estimates_csv(parameters: list[Parameter], participants: list[str], samples: np.ndarray) -> str:
+    """estimates.csv: per participant and parameter, the posterior median, 5th, 95th, 25th and 75th percentile.
+
+    Parameters
+    ----------
+    parameters : list of Parameter
+        The fitted parameters, in the samples' last axis' order.
+    participants : list of str
+        The participants' labels.
+    samples : numpy.ndarray
+        (participants, L, parameters) posterior samples, in the parameters' own units.
+
+    Returns
+    -------
+    str
+        The CSV text, columns ``ESTIMATE_COLUMNS``.
+    """
     rows = []
     for participant, block in zip(participants, samples):
         for d, parameter in enumerate(parameters):
@@ -62,6 +78,8 @@ def estimates_csv(parameters: list[Parameter], participants: list[str], samples:
 
 
 def calibration_csv(parameters: list[Parameter], result: dict) -> str:
+    """calibration.csv: per parameter, the recovery (r, sd ratio), the coverage and the SBC rank tests of ``result``
+    (``master.fit.calibration.calibrate``'s), columns ``CALIBRATION_COLUMNS``."""
     u, r = result["uniformity"], result["recovery"]
     rows = [[p.key, result["participants"], number(r["correlation"][d]), number(r["sd_ratio"][d]),
              number(result["coverage"][0.5][d]), number(result["coverage"][0.9][d]), u["bins"],
@@ -148,6 +166,25 @@ def predictive_figure(names: list[str], participants: list[str], observed: np.nd
 
 
 def predictive_csv(names: list[str], participants: list[str], observed: np.ndarray, predicted: np.ndarray) -> str:
+    """predictive.csv: per participant and statistic, the observed value and the posterior predictive's median and
+    90 % interval over its finite draws.
+
+    Parameters
+    ----------
+    names : list of str
+        The statistics' names.
+    participants : list of str
+        The participants' labels.
+    observed : numpy.ndarray
+        (participants, statistics), each statistic in its measure's unit.
+    predicted : numpy.ndarray
+        (participants, draws, statistics), the same units; a draw with a non-finite value is left out.
+
+    Returns
+    -------
+    str
+        The CSV text.
+    """
     rows = []
     for n, participant in enumerate(participants):
         draws = predicted[n][np.all(np.isfinite(predicted[n]), axis=1)]
@@ -159,6 +196,7 @@ def predictive_csv(names: list[str], participants: list[str], observed: np.ndarr
 
 
 def write_table(path: Path, text: str) -> None:
+    """Write ``text`` to ``path``, atomically."""
     atomic_write(path, text)
 
 

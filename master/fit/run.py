@@ -233,6 +233,7 @@ def predictive_check(data: Data, plan: FitPlan, posterior, out: Path, pool) -> d
 
 
 def data_statistic_names(data: Data, plan: FitPlan) -> list[str]:
+    """The fitted statistics' names, ``measure[condition/stimulation]``, cell by cell."""
     return [f"{m}[{c}/{s}]" for c, s in data.cells for m in plan.measures]
 
 
@@ -245,6 +246,8 @@ def select(data: Data, plan: FitPlan) -> np.ndarray:
 
 def run_record(data, plan, sweep, records, training, timing, calibration, predictive, valid, held_rows,
                simulated_s, ran_now, wall_s) -> dict:
+    """run.json's content: the data, the plan, the simulations and their timing, the estimator and its training,
+    the versions, and the calibration and the posterior predictive check when they ran."""
     import torch
 
     from master.fit.calibration import LEVELS

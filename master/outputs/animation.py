@@ -29,6 +29,7 @@ def frames(mu: np.ndarray, rubber_pose, balls: np.ndarray, resolution: int, ever
 
 
 def gif_bytes(images, milliseconds: int = 80) -> bytes:
+    """The PIL ``images`` as an animated GIF, ``milliseconds`` per frame, looping forever."""
     buffer = io.BytesIO()
     images[0].save(buffer, format="GIF", save_all=True, append_images=images[1:], duration=milliseconds, loop=0)
     return buffer.getvalue()

@@ -159,6 +159,7 @@ class OutputLock:
         self.file = None
 
     def acquire(self) -> "OutputLock":
+        """Take the lock without waiting and return it; ConfigError if another run holds it or it cannot be made."""
         for _ in range(5):
             try:
                 descriptor = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o666)
@@ -180,6 +181,7 @@ class OutputLock:
         raise ConfigError(f"cannot lock {self.path}: other runs keep replacing it")
 
     def release(self) -> None:
+        """Remove the lock file and close it, which releases the lock; nothing if it is not held."""
         if self.file is not None:
             try:
                 os.unlink(self.path)  # while still holding it; a run that opened it sees another inode

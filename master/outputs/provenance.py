@@ -37,6 +37,7 @@ def cpu_description() -> dict:
 
 
 def package_versions() -> dict:
+    """The versions of Python and of the installed ``PACKAGES``, the platform and the CPU (:func:`cpu_description`)."""
     versions = {"python": sys.version.split()[0], "platform": platform.platform(), "cpu": cpu_description()}
     for package in PACKAGES:
         try:

@@ -20,6 +20,7 @@ TRIAL_KEYS = ["decoder", "condition", "stimulation", "trial", "seed"]
 
 
 def csv_text(header: list[str], rows) -> str:
+    """``header`` and ``rows`` as CSV text, one line each, every line ending in a newline."""
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
     writer.writerow(header)
@@ -31,6 +32,7 @@ NUMBER = "%.6g"  # every number in a table: fixed formatting, so that the same n
 
 
 def number(value: float) -> str:
+    """``value`` as every table writes a number: ``NUMBER``, ``%.6g``."""
     return NUMBER % value
 
 

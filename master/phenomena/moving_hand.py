@@ -47,6 +47,7 @@ CONNECTIONS = [
 
 
 def shipped_file() -> Path:
+    """The shipped protocol file, master/phenomena/moving_hand.toml."""
     from importlib import resources
     return Path(str(resources.files("master.phenomena").joinpath("moving_hand.toml")))
 
@@ -126,6 +127,21 @@ def measures(times, values, period: float) -> dict:
 
 
 def rows(config: dict, found: dict[str, dict]) -> list[list]:
+    """moving_hand.csv's rows (``COLUMNS``): per decoder and delay, the drift and gamma, and each relative to its
+    value at 0 s.
+
+    Parameters
+    ----------
+    config : dict
+        The configuration; ``moving_hand.delays`` in s.
+    found : dict
+        Decoder -> :func:`measures`: ``drift_cm`` (cm) and ``gamma``, each of shape (delays,).
+
+    Returns
+    -------
+    list of list
+        A row per decoder and delay, numbers as text; the relative values NaN without a 0 s delay.
+    """
     delays = config["moving_hand"]["delays"]
     out = []
     for kind, values in found.items():
@@ -138,6 +154,8 @@ def rows(config: dict, found: dict[str, dict]) -> list[list]:
 
 
 def figure(config: dict, found: dict[str, dict], path: Path) -> None:
+    """Write ``path`` (moving_hand.png): drift and gamma relative to 0 s against the delay, a line per decoder, with
+    the human references."""
     from master.outputs.figures import METADATA, plt
     from master.phenomena.report import caption, draw_human, human_references
 

@@ -42,6 +42,7 @@ GOAL_LINKS = [("goal.pose", "goal_camera.arm_pose"), ("goal_camera.image", "goal
 
 
 def shipped_file() -> Path:
+    """The shipped protocol file, master/phenomena/reach_after.toml."""
     from importlib import resources
     return Path(str(resources.files("master.phenomena").joinpath("reach_after.toml")))
 
@@ -71,6 +72,13 @@ def load(path=None, model_name: str = "paper") -> dict:
 
 
 def target_pose(config: dict) -> tuple[float, float]:
+    """The target's joint angles: the resting hand moved by ``reach_after.target``.
+
+    Returns
+    -------
+    tuple of float
+        (shoulder, elbow) in deg, the hand at ``REST_HAND + target`` (m).
+    """
     dx, dy = config["reach_after"]["target"]
     shoulder, elbow = kinematics.inverse(kinematics.REST_HAND[0] + dx, kinematics.REST_HAND[1] + dy)
     return float(shoulder), float(elbow)
@@ -122,6 +130,20 @@ def measures(times, values, config: dict, trials) -> dict:
 
 
 def rows(found: list[tuple]) -> list[list]:
+    """reach_after.csv's rows (``COLUMNS``): per decoder x condition x stimulation, the number of trials, the means
+    of the per-trial values and the endpoint bias's sd.
+
+    Parameters
+    ----------
+    found : list of tuple
+        Per decoder, (its trials, :func:`measures` of them): drift and endpoint values in cm, each of shape
+        (trials,).
+
+    Returns
+    -------
+    list of list
+        A row per cell, numbers as text.
+    """
     out = []
     for trials, values in found:
         for (decoder, condition, stimulation), members in tables.cells(trials).items():

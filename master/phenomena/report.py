@@ -37,6 +37,26 @@ STIMULATION_CODES = {"sync": 0.0, "async": 1.0, "vision": 2.0}  # the vision-onl
 
 @dataclass(frozen=True)
 class Phenomenon:
+    """A phenomenon run as a sweep: its files, and how its table's x is read from a trial.
+
+    Attributes
+    ----------
+    name : str
+        The command's name, e.g. ``temporal-window``.
+    file : str
+        Its sweep file, beside this module.
+    human : str
+        Its table in human.toml.
+    x_name : str
+        The table's x column, e.g. ``delay_s``.
+    x_label : str
+        The figures' x axis label.
+    x_of : callable
+        (point's configuration, condition, stimulation) -> x, in the x column's unit.
+    relative_to : str
+        ``first``, ``last`` or ``largest``: the drift that ``drift_relative`` divides by, along each line.
+    """
+
     name: str                                   # the command's name
     file: str                                   # its sweep file, beside this module
     human: str                                  # its table in human.toml
@@ -69,6 +89,7 @@ PHENOMENA = {p.name: p for p in (
 
 
 def human_references(table: str) -> list[dict]:
+    """The human references of ``table`` in human.toml (its ``reference`` list)."""
     with open(human_file(), "rb") as file:
         return tomllib.load(file)[table]["reference"]
 
@@ -121,6 +142,8 @@ def lines(found: list[dict]) -> dict[tuple, list[dict]]:
 
 
 def table(phenomenon: Phenomenon, found: list[dict]) -> str:
+    """NAME.csv's text: a row per row of ``found`` (:func:`rows`), the outcomes' statistics and ``drift_relative``;
+    a NaN is an empty cell."""
     stats = [f"{key}_{s}" for key, with_sd in OUTCOMES.items() for s in (("mean", "sd") if with_sd else ("mean",))]
     stats += [f"{key}_{s}" for key in POPULATION for s in ("median", "q25", "q75")]
     header = ["model", phenomenon.x_name, "decoder", "condition", "stimulation", "n_trials", *stats, "drift_relative"]
@@ -157,12 +180,15 @@ def draw_human(axis, references: list[dict], with_labels: bool = True) -> None:
 
 
 def caption(references: list[dict], model: str) -> str:
+    """The figure's caption: the model, and what the human references found, wrapped at 190 characters."""
     human = "; ".join(f"{r['short']}: {r['says']} [{r['source']}]" for r in references)
     return textwrap.fill(f"Model: {model}. Human (green/purple, qualitative, drawn as bands and marks, not "
                          f"data points): {human}.", 190)
 
 
 def plot_lines(axis, phenomenon, found, value, sd=None):
+    """Draw the column ``value`` against x on ``axis``, a line per decoder x condition x stimulation, and the
+    column ``sd`` as a band around it when given."""
     for (_, decoder, condition, stimulation), line in lines(found).items():
         xs = [r["x"] for r in line]
         ys = np.array([r[value] for r in line])

@@ -10,6 +10,7 @@ PARENT_KEY = "rhi.sweep-pid"  # dask configuration: the pid of the rhi process w
 
 
 def dask_setup(worker) -> None:
+    """Dask's preload hook, run in each new worker: the worker process dies with the rhi process whose pool it is."""
     import dask
 
     from master.outputs.processes import die_with_parent

@@ -75,6 +75,30 @@ class TrialSpec:
 
 @dataclass(frozen=True)
 class Sweep:
+    """A checked sweep file: its points, their configurations, and the trials it runs, in order.
+
+    Attributes
+    ----------
+    task : str
+        The trial function, ``module:function``.
+    points : list of dict
+        Per point: dotted key -> value, as written in the file.
+    keys : list of str
+        The swept keys, in first-seen order.
+    configs : list of dict
+        Per point: the full effective configuration.
+    workers : int or None
+        The local pool's size; None: one per core.
+    trials : list of TrialSpec
+        The plan, in order: point, decoder, condition, stimulation, index.
+    fingerprint : str
+        A hash of the whole plan: the same fingerprint, the same trials.
+    chunks : list of list of int
+        One Dask task each: positions in ``trials``, a lockstep batch (or one trial).
+    batched : bool
+        True: the experiment's own trial function, run a chunk at a time.
+    """
+
     task: str                   # "module:function"
     points: list[dict]          # per point: dotted key -> value, as written in the file
     keys: list[str]             # the swept keys, in first-seen order
@@ -87,6 +111,7 @@ class Sweep:
 
 
 def canonical_hash(value) -> str:
+    """sha256 (hex) of ``value`` as canonical JSON: keys sorted, no spaces, NaN and infinities allowed."""
     text = json.dumps(value, sort_keys=True, separators=(",", ":"), allow_nan=True)
     return hashlib.sha256(text.encode()).hexdigest()
 
@@ -121,6 +146,7 @@ def grid_points(grid: dict) -> list[dict]:
 
 
 def listed_points(points) -> list[dict]:
+    """``sweep.points`` (a non-empty list of tables) as points of dotted keys; ConfigError otherwise."""
     if not isinstance(points, list) or not points or not all(isinstance(p, dict) for p in points):
         raise ConfigError("sweep.points must be a non-empty list of tables ([[sweep.points]])")
     return [flatten(point) for point in points]
@@ -141,6 +167,8 @@ def resolve_task(name: str):
 
 
 def check_settings(settings: dict) -> None:
+    """Check the ``[sweep]`` table: known keys, whole numbers of at least 1, a boolean quick, a known preset and
+    model, a string task, and no two keys that exclude each other; ConfigError naming the key."""
     for key in settings:
         if key not in SWEEP_KEYS:
             raise configuration.unknown_key(f"sweep.{key}", SWEEP_KEYS, "sweep")
@@ -166,6 +194,8 @@ def check_settings(settings: dict) -> None:
 
 
 def point_config(base: dict, point: dict, number: int) -> dict:
+    """The full configuration of point ``number``: ``point`` merged over ``base`` and validated; ConfigError naming
+    the point."""
     try:
         effective = configuration.merge(base, configuration.nest(point))
         configuration.validate(effective)
@@ -175,6 +205,7 @@ def point_config(base: dict, point: dict, number: int) -> dict:
 
 
 def describe(point: dict) -> str:
+    """A point in words: ``key=value, ...`` (values as JSON), or ``no parameters``."""
     return ", ".join(f"{key}={json.dumps(value)}" for key, value in point.items()) or "no parameters"
 
 

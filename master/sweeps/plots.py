@@ -20,6 +20,7 @@ MAX_LEGEND = 12
 
 
 def is_number(value) -> bool:
+    """Whether ``value`` is an int or a float (a bool is not)."""
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
@@ -33,6 +34,8 @@ def lines(key: str, keys: list[str], summary: list[dict]) -> dict[tuple, list[di
 
 
 def plot_key(key: str, keys: list[str], summary: list[dict], path: Path) -> None:
+    """Write ``path``: each outcome of ``summary`` against the swept ``key``, a panel per outcome and a line per cell
+    and other swept values; nothing when no outcome is there."""
     outcomes = [o for o in OUTCOMES if any(row.get(f"{o}_mean") is not None for row in summary)]
     if not outcomes:
         return

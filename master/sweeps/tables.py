@@ -13,10 +13,12 @@ NOT_MEASURES = ("seed",)  # numbers in an outcome that identify the trial rather
 
 
 def label(value) -> str:
+    """A swept value as a table cell: a string as it is, anything else as JSON."""
     return value if isinstance(value, str) else json.dumps(value)
 
 
 def index_rows(sweep: Sweep, records: dict[str, dict]) -> str:
+    """index.csv's text: a row per trial with a record (its point's values, status, measures, time and error)."""
     header = ["id", "point", *sweep.keys, "decoder", "condition", "stimulation", "trial", "seed", "status",
               *MEASURES, "elapsed_s", "error"]
     rows = []
@@ -55,6 +57,7 @@ def summarise(sweep: Sweep, records: dict[str, dict]) -> tuple[list[str], list[d
 
 
 def summary_csv(sweep: Sweep, measures: list[str], summary: list[dict]) -> str:
+    """summary.csv's text: a row per point and cell of ``summary`` (:func:`summarise`), mean and sd of ``measures``."""
     stats = [f"{m}_{s}" for m in measures for s in ("mean", "sd")]
     header = ["point", *sweep.keys, "decoder", "condition", "stimulation", "n_trials", "n_failed", *stats]
     rows = [[row["point"], *(label(row["parameters"].get(k, "")) for k in sweep.keys), row["decoder"],
@@ -64,6 +67,7 @@ def summary_csv(sweep: Sweep, measures: list[str], summary: list[dict]) -> str:
 
 
 def write_tables(out: Path, sweep: Sweep, records: dict[str, dict]) -> list[dict]:
+    """Write index.csv and summary.csv into ``out``; returns the summary's rows (:func:`summarise`)."""
     atomic_write(out / "index.csv", index_rows(sweep, records))
     measures, summary = summarise(sweep, records)
     atomic_write(out / "summary.csv", summary_csv(sweep, measures, summary))

@@ -13,6 +13,7 @@ BAND_COLOURS = {"near": "tab:blue", "far": "tab:orange"}
 
 
 def colour(band: str) -> str:
+    """The band's colour in every figure (purple for a band other than near and far)."""
     return BAND_COLOURS.get(band, "tab:purple")
 
 
@@ -85,6 +86,23 @@ def success_vs_distance(trials, final, radius_cm, path):
 
 
 def write_figures(folder: Path, trials, times, per_step, final, radius_cm) -> None:
+    """Write paths.png, error_over_time.png and success_vs_distance.png into ``folder``.
+
+    Parameters
+    ----------
+    folder : Path
+        The figures' folder, existing.
+    trials : list of ReachTrial
+        The B reaches, in the arrays' column order.
+    times : numpy.ndarray
+        (steps + 1,) s.
+    per_step : dict of str to numpy.ndarray
+        (steps + 1, B) each, ``master.tasks.reach.task.measures``: hand and goal in m, distances in cm.
+    final : dict of str to numpy.ndarray
+        (B,) each, ``master.tasks.reach.task.outcomes``: distances in cm, reached.
+    radius_cm : float
+        The success radius, cm.
+    """
     paths(trials, per_step, final, folder / "paths.png")
     error_over_time(trials, times, per_step, radius_cm, folder / "error_over_time.png")
     success_vs_distance(trials, final, radius_cm, folder / "success_vs_distance.png")

@@ -48,6 +48,7 @@ class ReachTrial:
 
     @property
     def goal_pose(self) -> tuple[float, float]:
+        """The goal's joint angles (shoulder, elbow) in deg: the rest pose plus this reach's offsets."""
         return kinematics.REST_POSE[0] + self.shoulder_offset, kinematics.REST_POSE[1] + self.elbow_offset
 
 
