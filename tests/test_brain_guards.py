@@ -5,7 +5,7 @@ import pytest
 
 from components.brain import Brain
 from components.brain.base import action_update, euler_step
-from components.brain.causal_inference import observe_events
+from components.brain.touch_timing import observe_events
 from components.brain.integrator import belief_rate
 from components.component import ComponentError, Status
 from master import SimulationError, System, simulate

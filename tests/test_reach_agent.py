@@ -1,6 +1,6 @@
 """The reach agent as one component, as an FMI 2.0 FMU and in an SSP package (master/export/reach_agent.py, tasks.py).
 
-Truth: `rhi reach`'s own system (``reach.run_batch``: the same goals and decoder), bitwise; the reach system's
+Truth: `rhi reach`'s own system (``reach.run_reaches``: the same goals and decoder), bitwise; the reach system's
 links and defaults (docs/reach.md); ``reach.goal_problem``'s rule; for the SSP package under FMPy, an
 independent master written here that does what FMPy's SSP loop does; for libcosim, this master's Jacobi run.
 """
@@ -61,7 +61,7 @@ def reach_fmu(config, tmp_path_factory):
 
 def native(config, trials):
     """``rhi reach``'s lockstep run of ``trials``: ``{agent or body path: (steps + 1, B)}`` as RECORD names them."""
-    values = reach.run_batch("conv", config["decoder"]["conv_checkpoint"], trials, config,
+    values = reach.run_reaches("conv", config["decoder"]["conv_checkpoint"], trials, config,
                              extra=["goal_decoder.visual_error"]).values
     return {port: values[path][..., element[0]] if element else values[path]
             for port, (path, *element) in RECORD.items()}

@@ -25,7 +25,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from components.brain.causal_inference import observe_events
+from components.brain.touch_timing import observe_events
 from components.component import Component, ComponentError, StepFailure
 
 STABILITY_LIMIT = 2.0  # explicit Euler on a linear decay of rate k is stable iff dt * k < 2
@@ -230,7 +230,7 @@ class BeliefBrain(Component, abc.ABC):
             Sensed joint angles, deg (checked finite).
         pair : ndarray of bool, (B,)
             A new visual and a new tactile event both seen since the last Bayes update
-            (:func:`~components.brain.causal_inference.observe_events`).
+            (:func:`~components.brain.touch_timing.observe_events`).
 
         Returns
         -------

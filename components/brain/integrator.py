@@ -2,7 +2,7 @@
 
 Each step, for each of the B trials, in the released agent's order (docs/design.md, "Brain"):
 
-1. gamma from the events (eqs. 8-9, :mod:`components.brain.causal_inference`; with the
+1. gamma from the events (eqs. 8-9, :mod:`components.brain.touch_timing`; with the
    extension over space there, ``spatial_sd`` finite, also from the seen and felt hands);
 2. mu_dot = (s_p - mu)/Sigma_p + gamma * visual_drive [+ goal_drive, a reach goal's pull, unweighted by
    gamma; 0 unless the reach task connects it, docs/reach.md];  mu <- mu + dt * mu_dot  (:func:`belief_rate`);
@@ -63,7 +63,7 @@ import numpy as np
 
 from components.brain.base import STABILITY_LIMIT, BeliefBrain, BeliefRate, action_rate, action_update, \
     add_goal_drive, euler_step, trials_text
-from components.brain.causal_inference import spatial_likelihood, update_gamma
+from components.brain.touch_timing import spatial_likelihood, update_gamma
 from components.brain.goal import goal_inputs
 from components.component import ComponentError, StepFailure
 from components.variables import Variable

@@ -41,7 +41,7 @@ def decoder_reaches(config: dict, kind: str, path: str, trials: list, position: 
     {failed trial: error})."""
     def run_trials(batch):
         with step_bar(f"{kind} reaches x{len(batch)}", config["experiment"]["steps"], position) as update:
-            return reach.run_batch(kind, path, batch, config, JOB_THREADS, update)
+            return reach.run_reaches(kind, path, batch, config, JOB_THREADS, update)
 
     began = time.perf_counter()
     try:

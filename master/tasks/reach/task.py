@@ -280,7 +280,7 @@ def parameters(trials: list[ReachTrial], config: dict, system: System) -> dict:
     return declared(given, system)
 
 
-def run_batch(kind: str, path: str, trials: list[ReachTrial], config: dict, threads: int = 1, progress=None,
+def run_reaches(kind: str, path: str, trials: list[ReachTrial], config: dict, threads: int = 1, progress=None,
               extra=()):
     """Run ``trials`` (all of decoder ``kind``) in lockstep; returns the master's Result (RECORD, the goal's
     hand and the ``extra`` paths recorded)."""

@@ -1,4 +1,5 @@
-"""Causal inference of gamma: does the seen (rubber) hand cause the felt touch? (paper eqs. 8-9).
+"""The paper's causal inference of gamma from the touches' timing: does the seen (rubber) hand cause the felt touch?
+(paper eqs. 8-9; the causal model's inference over space and time is body_inference.py).
 
 gamma = p(c1 | t_v, t_t) is the belief that the visual and the tactile event share one
 source, the seen hand. It weights the visual drive of the belief (paper eq. 6).
