@@ -136,3 +136,25 @@ def test_the_model_parameters_reach_the_brain_per_trial():
     trials = [make_trial(base, "conv", "left", "sync", 0, (("fixed_gamma.gamma", value),)) for value in (0.2, 0.7)]
     assert "fixed_gamma.gamma" in wiring.batchable_keys(base)
     assert np.array_equal(wiring.parameters(trials, base)["brain.gamma0"], [0.2, 0.7])
+
+
+def test_export_agent_carries_a_model_of_ones_own_and_refuses_one_it_cannot_carry(quick_cache, tmp_path, monkeypatch,
+                                                                                   capsys):
+    """rhi export-agent --model: the example's agent FMU, stepped by fmpy, holds gamma at fixed_gamma.gamma (its
+    brain, not the paper's, is inside); the causal model, whose pose encoder the FMU does not carry, is refused."""
+    from fmpy.validation import validate_fmu
+
+    from tests.test_agent import drive_by_hand
+
+    monkeypatch.setenv("RHI_CACHE", str(quick_cache))
+    (tmp_path / "g.toml").write_text("[fixed_gamma]\ngamma = 0.25\n")
+    fmu = tmp_path / "Agent.fmu"
+    assert main(["export-agent", "--quick", "--decoder", "conv", "--model", EXAMPLE, "--config",
+                 str(tmp_path / "g.toml"), "--out", str(fmu)]) == 0, capsys.readouterr().err[-2000:]
+    assert validate_fmu(str(fmu)) == []
+    stepped = drive_by_hand(fmu, 120, reals={"delay_min": 0.0, "delay_max": 0.1, "period": 0.4})
+    assert np.all(stepped["gamma"] == 0.25) and np.ptp(stepped["mu_shoulder"]) > 0  # held gamma, a moving belief
+    assert main(["export-agent", "--quick", "--model", "causal", "--out", str(tmp_path / "C.fmu")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "pose encoder, which the agent FMU does not carry" in err[0], err
+    assert not (tmp_path / "C.fmu").exists()

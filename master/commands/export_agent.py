@@ -25,6 +25,9 @@ def add_common(parser) -> None:
     parser.add_argument("--config", metavar="FILE", help="TOML file overriding master/defaults.toml (and, for "
                                                          "--task reach, master/reach.toml)")
     parser.add_argument("--quick", action="store_true", help="the --quick settings (a 32 px tiny decoder)")
+    parser.add_argument("--model", default="paper", metavar="NAME",
+                        help="the model whose brain the agent carries (default: paper; a name or FILE.py:Class whose "
+                             "brain reads no pose encoder, docs/model.md)")
     parser.add_argument("--decoder", metavar="KIND", help="conv or vae (default: the configuration's first)")
     parser.add_argument("--checkpoint", metavar="CKPT", help="a trained decoder of that kind (default: the "
                                                              "configured one, or the cached default, trained if missing)")
@@ -52,7 +55,7 @@ def load(args) -> dict:
     overrides = {f"decoder.{args.decoder}_checkpoint": args.checkpoint} if args.checkpoint else {}
     if args.decoder not in (None, "conv", "vae"):
         raise ConfigError(f"--decoder {args.decoder!r} is not one of conv, vae")
-    return task(args.task).load(args.config, overrides, args.quick)
+    return task(args.task).load(args.config, overrides, args.quick, getattr(args, "model", "paper"))
 
 
 def run(args) -> int:

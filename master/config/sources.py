@@ -61,6 +61,12 @@ TASK_SOURCES = {
 # The paper's whole system: the task's components and the paper model's brain.
 PARAMETER_SOURCES = {**TASK_SOURCES, **BRAIN_SOURCES}
 
+def sources(config: dict) -> dict:
+    """Every component parameter's source under ``config``: the task's (:data:`TASK_SOURCES`) and its model's brain's
+    (``Model.parameter_sources``); for the paper's model, :data:`PARAMETER_SOURCES`."""
+    return {**TASK_SOURCES, **models.of(config).parameter_sources}
+
+
 # The values of the "derived:" sources, and the trial field of the per-trial ones.
 DERIVED = {
     "brain.mu0": lambda: np.array(kinematics.REST_POSE, dtype=float),

@@ -34,6 +34,7 @@ from components.variables import Variable
 from master.cosim import Connection, SimulationError, Session, System
 from master.tasks.illusion import wiring
 from master.config.protocol import make_trial
+from master.config.sources import sources
 
 BODY = "body"  # the experiment's name for the body component
 SEED = "stimulus.seed"
@@ -125,25 +126,28 @@ def agent_connections(agent: str = "agent", body: str = BODY, links=None) -> lis
     return connections
 
 
-def parameter_paths(system: System) -> list[str]:
+def parameter_paths(system: System, config: dict) -> list[str]:
     """The inner parameters that are the agent's parameters: every scalar one the experiment sets
     (``wiring.PARAMETER_SOURCES``) but those fixed when the agent is built (constructor arguments,
     the blur the decoder was trained on) and the derived ones (the brain's start belief, the rest pose)."""
     return [f"{name}.{variable.name}" for name, component in system.components.items()
             for variable in component.variables.values()
-            if variable.causality == "parameter" and variable.type != "Array" and exposed(f"{name}.{variable.name}")]
+            if variable.causality == "parameter" and variable.type != "Array"
+            and exposed(f"{name}.{variable.name}", config)]
 
 
-def exposed(path: str) -> bool:
-    """Whether the experiment's parameter ``path`` (``component.variable``) is an agent parameter: set by the
-    experiment, not the body's, not fixed when the agent is built, not derived."""
-    return (path in wiring.PARAMETER_SOURCES and not path.startswith(BODY + ".") and path not in wiring.CONSTRUCTED
-            and path not in FIXED_AT_BUILD and path not in wiring.DERIVED)
+def exposed(path: str, config: dict) -> bool:
+    """Whether parameter ``path`` (``component.variable``) is an agent parameter under ``config``: set from the
+    configuration (the task's sources and the model's, :func:`master.config.sources.sources`), not the body's, not
+    fixed when the agent is built, not derived."""
+    source = sources(config).get(path)
+    return (source is not None and not path.startswith(BODY + ".") and path not in wiring.CONSTRUCTED
+            and path not in FIXED_AT_BUILD and not source.startswith("derived:"))
 
 
 def configured(path: str, variable: Variable, config: dict):
     """The start of an agent parameter: the configuration's value for a plain key, else the variable's own."""
-    key = wiring.config_key(wiring.PARAMETER_SOURCES[path])
+    key = wiring.config_key(sources(config)[path])
     if key is None:
         return variable.start
     table, name = key.split(".")
@@ -184,7 +188,7 @@ class Agent(Component):
             if source.startswith(BODY + "."):
                 self.inputs.setdefault(source.split(".")[1], []).append(target)
         self.actions = {source.split(".")[1]: source for source, target in self.links if target.startswith(BODY + ".")}
-        self.parameters = {path.split(".")[1]: path for path in parameter_paths(self._system)}
+        self.parameters = {path.split(".")[1]: path for path in parameter_paths(self._system, self.config)}
         super().__init__(name, self._declare())
         self._session = None
         self._used = None  # the parameter values the session was built with

@@ -18,6 +18,7 @@ import shutil
 import tempfile
 from pathlib import Path
 
+from master import models
 from master.cosim import ConfigError
 from master.export.fmu_files import build_with_pythonfmu, built_beside, check_target, staged_script
 
@@ -148,6 +149,11 @@ def export_agent(out, config: dict, kind: str | None = None, task: str = "illusi
     if kind not in ("conv", "vae"):
         raise ConfigError(f"--decoder {kind!r} is not one of conv, vae")
     task_named(task)  # a known one
+    model = models.of(config)
+    if model.sees_pose:
+        raise ConfigError(f"--model {model.name}: its brain reads the seen arm's pose through a pose encoder, which "
+                          "the agent FMU does not carry (it carries the decoder only); export a model that reads "
+                          "the image through the decoder (paper, or a model of one's own like it)")
     out = check_target(out)
     if task == "reach":
         check_carried(config)

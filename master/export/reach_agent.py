@@ -34,6 +34,7 @@ from components.variables import Variable
 from master.cosim import System
 from master.tasks.reach import task as reach
 from master.tasks.illusion import wiring
+from master.config.sources import sources
 from master.decoders.training_data import HALF_RANGES
 from master.export.agent import OBSERVED, Agent, parameter_paths
 
@@ -99,11 +100,11 @@ class ReachAgent(Agent):
                                                        "(released agent: 2); the goal image's variance is "
                                                        "visual_variance / w"))
         self.keys[RATIO] = RATIO_KEY
-        paths = parameter_paths(inner)
+        paths = parameter_paths(inner, self.config)
         if ("goal_decoder" in inner.components or "decoder" in inner.components) and VISUAL_VARIANCE not in paths:
             paths.insert(0, VISUAL_VARIANCE)
         for path in paths:
-            name, key = path.partition(".")[2], wiring.config_key(wiring.PARAMETER_SOURCES[path])
+            name, key = path.partition(".")[2], wiring.config_key(sources(self.config)[path])
             declared = inner.variable(path if present(inner, path) else "goal_decoder." + name)
             table, entry = key.split(".")
             variables.append(Variable(name, "parameter", declared.type, start=self.config[table][entry],

@@ -31,7 +31,7 @@ def agent_parameters(trial: Trial, config: dict, declared: dict) -> dict:
         if path == SEED:
             low, high = split_seed(int(value[0]))
             values[SEED_LOW], values[SEED_HIGH] = ("Integer", low), ("Integer", high)
-        elif exposed(path) and declared.get(name, ("",))[0] == "parameter":
+        elif exposed(path, config) and declared.get(name, ("",))[0] == "parameter":
             values[name] = (declared[name][1], np.asarray(value).reshape(-1)[0])
     return values
 
@@ -44,9 +44,10 @@ class Illusion:
     system_name, system_description = "RubberHandIllusion", "the rubber-hand agent and a body"
     trial_form = "CONDITION/STIMULATION/INDEX, e.g. left/sync/0"
 
-    def load(self, path, overrides: dict, quick: bool) -> dict:
-        """The experiment's configuration (``master.config.load``): the file ``path``, ``overrides``, ``quick``."""
-        return configuration.load(path, overrides, quick=quick)
+    def load(self, path, overrides: dict, quick: bool, model_name: str = "paper") -> dict:
+        """The experiment's configuration (``master.config.load``): the file ``path``, ``overrides``, ``quick``,
+        the model."""
+        return configuration.load(path, overrides, quick=quick, model_name=model_name)
 
     def trials(self, config: dict, kind: str) -> list[Trial]:
         """The protocol's trials of decoder ``kind``, in the protocol's order."""
@@ -85,9 +86,10 @@ class Reach:
     system_name, system_description = "RubberHandReach", "the reach agent and a free body"
     trial_form = "BAND/INDEX, e.g. near/0"
 
-    def load(self, path, overrides: dict, quick: bool) -> dict:
-        """The reach's configuration (``master.tasks.reach.task.load``): the file ``path``, overrides, quick."""
-        return reach.load(path, quick=quick, overrides=overrides)
+    def load(self, path, overrides: dict, quick: bool, model_name: str = "paper") -> dict:
+        """The reach's configuration (``master.tasks.reach.task.load``): the file ``path``, overrides, quick, the
+        model."""
+        return reach.load(path, quick=quick, model_name=model_name, overrides=overrides)
 
     def trials(self, config: dict, kind: str) -> list[reach.ReachTrial]:
         """The reach plan's goals for decoder ``kind`` (the same goals for each decoder)."""
