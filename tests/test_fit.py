@@ -480,3 +480,33 @@ def test_the_normal_scores_by_hand():
     observed = statistics[5]
     assert np.array_equal(inference.sample(scaled, observed, 50, 4),
                           inference.sample(plain, inference.statistics_scale(settings, statistics)(observed), 50, 4))
+
+
+def test_the_fit_in_memory_gives_rhi_fit_s_simulations_and_a_posterior_within_the_prior(quick_cache, tmp_path,
+                                                                                         monkeypatch):
+    """master.fit.memory: simulate the training participants of a tiny fit here, nothing written; their statistics
+    are the ones `rhi fit` computed from its simulations/ folder, bit for bit (the same lockstep batches and
+    seeds); train and sample give (count, parameters) draws inside the priors' supports."""
+    from master.commands.cli import main
+    from master.fit import memory
+    from master.fit.plan import draw_participants, read_plan
+    from master.fit.simulate import participants_sweep, statistics, with_noise
+    from master.sweeps.folder import read_records
+
+    monkeypatch.setenv("RHI_CACHE", str(quick_cache))
+    write(tmp_path / "fit.toml", FIT.format(steps=8, simulations=20, calibration=0))
+    write(tmp_path / "data.csv", DATA)
+    assert main(["fit", "--data", str(tmp_path / "data.csv"), "--config", str(tmp_path / "fit.toml"), "--out",
+                 str(tmp_path / "out")]) == 0
+    data = read_data(str(tmp_path / "data.csv"))
+    plan = read_plan(str(tmp_path / "fit.toml"), data)
+    theta = draw_participants(plan.parameters, plan.settings)
+    sweep = participants_sweep(plan, theta, "prior")
+    folder = with_noise(statistics(sweep, read_records(tmp_path / "out" / "simulations", sweep), data, plan.measures),
+                        data, plan.measures, plan.noise, plan.settings["seed"], "prior")
+    here = memory.simulate(plan, data, theta)
+    assert here.shape == (20, 4) and np.array_equal(here, folder)  # 2 cells x 2 measures; bitwise
+    samples = memory.sample(plan, memory.train(plan, theta, here), here[0], 30, seed=5)
+    assert samples.shape == (30, 2)
+    assert np.all((samples[:, 0] >= 5.0) & (samples[:, 0] <= 80.0))  # decoder.visual_variance: log-uniform [5, 80]
+    assert np.all((samples[:, 1] >= 0.5) & (samples[:, 1] <= 2.0))  # proprioceptive variance: normal in [0.5, 2]

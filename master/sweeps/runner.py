@@ -256,6 +256,18 @@ def worker_check(module: str) -> list[str]:
     return [key for key, wanted in WORKER_SETTINGS.items() if not same(dask.config.get(key, None), wanted)]
 
 
+def run_in_memory(sweep: Sweep) -> dict[str, dict]:
+    """Every trial of a batched sweep run here, chunk by chunk as :func:`execute` submits them (so each trial gets
+    the numbers a sweep folder holds), nothing written: ``{trial id: record}``."""
+    records = {}
+    for chunk in sweep.chunks:
+        members = [sweep.trials[position] for position in chunk]
+        several = None if len({t.point for t in members}) == 1 else [sweep.configs[t.point] for t in members]
+        for trial, result in zip(members, run_chunk(sweep.configs[members[0].point], members, several)):
+            records[trial.id] = {"id": trial.id, "point": trial.point, **result}
+    return records
+
+
 def execute(sweep: Sweep, task, client, out: Path, done: set[str], on_record=None) -> list[dict]:
     """Submit every chunk with a trial not in ``done``; write each of its trials' records not in ``done``
     to ``out/trials/ID.json`` as the chunk arrives.
