@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import time
 from contextlib import contextmanager
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -61,8 +62,9 @@ def run(config: dict, checkpoints: dict[str, str], body: str | None = None, prog
     batches = lockstep_batches(config)
     if device != "cpu":  # one GPU: the batches one after the other
         processes, workers = 1, None
-    jobs = [(config, batch[0].decoder, checkpoints[batch[0].decoder], batch, body, position, fast[batch[0].decoder],
-             device) for position, batch in zip(bar_positions(len(batches), progress, processes, workers), batches)]
+    jobs = [(BatchJob(config, batch[0].decoder, checkpoints[batch[0].decoder], batch, body, position,
+                      fast[batch[0].decoder], device),)
+            for position, batch in zip(bar_positions(len(batches), progress, processes, workers), batches)]
     kept, blocks, seconds, failures, times = [], [], {}, {}, None
     for trials, (batch, result, spent, failed) in zip(batches, run_jobs(decoder_batch, jobs, processes, workers)):
         seconds[trials[0].decoder] = seconds.get(trials[0].decoder, 0.0) + spent
@@ -89,16 +91,48 @@ def lockstep_batches(config: dict) -> list[list[Trial]]:
     return batches
 
 
-def decoder_batch(config: dict, kind: str, checkpoint: str, trials: list[Trial], body: str | None,
-                  progress: int | None = None, fast: bool | None = None, device: str = "cpu"):
-    """One lockstep batch of one decoder's trials, a failing trial dropped and recorded (a job of :func:`run`).
+@dataclass(frozen=True)
+class BatchJob:
+    """One lockstep batch of one decoder's trials, as :func:`run` hands it to a worker.
 
-    progress: the line of this batch's progress bar (None: no bar). fast, device: as for ``decoder_component``.
+    Attributes
+    ----------
+    config : dict
+        The run's configuration.
+    kind, checkpoint : str
+        The decoder slot and its checkpoint file.
+    trials : list of Trial
+        The batch's trials, in the protocol's order.
+    body : str or None
+        An FMU to use as the body (None: the native plant).
+    progress : int or None
+        The line of this batch's progress bar (None: no bar).
+    fast : bool or None
+        Whether the decoder runs in the fast mode (None: ``decoder.fast``).
+    device : str
+        Where the decoder runs.
+    """
+
+    config: dict
+    kind: str
+    checkpoint: str
+    trials: list
+    body: str | None = None
+    progress: int | None = None
+    fast: bool | None = None
+    device: str = "cpu"
+
+
+def decoder_batch(job: BatchJob):
+    """One lockstep batch of one decoder's trials, a failing trial dropped and recorded (a job of :func:`run`).
 
     Returns (kept trials, {"times", "measures"} or None, seconds, {failed trial: error}).
     """
     from master.decoders.cache import decoder_component  # torch is imported only when a run needs it
 
+    config, kind, checkpoint, trials, body, progress = (job.config, job.kind, job.checkpoint, job.trials, job.body,
+                                                        job.progress)
+    fast, device = job.fast, job.device
     make_body = body_factory(body, config)[0]
 
     def run_trials(batch):
