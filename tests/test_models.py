@@ -14,13 +14,14 @@ import pytest
 from master import models
 from master.commands.cli import main
 from master.cosim import ConfigError
+from master.tasks import TASKS
 from master import config as configuration
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = f"{ROOT / 'examples' / 'my_model.py'}:FixedGamma"
 MODELS = ("paper", "causal", EXAMPLE)
-TINY = {  # each task at tiny size: one decoder, one condition, a few steps of 0.02 s
-    "experiment": "[experiment]\nsteps = 12\ntrials = 1\ndecoders = [\"conv\"]\nconditions = [\"left\"]\n",
+TINY = {  # each registered task at tiny size: one decoder, one condition, a few steps of 0.02 s
+    "illusion": "[experiment]\nsteps = 12\ntrials = 1\ndecoders = [\"conv\"]\nconditions = [\"left\"]\n",
     "reach": "[experiment]\nsteps = 12\ndecoders = [\"conv\"]\n[reach]\ngoals = 1\nbands = [\"near\"]\n",
     "moving-hand": "[experiment]\nsteps = 12\ndecoders = [\"conv\"]\n[moving_hand]\ndelays = [0.0, 0.1]\n"
                    "period = 0.2\n",
@@ -29,17 +30,17 @@ TINY = {  # each task at tiny size: one decoder, one condition, a few steps of 0
 }
 
 
-def command(task: str, model: str, config: Path, out: Path) -> list[str]:
-    if task in ("moving-hand", "reach-after"):
-        return ["phenomenon", task, "--model", model, "--config", str(config), "--out", str(out)]
-    return [task, "--model", model, "--config", str(config), "--out", str(out)]
+def test_every_registered_task_has_a_tiny_size_here():
+    assert set(TINY) == set(TASKS)
 
 
 @pytest.mark.parametrize("model", MODELS, ids=("paper", "causal", "example"))
-@pytest.mark.parametrize("task", TINY)
+@pytest.mark.parametrize("task", TASKS)
 def test_every_task_runs_every_model_from_the_command_line(task, model, tmp_path, capsys):
     (tmp_path / "tiny.toml").write_text(TINY[task])
-    assert main(command(task, model, tmp_path / "tiny.toml", tmp_path / "out")) == 0, capsys.readouterr().err[-2000:]
+    command = [*TASKS[task].command, "--model", model, "--config", str(tmp_path / "tiny.toml"), "--out",
+               str(tmp_path / "out")]
+    assert main(command) == 0, capsys.readouterr().err[-2000:]
     tables = sorted((tmp_path / "out").glob("*.csv"))
     assert tables, "no table written"
     assert all(list(csv.DictReader(table.open())) for table in tables)  # each table has rows
