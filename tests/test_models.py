@@ -14,6 +14,7 @@ import pytest
 from master import models
 from master.commands.cli import main
 from master.cosim import ConfigError
+from master.models.paper import PaperModel
 from master.tasks import TASKS
 from master import config as configuration
 
@@ -33,6 +34,13 @@ TINY = {  # each registered task at tiny size: one decoder, one condition, a few
 def test_every_registered_task_has_a_tiny_size_here():
     assert set(TINY) == set(TASKS)
 
+
+
+class EntryPointModel(PaperModel):
+    """The paper's model under another name, as a package's entry point would register it."""
+
+    name = "entry-point"
+    settings_file = ""
 
 @pytest.mark.parametrize("model", MODELS, ids=("paper", "causal", "example"))
 @pytest.mark.parametrize("task", TASKS)
@@ -159,3 +167,16 @@ def test_export_agent_carries_a_model_of_ones_own_and_refuses_one_it_cannot_carr
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "pose encoder, which the agent FMU does not carry" in err[0], err
     assert not (tmp_path / "C.fmu").exists()
+
+
+def test_a_model_registered_as_an_entry_point_is_found_by_its_name(monkeypatch):
+    """A package's ``[project.entry-points."rhi.models"]`` names a model: --model takes its name (the entry points
+    as importlib.metadata lists them, here one made up in the group), and its configuration records the spec."""
+    from importlib.metadata import EntryPoint
+
+    point = EntryPoint(name="mine", value="tests.test_models:EntryPointModel", group=models.ENTRY_POINT_GROUP)
+    monkeypatch.setattr(models.metadata, "entry_points", lambda group: [point] if group == point.group else [])
+    assert models.names() == ("paper", "causal", "mine")
+    model = models.get("mine")
+    assert model.name == "entry-point" and model.source == point.value
+    assert configuration.load(model_name="mine")["model"] == {"name": "entry-point", "source": point.value}

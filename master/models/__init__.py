@@ -77,7 +77,7 @@ def get(name: str) -> Model:
     spec = spec_of(name)
     if spec not in _LOADED:
         model = _load(spec)
-        model.source = "" if name in BUILT_IN else spec
+        model.source = "" if spec in BUILT_IN.values() else spec  # a built-in, however it was named
         model.check()
         _LOADED[spec] = model
     return _LOADED[spec]
