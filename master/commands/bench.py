@@ -20,8 +20,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--threads", type=int, default=0, metavar="N",
                         help="torch threads (default: all cores; 1 on a machine busy with other work)")
     parser.add_argument("--checkpoint", metavar="CKPT", default="",
-                        help="trained conv decoder for the fast mode's drift error (default: the default conv decoder: the "
-                             "cache's, else the shipped one)")
+                        help="trained conv decoder for the fast mode's drift error (default: the default conv decoder: "
+                             "the cache's, else the shipped one)")
     parser.add_argument("--training", action="store_true",
                         help="instead: samples/s of the paper decoders' training step at 256x256, before and after "
                              "the paper preset's settings, phase by phase (--quick: tiny, 32x32)")

@@ -67,10 +67,11 @@ def run(args) -> int:
                                 preset_name=args.preset, model_name=args.model)
     check_output(args.out, args.force)
     from components.vision.component import resolve_device
+    from master.runtime.context import RunContext
     from master.tasks.illusion.publish import run_into
 
-    failures = run_into(args.out, config, body=args.body, force=args.force, progress=True,
-                        device=resolve_device(args.device))
+    failures = run_into(args.out, config, args.body,
+                        RunContext(progress=True, force=args.force, device=resolve_device(args.device)))
     for trial, error in failures.items():
         print(f"rhi experiment: trial failed and left out: {trial.decoder}/{trial.condition}/{trial.stimulation} "
               f"trial {trial.index}: {error}", file=sys.stderr)

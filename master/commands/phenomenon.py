@@ -38,6 +38,7 @@ def run(args) -> int:
     """Run `rhi phenomenon NAME`: its own protocol, or its sweep once per model and the report; returns the exit
     status (the sweeps' highest: 1 when a trial failed)."""
     from master.commands.sweep import sweep_and_report
+    from master.runtime.context import RunContext
     from master.phenomena.report import report
 
     from master import config as configuration
@@ -48,7 +49,7 @@ def run(args) -> int:
     if args.name in OWN_PROTOCOLS:
         protocol = __import__(f"master.phenomena.{args.name.replace('-', '_')}", fromlist=["_"])
         config = protocol.load(args.config, "paper" if args.model == "both" else args.model)
-        written = protocol.run_into(args.out, config, args.force)
+        written = protocol.run_into(args.out, config, RunContext(force=args.force))
         print(f"rhi phenomenon {args.name}: wrote {', '.join(str(Path(args.out) / name) for name in written)} "
               f"({time.perf_counter() - started:.0f} s)")
         print((Path(args.out) / written[0]).read_text(), end="")

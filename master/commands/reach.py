@@ -34,9 +34,10 @@ def run(args) -> int:
                  if value is not None}
     config = reach.load(args.config, quick=args.quick, model_name=args.model, overrides=overrides)
     check_output(args.out, args.force)
+    from master.runtime.context import RunContext
     from master.tasks.reach.publish import run_into
 
-    failures = run_into(args.out, config, force=args.force, progress=True)
+    failures = run_into(args.out, config, RunContext(progress=True, force=args.force))
     for trial, error in failures.items():
         print(f"rhi reach: reach failed and left out: {trial.decoder}/{trial.band} goal {trial.index}: {error}",
               file=sys.stderr)

@@ -34,12 +34,13 @@ def sweep_and_report(path, out, scheduler: str | None = None, force: bool = Fals
     """Run the sweep file ``path`` into ``out`` (resumably) and print what was done; 0 when every trial succeeded,
     1 when some failed. model, trials: instead of the file's ``sweep.model`` and ``sweep.trials``."""
     from master.sweeps import plan as sweeps
+    from master.runtime.context import RunContext
     from master.sweeps.run import run_into
 
     sweep = sweeps.load(path, model, trials)
     task = sweeps.resolve_task(sweep.task)
     out = Path(out)
-    records, now = run_into(sweep, task, out, scheduler, force, debug)
+    records, now = run_into(sweep, task, out, RunContext(force=force, scheduler=scheduler, debug=debug))
     ok = sum(record["status"] == "ok" for record in records.values())
     failures = [(t, records[t.id]) for t in sweep.trials if records.get(t.id, {}).get("status") == "failed"]
     for trial, record in failures[:MAX_LISTED]:

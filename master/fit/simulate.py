@@ -40,9 +40,10 @@ def simulate(sweep: sweeps.Sweep, out: Path, client, label: str, replace: bool =
     """Run the sweep's missing trials into ``out`` (a sweep folder) on ``client()`` (a callable giving a checked
     dask Client); (every record by trial id, trials run now). replace: a different sweep in ``out`` is
     replaced, keeping the trials the two share (the posterior predictive's draws follow the data)."""
+    from master.runtime.context import RunContext
     from master.sweeps.run import run_into
 
-    return run_into(sweep, sweeps.resolve_task(sweep.task), out, force=replace, label=label, plots=False,
+    return run_into(sweep, sweeps.resolve_task(sweep.task), out, RunContext(force=replace), label=label, plots=False,
                     client=client)
 
 

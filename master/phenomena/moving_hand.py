@@ -24,6 +24,7 @@ from master.cosim import ConfigError, simulate
 from master import config as configuration
 from master.tasks.illusion import wiring
 from master.decoders.cache import check_decoders, decoder_component, per_decoder
+from master.runtime.context import RunContext
 from master.runtime.pool import JOB_THREADS, Workers
 from master.config.protocol import rubber_pose, trial_seed
 from master.outputs import tables
@@ -183,9 +184,9 @@ def figure(config: dict, found: dict[str, dict], path: Path) -> None:
         plt.close(fig)
 
 
-def run_into(out, config: dict, force: bool = False) -> list[str]:
+def run_into(out, config: dict, context: RunContext | None = None) -> list[str]:
     """Run the protocol for each decoder (side by side) and write DIR: moving_hand.csv, moving_hand.png, run.json."""
-    started = time.perf_counter()
+    started, force = time.perf_counter(), (context or RunContext()).force
     check_decoders(config)
     with output_folder(out, force) as staging, Workers() as workers:
         checkpoints, found = per_decoder(config, decoder_delays, workers)

@@ -24,6 +24,7 @@ from master.cosim import ConfigError, simulate
 from master import config as configuration
 from master.tasks.illusion import wiring
 from master.decoders.cache import check_decoders, decoder_component, loaded, per_decoder
+from master.runtime.context import RunContext
 from master.runtime.pool import JOB_THREADS, Workers
 from master.config.protocol import plan
 from master.outputs import tables
@@ -155,9 +156,9 @@ def rows(found: list[tuple]) -> list[list]:
     return out
 
 
-def run_into(out, config: dict, force: bool = False) -> list[str]:
+def run_into(out, config: dict, context: RunContext | None = None) -> list[str]:
     """Every decoder's trials side by side; DIR: reach_after.csv, run.json."""
-    started = time.perf_counter()
+    started, force = time.perf_counter(), (context or RunContext()).force
     check_decoders(config)
     with output_folder(out, force) as staging, Workers() as workers:
         checkpoints, by_kind = per_decoder(config, decoder_trials, workers)

@@ -20,6 +20,8 @@ class RunContext:
         Most worker processes at once (default: the usable cores; 1: here, one after the other).
     scheduler : str or None
         A Dask scheduler's address for sweeps and fits (default: a process pool on this machine).
+    debug : bool
+        Failed trials' tracebacks printed, and errors raised with theirs (``rhi --debug``).
     """
 
     progress: bool = False
@@ -27,3 +29,4 @@ class RunContext:
     device: str = "cpu"
     processes: int | None = None
     scheduler: str | None = None
+    debug: bool = False

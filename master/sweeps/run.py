@@ -8,6 +8,7 @@ from contextlib import nullcontext
 from pathlib import Path
 
 from master.outputs.files import atomic_write
+from master.runtime.context import RunContext
 from master.sweeps.folder import sweep_folder, written_by
 from master.sweeps.plan import Sweep
 from master.sweeps.plots import plot_sweep
@@ -17,18 +18,20 @@ from master.sweeps.tables import index_rows, write_tables
 INDEX_EVERY_S = 2.0
 
 
-def run_into(sweep: Sweep, task, out: Path, scheduler: str | None = None, force: bool = False, debug: bool = False,
-             label: str = "rhi sweep", plots: bool = True, client=None) -> tuple[dict[str, dict], int]:
+def run_into(sweep: Sweep, task, out: Path, context: RunContext | None = None, label: str = "rhi sweep",
+             plots: bool = True, client=None) -> tuple[dict[str, dict], int]:
     """Run every trial of ``sweep`` that ``out`` holds no successful record of; returns (every record by trial
-    id, how many ran now). client: a callable giving a dask Client to run on, checked and kept open by the
-    caller (several sweeps on one pool); default: one of its own, on ``scheduler`` or a local pool.
+    id, how many ran now). context: force (replace a different sweep in ``out``), scheduler, debug. client: a
+    callable giving a dask Client to run on, checked and kept open by the caller (several sweeps on one pool);
+    default: one of its own, on ``context.scheduler`` or a local pool.
 
     A stop (Ctrl-C, a kill) leaves the records written so far, each whole: the same call again runs only
     the rest (docs/sweeps.md)."""
     from tqdm import tqdm
 
+    context = context or RunContext()
     check_decoders(sweep)
-    with sweep_folder(out, sweep, force) as (records, manifest):
+    with sweep_folder(out, sweep, context.force) as (records, manifest):
         done = {key for key, record in records.items() if record["status"] == "ok"}
         bar = None
         counts, last_index = {"ok": len(done), "failed": 0}, [time.monotonic()]
@@ -49,7 +52,9 @@ def run_into(sweep: Sweep, task, out: Path, scheduler: str | None = None, force:
         try:
             if len(done) < len(sweep.trials):
                 prepare_decoders(sweep)
-                with (nullcontext(client()) if client else dask_client(scheduler, sweep.workers, debug)) as pool:
+                pool_context = (nullcontext(client()) if client else
+                                dask_client(context.scheduler, sweep.workers, context.debug))
+                with pool_context as pool:
                     if not client:
                         check_workers(pool, sweep.task)
                     bar = tqdm(total=len(sweep.trials), initial=len(done), unit="trial", desc=label,

@@ -155,21 +155,20 @@ def run_experiment(config: dict | None = None, body: str | None = None, context:
     return ExperimentResult(config, trials, times, per_step, final, summary, failures, provenance, began)
 
 
-def run_into(out, config: dict, body: str | None = None, force: bool = False, progress: bool = False,
-             device: str = "cpu") -> dict:
+def run_into(out, config: dict, body: str | None = None, context: RunContext | None = None) -> dict:
     """Run the protocol of ``config`` and write DIR = ``out``; returns {failed trial: error}.
 
-    body: an FMU to use as the body (None: the native pymunk plant). device: where the decoders train and run
-    (cpu, cuda; resolved). Everything that can be checked is checked before the staging folder exists and
-    before any training: the output folder, the decoders' checkpoints (kind, resolution, camera) or training
-    settings, the body FMU.
+    body: an FMU to use as the body (None: the native pymunk plant). context: force (replace DIR of rhi's),
+    progress, device (where the decoders train and run: cpu, cuda; resolved). Everything that can be checked is
+    checked before the staging folder exists and before any training: the output folder, the decoders'
+    checkpoints (kind, resolution, camera) or training settings, the body FMU.
     """
-    began = time.perf_counter()
-    check_output(out, force)
-    check_decoders(config, device)
+    began, context = time.perf_counter(), context or RunContext()
+    check_output(out, context.force)
+    check_decoders(config, context.device)
     body_factory(body, config)
-    with output_folder(out, force) as staging, Workers(1 if device != "cpu" else None) as workers:
-        result = run_experiment(config, body, RunContext(progress=progress, device=device), workers)
+    with output_folder(out, context.force) as staging, Workers(1 if context.device != "cpu" else None) as workers:
+        result = run_experiment(config, body, context, workers)
         result.began = began
         result.write_files(staging, workers)
     return result.failures

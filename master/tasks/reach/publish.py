@@ -12,6 +12,7 @@ from master.cosim import SimulationError
 from master.tasks.reach import task as reach
 from master.decoders.cache import check_decoders, ensure_checkpoints
 from master.tasks.scene import encoder_path
+from master.runtime.context import RunContext
 from master.runtime.pool import JOB_THREADS, Workers, run_jobs
 from master.tasks.illusion.runner import bar_positions, step_bar, without_failures
 from master.outputs import tables
@@ -88,11 +89,13 @@ def trials_text(trials, times, per_step: dict[str, np.ndarray], every: int) -> s
     return tables.csv_text(["decoder", "band", "goal", "time_s", *STEP_KEYS], rows)
 
 
-def run_into(out, config: dict, force: bool = False, progress: bool = False) -> dict:
-    """Run every reach of ``config`` and write DIR = ``out``; returns {failed trial: error}."""
+def run_into(out, config: dict, context: RunContext | None = None) -> dict:
+    """Run every reach of ``config`` and write DIR = ``out`` (context: force, progress); returns {failed trial:
+    error}."""
     from master.tasks.reach.figures import write_figures
 
-    started = time.perf_counter()
+    started, context = time.perf_counter(), context or RunContext()
+    force, progress = context.force, context.progress
     check_output(out, force)
     check_decoders(config)
     trials = reach.plan(config)
