@@ -24,6 +24,7 @@ import json
 import math
 import os
 import pickle
+import stat
 import warnings
 import zipfile
 from typing import BinaryIO
@@ -139,6 +140,11 @@ def check_matches(path, metadata: dict, resolution=None, rest_pose=None, half_ra
 
 def _payload(path) -> dict:
     try:
+        kind = os.stat(path).st_mode  # by its kind, before opening: a FIFO would wait for a writer forever
+        if stat.S_ISDIR(kind):
+            raise IsADirectoryError
+        if not stat.S_ISREG(kind):
+            raise CheckpointError(f"{path}: is not a regular file (a FIFO, a device or a socket)")
         with open(path, "rb") as file:
             head = file.read(4)
     except FileNotFoundError:

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import json
-import os
 import sys
 from dataclasses import replace
 
@@ -10,7 +9,7 @@ from master.bench.report import table
 from master.bench.settings import QUICK, BenchSettings
 from master.bench.suite import run_suite
 from master.cosim import ConfigError
-from master.config import MAX_THREADS
+from master.config import MAX_THREADS, file_problem
 
 
 def run_bench(args) -> int:
@@ -20,10 +19,9 @@ def run_bench(args) -> int:
     if not 0 <= threads <= MAX_THREADS:
         raise ConfigError(f"--threads {threads} must be 0 (all cores) to {MAX_THREADS} threads")
     checkpoint = getattr(args, "checkpoint", "") or ""
-    if checkpoint and os.path.isdir(checkpoint):
-        raise ConfigError(f"--checkpoint {checkpoint} is a folder, not a checkpoint file")
-    if checkpoint and not os.path.isfile(checkpoint):
-        raise ConfigError(f"--checkpoint {checkpoint} does not exist")
+    problem = file_problem(checkpoint) if checkpoint else None
+    if problem:
+        raise ConfigError(f"--checkpoint {checkpoint} {problem}")
     if getattr(args, "training", False):
         from master.bench import training
         from master import config as configuration

@@ -54,6 +54,25 @@ MAX_DEPTH = 16  # tables and arrays within each other; the shipped files nest th
 # torch threads (train.threads): twice the hardware threads of the largest common server (two 128-core CPUs
 # with 2-way SMT: 512); a thread count is a setting that makes bits, not a measure of the machine.
 MAX_THREADS = 1024
+def file_problem(path, what: str = "checkpoint file") -> str | None:
+    """Why ``path`` cannot be read as a ``what``, by its kind before it is opened (a FIFO would wait for a writer
+    forever, a device would never end): "does not exist", "is a folder, not a ...", "is not a regular file (...)";
+    None for a regular file (a link to one counts)."""
+    import stat
+
+    try:
+        kind = os.stat(path).st_mode
+    except FileNotFoundError:
+        return "does not exist"
+    except OSError as error:
+        return f"cannot be read: {error.strerror or error}"
+    if stat.S_ISDIR(kind):
+        return f"is a folder, not a {what}"
+    if not stat.S_ISREG(kind):
+        return "is not a regular file (a FIFO, a device or a socket)"
+    return None
+
+
 INFINITE_KEYS = ("brain.spatial_sd", "brain.action_time_constant", "body.release_time")  # inf: the paper's model
 
 
@@ -260,9 +279,9 @@ def validate(config: dict) -> None:
         raise ConfigError(f"decoder.visual_variance must be positive, got {config['decoder']['visual_variance']}")
     for kind in ("conv", "vae"):  # a checkpoint named must be there, whether or not its decoder runs
         given = config["decoder"][f"{kind}_checkpoint"]
-        if given and not Path(given).is_file():
-            raise ConfigError(f"decoder.{kind}_checkpoint: {given} " + (
-                "is a folder, not a checkpoint file" if Path(given).is_dir() else "does not exist"))
+        problem = file_problem(given) if given else None
+        if problem:
+            raise ConfigError(f"decoder.{kind}_checkpoint: {given} {problem}")
     if not config["decoder"]["relinearise_tolerance"] >= 0:
         raise ConfigError(f"decoder.relinearise_tolerance must be >= 0 deg, got "
                           f"{config['decoder']['relinearise_tolerance']}")
