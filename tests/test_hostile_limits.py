@@ -60,3 +60,20 @@ def test_a_checkpoint_loaded_directly_that_is_a_fifo_or_a_device_is_refused_with
     finally:
         signal.alarm(0)
         signal.signal(signal.SIGALRM, previous)
+
+
+# ======================================================================================================
+# 16. A checkpoint whose metadata JSON nests 100 000 deep is refused in one line
+# ======================================================================================================
+def test_a_checkpoint_whose_metadata_nests_deep_is_refused_in_one_line(tmp_path):
+    import torch
+
+    from components.vision.checkpoint import FORMAT
+    from tests.test_hostile_folders import DEEP
+
+    work = prepared(tmp_path)
+    torch.save({"format": FORMAT, "metadata": DEEP, "weights": {}}, work / "deep.pt")
+    before = tree(tmp_path)
+    refused(rhi(tmp_path, "experiment", "--quick", "--conv-checkpoint", "deep.pt", "--out", "out", timeout=30),
+            "deep.pt: its metadata nests over")
+    assert changed_outside(before, tree(tmp_path), "\0") == []

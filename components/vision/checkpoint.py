@@ -25,6 +25,7 @@ import math
 import os
 import pickle
 import stat
+import sys
 import warnings
 import zipfile
 from typing import BinaryIO
@@ -181,6 +182,9 @@ def _metadata(path, payload: dict) -> dict:
         metadata = json.loads(payload["metadata"])
     except (KeyError, TypeError, ValueError):
         raise CheckpointError(f"{path}: its metadata is missing or is not JSON") from None
+    except RecursionError:  # JSON nested deeper than Python's recursion limit: not metadata rhi wrote
+        raise CheckpointError(f"{path}: its metadata nests over Python's recursion limit of "
+                              f"{sys.getrecursionlimit()} deep (rhi writes it at most 3 deep)") from None
     if not isinstance(metadata, dict):
         raise CheckpointError(f"{path}: its metadata is not a JSON object")
     for key, kind in REQUIRED.items():
