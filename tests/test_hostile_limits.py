@@ -77,3 +77,28 @@ def test_a_checkpoint_whose_metadata_nests_deep_is_refused_in_one_line(tmp_path)
     refused(rhi(tmp_path, "experiment", "--quick", "--conv-checkpoint", "deep.pt", "--out", "out", timeout=30),
             "deep.pt: its metadata nests over")
     assert changed_outside(before, tree(tmp_path), "\0") == []
+
+
+# ======================================================================================================
+# 6. A reach whose goals imply more memory than any machine has is refused before any work
+# ======================================================================================================
+@pytest.mark.parametrize("goals", [10**9, 2**63])
+def test_a_reach_with_too_many_goals_is_refused_with_the_memory_it_implies(tmp_path, goals):
+    prepared(tmp_path)
+    before = tree(tmp_path)
+    done = rhi(tmp_path, "reach", "--quick", "--goals", goals, "--out", "out", timeout=30)
+    refused(done, "this reach would need about ")
+    assert f"({goals} goals x 1 bands x 2 decoders of 500 steps at 32 x 32 px), more than this machine's" in done.stderr
+    assert "lower reach.goals (--goals)" in done.stderr
+    assert changed_outside(before, tree(tmp_path), "\0") == []  # nothing trained, nothing written
+
+
+def test_the_reach_memory_bound_counts_every_reach_and_lets_the_shipped_reach_run():
+    from master.config import BYTES_PER_BATCH_PIXEL, BYTES_PER_TRIAL_STEP, physical_memory
+    from master.tasks.reach import task as reach
+
+    config = reach.load(quick=True, overrides={"reach.goals": 7})
+    # 7 goals x 1 band x 2 decoders, 501 recorded steps, two cameras' 32 x 32 images each
+    assert reach.memory_needed(config) == 14 * 501 * BYTES_PER_TRIAL_STEP + 2 * 14 * 32 * 32 * BYTES_PER_BATCH_PIXEL
+    shipped = reach.load()  # the released agent's 40 goals x 2 bands x 2 decoders of 5000 steps: well inside
+    assert reach.memory_needed(shipped) < min(physical_memory() or 2**40, 8 * 2**30)
