@@ -102,3 +102,40 @@ def test_the_reach_memory_bound_counts_every_reach_and_lets_the_shipped_reach_ru
     assert reach.memory_needed(config) == 14 * 501 * BYTES_PER_TRIAL_STEP + 2 * 14 * 32 * 32 * BYTES_PER_BATCH_PIXEL
     shipped = reach.load()  # the released agent's 40 goals x 2 bands x 2 decoders of 5000 steps: well inside
     assert reach.memory_needed(shipped) < min(physical_memory() or 2**40, 8 * 2**30)
+
+
+# ======================================================================================================
+# 7. sweep.workers and fit.workers are bounded: four local worker processes per usable core
+# ======================================================================================================
+def cores() -> int:
+    return len(os.sched_getaffinity(0))
+
+
+@pytest.mark.parametrize("command", ["sweep", "fit"])
+def test_a_worker_count_over_four_per_core_is_refused_before_any_work(tmp_path, command):
+    from tests.sweep_files import sweep_file
+    from tests.test_hostile_folders import DATA, FIT
+
+    work = prepared(tmp_path)
+    if command == "sweep":
+        sweep_file(work / "s.toml", grid={"conditions.left": [-0.1]}, trials=1, conditions=("left",), workers=100000)
+        arguments = ["sweep", "--config", "s.toml", "--out", "out"]
+    else:
+        (work / "fit.toml").write_text(FIT.format(checkpoint="").replace("workers = 1\n", "workers = 100000\n"))
+        (work / "data.csv").write_text(DATA)
+        arguments = ["fit", "--data", "data.csv", "--config", "fit.toml", "--out", "out"]
+    before = tree(tmp_path)
+    refused(rhi(tmp_path, *arguments, timeout=30),
+            f"{command}.workers = 100000 is over the limit of {4 * cores()} (4 x this machine's {cores()} usable cores)")
+    assert changed_outside(before, tree(tmp_path), "\0") == []
+
+
+def test_a_worker_count_of_four_per_core_is_accepted_and_one_more_is_not(tmp_path):
+    from master.sweeps import plan as sweeps
+    from tests.sweep_files import sweep_file
+
+    path = sweep_file(tmp_path / "s.toml", grid={"conditions.left": [-0.1]}, trials=1, workers=4 * cores())
+    assert sweeps.load(path).workers == 4 * cores()
+    sweep_file(path, grid={"conditions.left": [-0.1]}, trials=1, workers=4 * cores() + 1)
+    with pytest.raises(Exception, match="is over the limit"):
+        sweeps.load(path)

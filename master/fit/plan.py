@@ -25,6 +25,7 @@ import numpy as np
 
 from master import models
 from master.cosim import ConfigError
+from master.runtime.pool import workers_problem
 from master import config as configuration
 from master.tasks.illusion.wiring import TASK_SOURCES, batchable_keys
 from master.models.base import config_key
@@ -184,8 +185,8 @@ def read_plan(path: str, data: Data, model: str | None = None) -> FitPlan:
     if design not in CALIBRATION_DESIGNS:
         raise ConfigError(f"fit.calibration_design = {design!r} is not one of {', '.join(CALIBRATION_DESIGNS)}")
     workers = settings.get("workers")
-    if workers is not None and (not isinstance(workers, int) or isinstance(workers, bool) or workers < 1):
-        raise ConfigError(f"fit.workers must be a whole number of at least 1, got {workers!r}")
+    if workers is not None and workers_problem("fit.workers", workers):
+        raise ConfigError(workers_problem("fit.workers", workers))
     base = configuration.merge(configuration.load(quick=quick, model_name=model), fixed)
     if "decoders" not in fixed.get("experiment", {}):
         base["experiment"]["decoders"] = ["conv"]

@@ -45,6 +45,7 @@ from pathlib import Path
 from master import models
 from master import config as configuration
 from master.cosim import ConfigError
+from master.runtime.pool import workers_problem
 from master.tasks import illusion as experiment
 
 # The default task's name. It is part of every trial's identity (its id, a folder's fingerprint), so it keeps
@@ -148,6 +149,9 @@ def check_settings(settings: dict) -> None:
         value = settings.get(key, 1)
         if not isinstance(value, int) or isinstance(value, bool) or value < 1:
             raise ConfigError(f"sweep.{key} must be a whole number of at least 1, got {value!r}")
+    problem = workers_problem("sweep.workers", settings.get("workers", 1))
+    if problem:
+        raise ConfigError(problem)
     if not isinstance(settings.get("quick", False), bool):
         raise ConfigError(f"sweep.quick must be true or false, got {settings['quick']!r}")
     if "preset" in settings and settings["preset"] not in configuration.PRESETS:
