@@ -139,3 +139,100 @@ def test_a_worker_count_of_four_per_core_is_accepted_and_one_more_is_not(tmp_pat
     sweep_file(path, grid={"conditions.left": [-0.1]}, trials=1, workers=4 * cores() + 1)
     with pytest.raises(Exception, match="is over the limit"):
         sweeps.load(path)
+
+
+# ======================================================================================================
+# 8-9. Every fit.estimator key: its type, its range and the memory it implies, before any simulation
+# ======================================================================================================
+def with_lines(text: str, table: str, changes: str) -> str:
+    """``text`` with the ``key = value`` lines of ``changes`` in ``table``, in place of its lines of those keys."""
+    lines, changes = text.splitlines(), changes.splitlines()
+    start = lines.index(table) + 1
+    end = next((i for i in range(start, len(lines)) if lines[i].startswith("[")), len(lines))
+    keys = {change.split("=")[0].strip() for change in changes}
+    kept = [line for line in lines[start:end] if line.split("=")[0].strip() not in keys]
+    return "\n".join(lines[:start] + kept + changes + lines[end:]) + "\n"
+
+
+def fit_files(work: Path, estimator: str = "", fit: str = "", checkpoint: str = "", data: str | None = None):
+    """work/fit.toml (tests.test_hostile_folders.FIT with the lines ``estimator`` in [fit.estimator] and ``fit`` in
+    [fit]) and work/data.csv (its DATA, or ``data``); returns both paths."""
+    from tests.test_hostile_folders import DATA, FIT
+
+    text = with_lines(with_lines(FIT.format(checkpoint=checkpoint), "[fit.estimator]", estimator), "[fit]", fit)
+    (work / "fit.toml").write_text(text)
+    (work / "data.csv").write_text(DATA if data is None else data)
+    return work / "fit.toml", work / "data.csv"
+
+
+def read_fit(work: Path, **changes):
+    from master.fit.data import read_data
+    from master.fit.plan import read_plan
+
+    plan_path, data_path = fit_files(work, **changes)
+    return read_plan(str(plan_path), read_data(data_path))
+
+
+@pytest.mark.parametrize("line, says", [
+    ("hidden_features = 1000000000", "fit.estimator.hidden_features = 1000000000 is over the limit of 1024 (about "
+                                     "twenty times sbi's 50"),
+    ("transforms = 1000000", "fit.estimator.transforms = 1000000 is over the limit of 64 (about thirteen times sbi's 5"),
+    ("threads = 100000", "fit.estimator.threads = 100000 is over the limit of 1024 (twice the hardware threads"),
+    ("ensemble = 1000", "fit.estimator.ensemble = 1000 is over the limit of 32"),
+    ("max_epochs = 1000000000", "fit.estimator.max_epochs = 1000000000 is over the limit of 100000"),
+    ("batch_size = 1000000", "fit.estimator.batch_size = 1000000 is over the limit of 100000"),
+    ("learning_rate = 1e30", "fit.estimator.learning_rate = 1e+30 is over the limit of 1 (a step that moves each "
+                             "weight by more than its initial scale"),
+    ("learning_rate = inf", "fit.estimator.learning_rate = inf must be a positive finite number"),
+    ("learning_rate = nan", "fit.estimator.learning_rate = nan must be a positive finite number"),
+    ("transforms = 1e6", "fit.estimator.transforms = 1000000.0 must be a positive whole number"),
+    ("hidden_features = 0", "fit.estimator.hidden_features = 0 must be a positive whole number"),
+    ("density = 'x'", "fit.estimator.density = 'x' is not one of maf, nsf, mdn"),
+])
+def test_an_estimator_key_out_of_its_range_is_refused_when_the_fit_file_is_read(tmp_path, line, says):
+    import re
+
+    from master.cosim import ConfigError
+
+    with pytest.raises(ConfigError, match=re.escape(says)):
+        read_fit(tmp_path, estimator=line)
+
+
+def test_each_estimator_key_at_its_limit_is_accepted(tmp_path, monkeypatch):
+    from master import config as configuration
+
+    monkeypatch.setattr(configuration, "physical_memory", lambda: 0)  # unknown: the memory is not checked
+    plan = read_fit(tmp_path, estimator="hidden_features = 1024\ntransforms = 64\nthreads = 1024\nensemble = 32\n"
+                                        "max_epochs = 100000\nbatch_size = 100000\nlearning_rate = 1.0")
+    assert plan.estimator["hidden_features"] == 1024 and plan.estimator["learning_rate"] == 1.0
+
+
+def test_an_estimator_that_needs_more_memory_than_the_machine_has_is_refused_saying_how_much(tmp_path, monkeypatch):
+    from master import config as configuration
+    from master.cosim import ConfigError
+
+    monkeypatch.setattr(configuration, "physical_memory", lambda: 2 * 2**30)  # a machine of 2 GiB
+    # 1 parameter, 1 statistic (drift_cm in left/sync): 8 x 64 transforms x 1024 x (1024 + 3) weights of 16 bytes,
+    # and 200 rows x 64 x 1024 x 128 bytes of activations: 8.03 GiB + 1.56 GiB
+    needed = 8 * 64 * 1024 * 1027 * 16 + 200 * 64 * 1024 * 128
+    with pytest.raises(ConfigError) as refusal:
+        read_fit(tmp_path, estimator="hidden_features = 1024\ntransforms = 64\nbatch_size = 200")
+    assert str(refusal.value) == (
+        f"training the estimator would need about {needed / 2**30:.1f} GiB of memory (1 x a maf of 64 transforms of "
+        "1024 hidden features, batches of 200), more than this machine's 2.0 GiB; lower fit.estimator.hidden_features, "
+        "transforms, ensemble or batch_size")
+    read_fit(tmp_path, estimator="hidden_features = 50\ntransforms = 5\nbatch_size = 200")  # sbi's size: about 11 MiB
+
+
+def test_fit_estimator_threads_over_the_limit_is_refused_by_the_command_before_any_simulation(tmp_path):
+    from components.body.kinematics import REST_POSE
+    from master.decoders.training_data import HALF_RANGES
+    from tests.faults import tiny_checkpoint
+
+    work = prepared(tmp_path)
+    checkpoint = tiny_checkpoint(work / "tiny.pt", rest_pose=list(REST_POSE), half_ranges=list(HALF_RANGES))
+    fit_files(work, estimator="threads = 100000", checkpoint=str(checkpoint))
+    before = tree(tmp_path)
+    refused(rhi(tmp_path, "fit", "--data", "data.csv", "--config", "fit.toml", "--out", "out", timeout=60),
+            "fit.estimator.threads = 100000 is over the limit of 1024")
+    assert changed_outside(before, tree(tmp_path), "\0") == []
