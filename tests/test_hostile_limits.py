@@ -236,3 +236,92 @@ def test_fit_estimator_threads_over_the_limit_is_refused_by_the_command_before_a
     refused(rhi(tmp_path, "fit", "--data", "data.csv", "--config", "fit.toml", "--out", "out", timeout=60),
             "fit.estimator.threads = 100000 is over the limit of 1024")
     assert changed_outside(before, tree(tmp_path), "\0") == []
+
+
+# ======================================================================================================
+# 10. A loss that becomes NaN while the estimator trains: one line, exit status 1 (a failure during the work)
+# ======================================================================================================
+LIFTED = """
+import sys
+import master.fit.plan as plan
+plan.MAX_LEARNING_RATE = float("inf")  # the bound that refuses learning_rate = 1e30 before any work, lifted
+from master.commands.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_a_loss_that_becomes_nan_in_training_is_one_line_and_exit_status_1(tmp_path, monkeypatch):
+    import subprocess
+    import sys
+
+    import master.fit.plan
+    import tests.test_hostile_folders as folders
+    from tests.faults import ENV
+
+    monkeypatch.setattr(master.fit.plan, "MAX_LEARNING_RATE", float("inf"))
+    monkeypatch.setattr(folders, "FIT", folders.FIT.replace("threads = 1\n", "threads = 1\nlearning_rate = 1e30\n"))
+    work = prepared(tmp_path)
+    out = folders.fit_folder(work)  # every simulation made up: the fit goes straight to the training
+    before = tree(tmp_path)
+    done = subprocess.run([sys.executable, "-c", LIFTED, "fit", "--data", "data.csv", "--config", "fit.toml", "--out",
+                           "out"], cwd=work, capture_output=True, text=True, timeout=120,
+                          env={**ENV, "TMPDIR": str(tmp_path / "tmp"), "RHI_CACHE": str(tmp_path / "cache")})
+    assert done.returncode == 1 and "Traceback" not in done.stderr, done.stderr[-2000:]
+    assert done.stderr.strip().splitlines()[-1] == (
+        "rhi fit: error: training the estimator failed: its loss became NaN or infinite (fit.estimator.learning_rate "
+        "= 1e+30, batch_size = 10); lower fit.estimator.learning_rate. The simulations are kept: the same command "
+        "resumes")
+    after = tree(tmp_path)
+    assert changed_outside(before, after, "work/out") == []
+    changed = {name for name in set(before) | set(after) if before.get(name) != after.get(name)
+               and name.startswith("work/")}
+    assert all(name.startswith("work/out/simulations/") for name in changed), changed  # its tables, rewritten
+    assert not (out / "estimator.pt").exists() and not (out / "posterior.csv").exists()
+
+
+# ======================================================================================================
+# 5, 11. An estimator.pt of this very training set whose weights are NaN or of other shapes is trained again
+# ======================================================================================================
+@pytest.mark.parametrize("damage", ["nan", "shapes"])
+def test_a_saved_estimator_with_nan_or_misshapen_weights_is_trained_again_with_a_note(tmp_path, damage, capsys):
+    import signal
+
+    import numpy as np
+    import torch
+
+    from master.fit import inference
+    from master.fit.run import load_or_train
+
+    plan = read_fit(tmp_path)
+    generator = np.random.default_rng(0)
+    theta = generator.uniform(np.log(5.0), np.log(80.0), (20, 1))
+    x = theta + generator.normal(0.0, 0.1, (20, 1))
+    path = tmp_path / "estimator.pt"
+    first, _ = load_or_train(plan, theta, x, path, "a fit")
+    shapes = {name: tuple(tensor.shape) for name, tensor in first[0].state_dict().items()}
+    saved = torch.load(path, weights_only=True)
+    name = next(name for name, tensor in saved["states"][0].items() if tensor.is_floating_point() and tensor.ndim == 2)
+    weight = saved["states"][0][name]
+    saved["states"][0][name] = (torch.full_like(weight, float("nan")) if damage == "nan"
+                                else torch.zeros(weight.shape[0] + 1, weight.shape[1]))
+    torch.save(saved, path)
+    capsys.readouterr()
+    again, _ = load_or_train(plan, theta, x, path, "a fit")
+    note = capsys.readouterr().err.strip().splitlines()
+    assert len(note) == 1 and note[0].startswith(f"rhi fit: note: {path} does not hold a usable estimator (its weight")
+    assert note[0].endswith("; training it again")
+    for states in (again[0].state_dict(), torch.load(path, weights_only=True)["states"][0]):  # in use and saved
+        assert {key: tuple(value.shape) for key, value in states.items()} == shapes
+        assert all(bool(value.isfinite().all()) for value in states.values() if value.is_floating_point())
+
+    def hung(*_):
+        raise TimeoutError("sampling the posterior did not end")
+
+    previous = signal.signal(signal.SIGALRM, hung)
+    signal.alarm(20)
+    try:
+        drawn = inference.sample(inference.posterior(plan.parameters, again, plan.estimator, x), x[0], 5, 0)
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)
+    assert drawn.shape == (5, 1) and np.isfinite(drawn).all()
