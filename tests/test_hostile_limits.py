@@ -325,3 +325,77 @@ def test_a_saved_estimator_with_nan_or_misshapen_weights_is_trained_again_with_a
         signal.alarm(0)
         signal.signal(signal.SIGALRM, previous)
     assert drawn.shape == (5, 1) and np.isfinite(drawn).all()
+
+
+# ======================================================================================================
+# 13-15, 19. The moving hand's delays and the reach-after's target, precision and release, checked before any work
+# ======================================================================================================
+@pytest.mark.parametrize("name, table, line, says", [
+    ("moving-hand", "moving_hand", "delays = [0, inf]", "config key moving_hand.delays = [0, inf] must be a list of "
+                                                        "finite numbers"),
+    ("moving-hand", "moving_hand", 'delays = ["x"]', "config key moving_hand.delays = ['x'] must be a list of finite "
+                                                     "numbers"),
+    ("moving-hand", "moving_hand", "delays = [[0.1]]", "config key moving_hand.delays = [[0.1]] must be a list of "
+                                                       "finite numbers"),
+    ("reach-after", "reach_after", 'target = ["a", 0.0]', "config key reach_after.target = ['a', 0.0] must be a list "
+                                                          "of finite numbers"),
+    ("reach-after", "reach_after", "target = [5.0, 5.0]", "reach_after.target = [5.0, 5.0]: hand position"),
+    ("reach-after", "reach_after", "precision_ratio = 0.0", "reach_after.precision_ratio must be positive, got 0.0"),
+    ("reach-after", "reach_after", "release = 1e12", "reach_after.release + reach_after.window = 1e+12 s is "
+                                                     "50000000000750 steps of 0.02 s: this run would need about "),
+])
+def test_a_phenomenon_protocol_s_bad_value_is_refused_in_one_line_before_any_work(tmp_path, name, table, line, says):
+    work = prepared(tmp_path)
+    (work / "c.toml").write_text(f"[{table}]\n{line}\n")
+    before = tree(tmp_path)
+    done = rhi(tmp_path, "phenomenon", name, "--config", "c.toml", "--model", "paper", "--out", "out", timeout=30)
+    refused(done, says)
+    if line == "release = 1e12":
+        assert "lower reach_after.release or reach_after.window" in done.stderr
+    assert changed_outside(before, tree(tmp_path), "\0") == []  # nothing trained, nothing written
+
+
+def test_a_number_list_accepts_whole_and_decimal_numbers_and_refuses_anything_else():
+    import math
+
+    from master import config as configuration
+    from master.cosim import ConfigError
+
+    assert configuration.check_type("k", [0, 0.5, -2], [0.0, 1.0]) == [0, 0.5, -2]
+    for value in ([math.nan], [math.inf], [-math.inf], [True], [None], [2**64], [[1.0]], ["1"]):
+        with pytest.raises(ConfigError, match="must be a list of finite numbers"):
+            configuration.check_type("k", value, [0.0, 1.0])
+    assert configuration.check_type("k", ["a"], ["x"]) == ["a"]  # a list of names stays one
+
+
+# ======================================================================================================
+# 17-18. fit.simulations over its limit says so; an observation noise over its limit is refused before any work
+# ======================================================================================================
+@pytest.mark.parametrize("fit, says", [
+    ("simulations = 1000000000", "fit.simulations = 1000000000 is over the limit of 100000 (the most simulated "
+                                 "participants a fit runs"),
+    ("simulations = 100001", "fit.simulations = 100001 is over the limit of 100000"),
+    ("posterior_samples = 1000000000", "fit.posterior_samples = 1000000000 is over the limit of 1000000"),
+    ("[fit.noise]\ndrift_cm = 1e308", "fit.noise.drift_cm = 1e+308 is over the limit of 1000 (in the measure's unit"),
+    ("[fit.noise]\ndrift_cm = 1000.5", "fit.noise.drift_cm = 1000.5 is over the limit of 1000"),
+])
+def test_a_fit_setting_over_its_limit_is_refused_saying_so_before_any_simulation(tmp_path, fit, says):
+    from components.body.kinematics import REST_POSE
+    from master.decoders.training_data import HALF_RANGES
+    from tests.faults import tiny_checkpoint
+
+    work = prepared(tmp_path)
+    checkpoint = tiny_checkpoint(work / "tiny.pt", rest_pose=list(REST_POSE), half_ranges=list(HALF_RANGES))
+    if fit.startswith("[fit.noise]"):
+        fit_files(work, checkpoint=str(checkpoint))
+        (work / "fit.toml").write_text((work / "fit.toml").read_text() + fit + "\n")
+    else:
+        fit_files(work, fit=fit, checkpoint=str(checkpoint))
+    before = tree(tmp_path)
+    refused(rhi(tmp_path, "fit", "--data", "data.csv", "--config", "fit.toml", "--out", "out", timeout=60), says)
+    assert changed_outside(before, tree(tmp_path), "\0") == []  # no simulation written
+
+
+def test_a_fit_at_its_limits_is_read(tmp_path):
+    plan = read_fit(tmp_path, fit="simulations = 100000\ncalibration = 0\n[fit.noise]\ndrift_cm = 1000.0")
+    assert plan.settings["simulations"] == 100000 and plan.noise["drift_cm"] == 1000.0

@@ -156,6 +156,10 @@ def merge(base: dict, overrides: dict, where: str = "") -> dict:
     return merged
 
 
+def is_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
 def check_type(path: str, value, default):
     if isinstance(default, bool):
         ok = isinstance(value, bool)
@@ -178,6 +182,10 @@ def check_type(path: str, value, default):
         ok = isinstance(value, list)
         if ok and default and all(isinstance(item, str) for item in default):
             ok = all(isinstance(item, str) for item in value)  # a list of names
+        elif ok and default and all(is_number(item) for item in default):  # a list of numbers: each one finite
+            if not all(is_number(item) and (abs(item) <= 2**63 if isinstance(item, int) else math.isfinite(item))
+                       for item in value):
+                raise ConfigError(f"config key {path} = {value!r} must be a list of finite numbers")
     else:
         ok = isinstance(value, type(default))
     if not ok:

@@ -44,6 +44,7 @@ CHOICES = {"density": ("maf", "nsf", "mdn"), "space": ("bounded", "unconstrained
 WHOLE = {"simulations": 1000, "calibration": 100, "seed": 0, "trials_per_cell": 1, "participants_per_batch": 10,
          "posterior_samples": 1000, "calibration_samples": 99, "predictive_draws": 10, "predictive_participants": 8}
 MAX_SIMULATIONS = 100_000
+MAX_NOISE_SD = 1000.0  # fit.noise.MEASURE, in the measure's unit (cm, N): docs/safety.md
 # The largest value of each whole-number estimator key (docs/safety.md): a flow twenty times sbi's width (50) and
 # about thirteen times its depth (5) is far beyond what MAX_SIMULATIONS participants can train; an ensemble of 32;
 # a batch of every simulation; 100 000 epochs (early stopping ends sbi's training long before); torch's threads
@@ -188,8 +189,14 @@ def read_plan(path: str, data: Data, model: str | None = None) -> FitPlan:
     for key, default in WHOLE.items():
         value = settings.get(key, default)
         lowest = 0 if key in ("seed", "calibration", "predictive_draws", "predictive_participants") else 1
-        if not isinstance(value, int) or isinstance(value, bool) or value < lowest or value > MAX_SIMULATIONS * 10:
+        if not isinstance(value, int) or isinstance(value, bool) or value < lowest:
             raise ConfigError(f"fit.{key} must be a whole number of at least {lowest}, got {value!r}")
+        if key in ("simulations", "calibration") and value > MAX_SIMULATIONS:
+            raise ConfigError(f"fit.{key} = {value} is over the limit of {MAX_SIMULATIONS} (the most simulated "
+                              "participants a fit runs, fit.simulations and fit.calibration together)")
+        if value > MAX_SIMULATIONS * 10:
+            raise ConfigError(f"fit.{key} = {value} is over the limit of {MAX_SIMULATIONS * 10} (ten times the most "
+                              "simulated participants a fit runs)")
         whole[key] = value
     if whole["simulations"] + whole["calibration"] > MAX_SIMULATIONS:
         raise ConfigError(f"fit.simulations + fit.calibration is over the limit of {MAX_SIMULATIONS}")
@@ -225,6 +232,10 @@ def read_plan(path: str, data: Data, model: str | None = None) -> FitPlan:
             raise configuration.unknown_key(f"fit.noise.{key}", MEASURES, "fit")
         if not isinstance(value, (int, float)) or isinstance(value, bool) or not (math.isfinite(value) and value >= 0):
             raise ConfigError(f"fit.noise.{key} = {value!r} must be a number >= 0")
+        if value > MAX_NOISE_SD:
+            raise ConfigError(f"fit.noise.{key} = {value!r} is over the limit of {MAX_NOISE_SD:g} (in the measure's "
+                              "unit: 10 m of drift, 1 kN of force, far beyond any drift the arm's reach or force its "
+                              "servos allow; a larger sd buries every simulation in noise)")
     estimator = settings.get("estimator", {})
     if not isinstance(estimator, dict):
         raise ConfigError("fit.estimator must be a table")
