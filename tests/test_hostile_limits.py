@@ -399,3 +399,27 @@ def test_a_fit_setting_over_its_limit_is_refused_saying_so_before_any_simulation
 def test_a_fit_at_its_limits_is_read(tmp_path):
     plan = read_fit(tmp_path, fit="simulations = 100000\ncalibration = 0\n[fit.noise]\ndrift_cm = 1000.0")
     assert plan.settings["simulations"] == 100000 and plan.noise["drift_cm"] == 1000.0
+
+
+# ======================================================================================================
+# 21. A goal precision ratio that would put the goal image's variance below the decoder's range, in words, at once
+# ======================================================================================================
+@pytest.mark.parametrize("command", ["reach", "reach-after"])
+def test_a_precision_ratio_too_large_for_the_decoder_is_refused_in_words_before_any_training(tmp_path, command):
+    work = prepared(tmp_path)
+    table = "reach" if command == "reach" else "reach_after"
+    (work / "c.toml").write_text(f"[{table}]\nprecision_ratio = 1e300\n")
+    arguments = (["reach", "--quick"] if command == "reach" else ["phenomenon", "reach-after", "--model", "paper"])
+    before = tree(tmp_path)
+    # decoder.visual_variance = 20 (master/defaults.toml); the decoder's visual_variance is at least 1e-12
+    refused(rhi(tmp_path, *arguments, "--config", "c.toml", "--out", "out", timeout=30),
+            f"{table}.precision_ratio = 1e+300 is too large: the goal image's visual variance, decoder.visual_variance "
+            f"/ {table}.precision_ratio = 20 / 1e+300 = 2e-299, would be below the decoder's smallest, 1e-12; use at "
+            "most 2e+13")
+    assert changed_outside(before, tree(tmp_path), "\0") == []  # nothing trained
+
+
+def test_the_largest_precision_ratio_the_decoder_allows_is_accepted():
+    from master.tasks.reach import task as reach
+
+    assert reach.load(quick=True, overrides={"reach.precision_ratio": 2e13})["reach"]["precision_ratio"] == 2e13

@@ -62,6 +62,9 @@ def load(path=None, model_name: str = "paper") -> dict:
     for key in ("release", "window", "precision_ratio"):
         if not after[key] > 0:
             raise ConfigError(f"reach_after.{key} must be positive, got {after[key]}")
+    from master.tasks.reach.task import check_goal_variance
+
+    check_goal_variance(config, "reach_after.precision_ratio", after["precision_ratio"])
     if len(after["target"]) != 2:
         raise ConfigError(f"reach_after.target = {after['target']} must be [dx, dy] in m from the resting hand")
     try:

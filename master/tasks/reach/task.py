@@ -120,10 +120,25 @@ def validate(config: dict) -> None:
         check_range(band, reach["ranges"][band])
     if reach["view"] not in VIEWS:
         raise ConfigError(f"reach.view = {reach['view']!r} is not one of {', '.join(VIEWS)}")
+    if attractor(config) == "pixels":  # the body-space attractor takes any positive ratio
+        check_goal_variance(config, "reach.precision_ratio", reach["precision_ratio"])
     if models.of(config).sees_pose and reach["view"] == "off":
         raise ConfigError(f"reach.view = \"off\": the {models.of(config).name} model's brain needs the seen arm (its "
                           "pose encoder reads the camera); use \"on\" or \"auto\"")
     check_memory(config)
+
+
+def check_goal_variance(config: dict, key: str, ratio: float) -> None:
+    """The goal image's visual variance, decoder.visual_variance / ``ratio`` (the attractor image's Sigma_v / w),
+    within the decoder's range (at least MIN_VISUAL_VARIANCE); a ConfigError naming ``key`` otherwise."""
+    from components.vision.component import MIN_VISUAL_VARIANCE
+
+    variance = config["decoder"]["visual_variance"] / ratio
+    if not variance >= MIN_VISUAL_VARIANCE:
+        raise ConfigError(f"{key} = {ratio:g} is too large: the goal image's visual variance, decoder.visual_variance "
+                          f"/ {key} = {config['decoder']['visual_variance']:g} / {ratio:g} = {variance:g}, would be "
+                          f"below the decoder's smallest, {MIN_VISUAL_VARIANCE:g}; use at most "
+                          f"{config['decoder']['visual_variance'] / MIN_VISUAL_VARIANCE:g} (the released agent's is 2)")
 
 
 def memory_needed(config: dict) -> int:
