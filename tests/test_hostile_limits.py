@@ -423,3 +423,52 @@ def test_the_largest_precision_ratio_the_decoder_allows_is_accepted():
     from master.tasks.reach import task as reach
 
     assert reach.load(quick=True, overrides={"reach.precision_ratio": 2e13})["reach"]["precision_ratio"] == 2e13
+
+
+# ======================================================================================================
+# 33. A prior whose support leaves the range the parameter's component declares is refused, naming both
+# ======================================================================================================
+UNBOUNDED_NORMAL = '[fit.parameters.brain.proprioceptive_variance]\nprior = "normal"\nmean = 1.0\nsd = 1.0\n'
+
+
+@pytest.mark.parametrize("spec, model, says", [
+    (UNBOUNDED_NORMAL, "paper", "the normal prior's support [-inf, inf] leaves brain.proprioceptive_variance's range "
+                                "[0, inf] deg2: give low within that range"),
+    (UNBOUNDED_NORMAL, "causal", "the normal prior's support [-inf, inf] leaves brain.proprioceptive_variance's range "
+                                 "[1e-12, inf] deg2: give low within that range"),
+    ('[fit.parameters.brain.gamma0]\nprior = "normal"\nmean = 0.5\nsd = 0.1\nlow = 0.01\n', "paper",
+     "the normal prior's support [0.01, inf] leaves brain.gamma0's range [0, 1] 1: give high within that range"),
+    ('[fit.parameters.brain.sync_sd]\nprior = "uniform"\nlow = -0.1\nhigh = 0.5\n', "paper",
+     "the uniform prior's support [-0.1, 0.5] leaves brain.sync_sd's range [0, inf] s: give low within that range"),
+])
+def test_a_prior_whose_support_leaves_the_parameter_s_range_is_refused_naming_both(tmp_path, spec, model, says):
+    """The ranges are the components' own (components/brain/integrator.py and causal_brain.py declare
+    proprioceptive_variance >= 0 and >= 1e-12, gamma0 in [0, 1], sync_sd >= 0)."""
+    from components.brain.causal_brain import CausalBrain
+    from components.brain.integrator import Brain
+
+    brain = (Brain if model == "paper" else CausalBrain)()
+    name = spec.split("]")[0].rpartition(".")[2]
+    declared = brain.variables[name]
+    assert f"[{declared.min:g}, {'inf' if declared.max is None else f'{declared.max:g}'}] {declared.unit}" in says
+    work = prepared(tmp_path)
+    fit_files(work, fit=f'model = "{model}"')
+    text = (work / "fit.toml").read_text()
+    (work / "fit.toml").write_text(text.split('[fit.parameters."decoder.visual_variance"]')[0] + spec)
+    before = tree(tmp_path)
+    refused(rhi(tmp_path, "fit", "--data", "data.csv", "--config", "fit.toml", "--out", "out", timeout=30),
+            f"fit.parameters.brain.{name}: {says}")
+    assert changed_outside(before, tree(tmp_path), "\0") == []
+
+
+def test_a_normal_prior_truncated_inside_the_range_is_read(tmp_path):
+    work = prepared(tmp_path)
+    fit_files(work)
+    text = (work / "fit.toml").read_text()
+    (work / "fit.toml").write_text(text.split('[fit.parameters."decoder.visual_variance"]')[0] + UNBOUNDED_NORMAL
+                                   + "low = 0.1\n")
+    from master.fit.data import read_data
+    from master.fit.plan import read_plan
+
+    (parameter,) = read_plan(str(work / "fit.toml"), read_data(work / "data.csv")).parameters
+    assert (parameter.key, parameter.low, parameter.high) == ("brain.proprioceptive_variance", 0.1, float("inf"))

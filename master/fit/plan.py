@@ -29,6 +29,7 @@ from master.runtime.pool import workers_problem
 from master import config as configuration
 from master.tasks.illusion.wiring import TASK_SOURCES, batchable_keys
 from master.models.base import config_key
+from master.config.sources import declared_range
 from master.fit.data import MEASURES, Data, check_against
 
 PRIORS = ("uniform", "log-uniform", "normal")
@@ -161,6 +162,15 @@ def read_parameter(written: str, spec, config: dict) -> Parameter:
         raise ConfigError(f"{where}: a log-uniform prior needs low > 0, got {parameter.low}")
     if prior == "normal" and parameter.sd <= 0:
         raise ConfigError(f"{where}.sd must be positive, got {parameter.sd}")
+    declared = declared_range(config, key)  # the prior's support within the range the component declares
+    if declared is not None:
+        path, lowest, highest, unit = declared
+        if (lowest is not None and parameter.low < lowest) or (highest is not None and parameter.high > highest):
+            side = "low" if lowest is not None and parameter.low < lowest else "high"
+            raise ConfigError(f"{where}: the {prior} prior's support [{parameter.low:g}, {parameter.high:g}] leaves "
+                              f"{path}'s range [{'-inf' if lowest is None else f'{lowest:g}'}, "
+                              f"{'inf' if highest is None else f'{highest:g}'}] {unit}: give {side} within that range "
+                              f"(a prior draws values the simulator refuses, and a posterior follows it there)")
     for bound in (parameter.low, parameter.high):  # the prior's support must be a valid configuration
         if math.isfinite(bound):
             table, name = key.split(".")
