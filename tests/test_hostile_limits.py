@@ -472,3 +472,38 @@ def test_a_normal_prior_truncated_inside_the_range_is_read(tmp_path):
 
     (parameter,) = read_plan(str(work / "fit.toml"), read_data(work / "data.csv")).parameters
     assert (parameter.key, parameter.low, parameter.high) == ("brain.proprioceptive_variance", 0.1, float("inf"))
+
+
+# ======================================================================================================
+# 34. [causal] participants in a phenomenon's --config file sets the causal model's trials per point
+# ======================================================================================================
+class Planned(Exception):
+    """Raised by the stand-in for run_sweep: the phenomenon was planned, and nothing is run."""
+
+
+@pytest.mark.parametrize("participants", [1, 3, None])
+def test_the_causal_participants_of_a_phenomenon_s_config_file_count(tmp_path, monkeypatch, participants):
+    import argparse
+
+    import master.commands.sweep
+    from master.commands.phenomenon import run_phenomenon
+    from master.sweeps import plan
+    from tests.faults import REPO
+
+    shipped = (REPO / "master" / "phenomena" / "distance.toml").read_text()
+    path = tmp_path / "distance.toml"
+    path.write_text(shipped + ("" if participants is None else f"\n[causal]\nparticipants = {participants}\n"))
+    given = {}
+
+    def run_sweep(args):
+        given.update(vars(args))
+        raise Planned
+
+    monkeypatch.setattr(master.commands.sweep, "run_sweep", run_sweep)
+    with pytest.raises(Planned):
+        run_phenomenon(argparse.Namespace(name="distance", config=str(path), scheduler=None, out=str(tmp_path / "out"),
+                                          force=False, model="causal", debug=False))
+    expected = 10 if participants is None else participants  # master/models/causal.toml: participants = 10
+    assert given["trials"] == expected
+    sweep = plan.load(path, "causal", given["trials"])  # as run_sweep plans it: that many trials at each point
+    assert {sum(1 for t in sweep.trials if t.point == p and t.decoder == "conv") for p in range(9)} == {expected}
