@@ -507,3 +507,35 @@ def test_the_causal_participants_of_a_phenomenon_s_config_file_count(tmp_path, m
     assert given["trials"] == expected
     sweep = plan.load(path, "causal", given["trials"])  # as run_sweep plans it: that many trials at each point
     assert {sum(1 for t in sweep.trials if t.point == p and t.decoder == "conv") for p in range(9)} == {expected}
+
+
+# ======================================================================================================
+# 35. A participant (or a cell's) name in a data file is one line of printable text
+# ======================================================================================================
+@pytest.mark.parametrize("row, says", [
+    ('"two\nlines",left,sync,-0.3\n', "data.csv line 2: column participant = 'two\\nlines' holds a character that is "
+                                      "not printable"),
+    ('"tab\there",left,sync,-0.3\n', "data.csv line 2: column participant = 'tab\\there' holds a character"),
+    ('p1,left,"sy\rnc",-0.3\n', "data.csv line 2: column stimulation = 'sy\\rnc' holds a character"),
+    ('p1,left,sync,-0.3\n"bell\x07",left,sync,-0.2\n', "data.csv line 3: column participant = 'bell\\x07' holds"),
+])
+def test_a_name_that_is_not_one_line_of_printable_text_is_refused_naming_its_line(tmp_path, row, says):
+    work = prepared(tmp_path)
+    fit_files(work, data="participant,condition,stimulation,drift_cm\n" + row)
+    before = tree(tmp_path)
+    refused(rhi(tmp_path, "fit", "--data", "data.csv", "--config", "fit.toml", "--out", "out", timeout=30), says)
+    assert changed_outside(before, tree(tmp_path), "\0") == []
+
+
+def test_quoted_names_and_line_numbers_after_a_comment_are_read_as_written(tmp_path):
+    from master.fit.data import read_data
+
+    path = tmp_path / "data.csv"
+    path.write_text('# a study\nparticipant,condition,stimulation,drift_cm\n"twolines",left,sync,-0.3\n'
+                    '"two, lines",left,sync,-0.1\n\n"Zoë",left,sync,x\n')
+    from master.cosim import ConfigError
+
+    with pytest.raises(ConfigError, match="data.csv line 6: column drift_cm = 'x' is not a number"):
+        read_data(path)
+    path.write_text(path.read_text().replace(",x\n", ",0.2\n"))
+    assert read_data(path).participants == ["twolines", "two, lines", "Zoë"]
