@@ -539,3 +539,47 @@ def test_quoted_names_and_line_numbers_after_a_comment_are_read_as_written(tmp_p
         read_data(path)
     path.write_text(path.read_text().replace(",x\n", ",0.2\n"))
     assert read_data(path).participants == ["twolines", "two, lines", "Zoë"]
+
+
+# ======================================================================================================
+# 36. A trial record whose drift is not a number: refused when read back, a failed trial when a task returns it
+# ======================================================================================================
+def test_a_planted_trial_record_with_a_drift_in_words_is_refused_naming_it(tmp_path):
+    """(refused already by the record check of master/sweeps/folder.py; this case holds it)"""
+    import json
+
+    from master.sweeps import plan as sweeps
+    from master.sweeps.folder import sweep_folder
+    from tests.sweep_files import sweep_file
+
+    work = prepared(tmp_path)
+    sweep = sweeps.load(sweep_file(work / "s.toml", grid={"conditions.left": [-0.1]}, trials=1, conditions=("left",),
+                                   workers=1))
+    with sweep_folder(work / "out", sweep, False):
+        pass
+    record = work / "out" / "trials" / f"{sweep.trials[0].id}.json"
+    record.write_text(json.dumps({"status": "ok", "outcome": {"drift_cm": "lots", "force_n": 0.0, "gamma_final": 0.1}}))
+    before = tree(tmp_path)
+    refused(rhi(tmp_path, "sweep", "--config", "s.toml", "--out", "out", timeout=30),
+            f"trial record out/trials/{record.name} is not one rhi wrote (its outcome's drift_cm is not a number)")
+    assert changed_outside(before, tree(tmp_path), "\0") == []
+
+
+def test_a_task_whose_drift_is_in_words_fails_its_trial_and_the_tables_keep_their_columns(tmp_path):
+    import csv
+    import json
+
+    from tests.sweep_files import sweep_file
+
+    work = prepared(tmp_path)
+    sweep_file(work / "s.toml", grid={"conditions.right": [0.1]}, task="wordy_outcome", trials=1, workers=1)
+    done = rhi(tmp_path, "sweep", "--config", "s.toml", "--out", "out", timeout=120)
+    assert done.returncode == 1 and "Traceback" not in done.stderr, done.stderr[-2000:]  # a trial failed
+    records = [json.loads(path.read_text()) for path in sorted((work / "out" / "trials").glob("*.json"))]
+    failed = [r for r in records if r["status"] == "failed"]
+    assert len(records) == 2 and len(failed) == 1  # the right hand's trial; the left hand's is a number
+    assert failed[0]["error"] == ("TypeError: the task's outcome is not one a sweep can table: its outcome's drift_cm "
+                                  "is not a number")
+    with open(work / "out" / "summary.csv") as file:
+        header = next(csv.reader(file))
+    assert any(column.startswith("drift_cm") for column in header), header
