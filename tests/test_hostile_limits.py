@@ -583,3 +583,51 @@ def test_a_task_whose_drift_is_in_words_fails_its_trial_and_the_tables_keep_thei
     with open(work / "out" / "summary.csv") as file:
         header = next(csv.reader(file))
     assert any(column.startswith("drift_cm") for column in header), header
+
+
+# ======================================================================================================
+# 37. rhi bench --quick --checkpoint CKPT measures the drift error on CKPT; with --training it is refused
+# ======================================================================================================
+def conv_checkpoint_at(path: Path, resolution: int) -> Path:
+    """An untrained tiny conv decoder at ``resolution`` px, with the body's rest pose and ranges."""
+    from components.body.kinematics import REST_POSE
+    from components.vision import checkpoint
+    from components.vision.networks import build, preset, sizes_dict
+    from master.decoders.training_data import HALF_RANGES
+
+    metadata = {"kind": "conv", "preset": "tiny", "sizes": sizes_dict(preset("tiny")), "resolution": resolution,
+                "rest_pose": list(REST_POSE), "half_ranges": list(HALF_RANGES), "data_hash": "x", "validation_mse": 0.1}
+    with open(path, "wb") as file:
+        checkpoint.write(file, build("conv", "tiny", resolution), metadata)
+    return path
+
+
+def test_bench_quick_measures_the_drift_error_on_the_checkpoint_given(tmp_path, monkeypatch):
+    import argparse
+
+    import master.commands.bench as bench
+    from master import config as configuration
+    from master.bench.protocol import fast_error
+
+    path = str(conv_checkpoint_at(tmp_path / "conv64.pt", configuration.load()["experiment"]["resolution"]))
+    given = []
+    monkeypatch.setattr(bench, "run_suite", lambda settings: given.append(settings) or {})
+    monkeypatch.setattr(bench, "table", lambda report: "")
+    bench.run_bench(argparse.Namespace(quick=True, checkpoint=path, threads=1, json=False, training=False))
+    (settings,) = given
+    assert (settings.error_checkpoint, settings.error_model, settings.error_steps) == (path, "cached", 30)  # --quick's
+    measured = fast_error(settings)
+    assert measured["decoder"] == path and measured["steps"] == 30 and measured["trials"] == 6
+
+
+@pytest.mark.parametrize("case", ["training", "resolution"])
+def test_bench_refuses_a_checkpoint_it_would_not_use_before_measuring_anything(tmp_path, case):
+    work = prepared(tmp_path)
+    conv_checkpoint_at(work / "c.pt", 64 if case == "training" else 32)
+    before = tree(tmp_path)
+    done = rhi(tmp_path, "bench", "--quick", "--checkpoint", "c.pt", *(["--training"] if case == "training" else []),
+               timeout=60)
+    refused(done, "--checkpoint names the decoder of the fast mode's drift error; --training measures the training "
+                  "step, which uses none" if case == "training" else
+            "c.pt: trained at resolution 32 px but the camera renders 64 px")
+    assert changed_outside(before, tree(tmp_path), "\0") == []

@@ -22,6 +22,15 @@ def run_bench(args) -> int:
     problem = file_problem(checkpoint) if checkpoint else None
     if problem:
         raise ConfigError(f"--checkpoint {checkpoint} {problem}")
+    if checkpoint and getattr(args, "training", False):
+        raise ConfigError("--checkpoint names the decoder of the fast mode's drift error; --training measures the "
+                          "training step, which uses none: give one or the other")
+    if checkpoint:  # the drift error's decoder (--quick too), checked before anything is measured
+        from master import config as configuration
+        from master.decoders.cache import check_kind, loaded
+
+        config = configuration.load()
+        check_kind("conv", checkpoint, loaded(checkpoint, config["experiment"]["resolution"], config["camera"]["blur"]))
     if getattr(args, "training", False):
         from master.bench import training
         from master import config as configuration
@@ -34,7 +43,8 @@ def run_bench(args) -> int:
         else:
             print(training.table(report))
         return 0
-    settings = replace(settings, threads=threads, error_checkpoint=checkpoint)
+    settings = replace(settings, threads=threads, error_checkpoint=checkpoint,
+                       **({"error_model": "cached"} if checkpoint else {}))  # --quick measures it on CKPT too
     report = run_suite(settings)
     if getattr(args, "json", False):
         json.dump(report, sys.stdout, indent=1, default=float)

@@ -138,7 +138,8 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--threads", type=int, default=0, metavar="N",
                        help="torch threads (default: all cores; 1 on a machine busy with other work)")
     bench.add_argument("--checkpoint", metavar="CKPT", default="",
-                       help="trained conv decoder for the fast mode's drift error (default: the cached default)")
+                       help="trained conv decoder for the fast mode's drift error, at the default resolution "
+                            "(default: the cached default; --quick: an untrained tiny one)")
     bench.add_argument("--training", action="store_true",
                        help="instead: samples/s of the paper decoders' training step at 256x256, before and after "
                             "the paper preset's settings, phase by phase (--quick: tiny, 32x32)")
