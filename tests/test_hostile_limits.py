@@ -631,3 +631,22 @@ def test_bench_refuses_a_checkpoint_it_would_not_use_before_measuring_anything(t
                   "step, which uses none" if case == "training" else
             "c.pt: trained at resolution 32 px but the camera renders 64 px")
     assert changed_outside(before, tree(tmp_path), "\0") == []
+
+
+# ======================================================================================================
+# docs/safety.md states the limits of a run that the code applies
+# ======================================================================================================
+def test_docs_safety_states_the_code_s_run_limits():
+    from master.fit import plan
+    from master.runtime import pool
+    from tests.faults import REPO
+
+    page = (REPO / "docs" / "safety.md").read_text()
+    table = page.partition("<!-- run limits table")[2].split("\n\n")[0]
+    values = [line.split("|")[2].strip().split()[0] for line in table.splitlines() if line.startswith("| ")][1:]
+    assert values == [str(v) for v in (
+        pool.WORKERS_PER_CORE, *(plan.MAX_ESTIMATOR[key] for key in ("hidden_features", "transforms", "batch_size",
+                                                                     "max_epochs", "threads", "ensemble")),
+        f"{plan.MAX_LEARNING_RATE:g}", plan.MAX_SIMULATIONS, f"{plan.MAX_NOISE_SD:g}")]
+    assert f"{plan.FLOW_WEIGHTS_FACTOR} × transforms" in page and f"{plan.BYTES_PER_TRAINED_WEIGHT} bytes" in page
+    assert f"{plan.ACTIVATION_BYTES} bytes of activations" in page
