@@ -51,3 +51,10 @@ def stuck_outcome(config: dict, decoder: str, condition: str, stimulation: str, 
     open(os.environ["RHI_TEST_STUCK_MARKER"], "w").close()
     ctypes.PyDLL(None).sleep(60)
     return fake_outcome(config, decoder, condition, stimulation, index)
+
+
+def wordy_outcome(config: dict, decoder: str, condition: str, stimulation: str, index: int) -> dict:
+    """fake_outcome, but its drift in words where a number belongs: every trial whose rubber hand lies right of the
+    real one says "lots"."""
+    outcome = fake_outcome(config, decoder, condition, stimulation, index)
+    return {**outcome, "drift_cm": "lots"} if config["conditions"][condition] > 0 else outcome

@@ -24,6 +24,8 @@ import json
 import math
 import os
 import pickle
+import stat
+import sys
 import warnings
 import zipfile
 from typing import BinaryIO
@@ -139,6 +141,11 @@ def check_matches(path, metadata: dict, resolution=None, rest_pose=None, half_ra
 
 def _payload(path) -> dict:
     try:
+        kind = os.stat(path).st_mode  # by its kind, before opening: a FIFO would wait for a writer forever
+        if stat.S_ISDIR(kind):
+            raise IsADirectoryError
+        if not stat.S_ISREG(kind):
+            raise CheckpointError(f"{path}: is not a regular file (a FIFO, a device or a socket)")
         with open(path, "rb") as file:
             head = file.read(4)
     except FileNotFoundError:
@@ -175,6 +182,9 @@ def _metadata(path, payload: dict) -> dict:
         metadata = json.loads(payload["metadata"])
     except (KeyError, TypeError, ValueError):
         raise CheckpointError(f"{path}: its metadata is missing or is not JSON") from None
+    except RecursionError:  # JSON nested deeper than Python's recursion limit: not metadata rhi wrote
+        raise CheckpointError(f"{path}: its metadata nests over Python's recursion limit of "
+                              f"{sys.getrecursionlimit()} deep (rhi writes it at most 3 deep)") from None
     if not isinstance(metadata, dict):
         raise CheckpointError(f"{path}: its metadata is not a JSON object")
     for key, kind in REQUIRED.items():

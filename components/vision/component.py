@@ -35,6 +35,7 @@ REFERENCE_PIXELS = 256 * 256
 # Calibrated at the 256x256 reference with this project's camera and decoders (docs/results.md, "Calibrating
 # the visual variance"), the value master/defaults.toml uses; the released agent's 3000 was for its own images.
 DEFAULT_VISUAL_VARIANCE = 20.0
+MIN_VISUAL_VARIANCE = 1e-12  # the decoder's visual_variance range: [MIN_VISUAL_VARIANCE, None]
 
 
 def available_cores() -> int:
@@ -195,7 +196,7 @@ class Decoder(Component):
         self.threads = threads or available_cores()
         image = (self.model.resolution, self.model.resolution)
         super().__init__(name, [
-            Variable("visual_variance", "parameter", start=DEFAULT_VISUAL_VARIANCE, unit="1", min=1e-12,
+            Variable("visual_variance", "parameter", start=DEFAULT_VISUAL_VARIANCE, unit="1", min=MIN_VISUAL_VARIANCE,
                      description="Sigma_v: visual variance per pixel, at the 256x256 reference resolution"),
             Variable("mu", "input", "Array", shape=(2,), start=self.model.rest_pose, unit="deg",
                      description="belief mu: shoulder, elbow joint angles"),

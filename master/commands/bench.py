@@ -2,12 +2,11 @@
 from __future__ import annotations
 
 import json
-import os
 import sys
 from dataclasses import replace
 
 from master.cosim import ConfigError
-from master.config import MAX_THREADS
+from master.config import MAX_THREADS, file_problem
 
 
 HELP = "measure speed"
@@ -20,8 +19,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--threads", type=int, default=0, metavar="N",
                         help="torch threads (default: all cores; 1 on a machine busy with other work)")
     parser.add_argument("--checkpoint", metavar="CKPT", default="",
-                        help="trained conv decoder for the fast mode's drift error (default: the default conv decoder: "
-                             "the cache's, else the shipped one)")
+                        help="trained conv decoder for the fast mode's drift error, at the default resolution "
+                             "(default: the default conv decoder, the cache's, else the shipped one; --quick: an "
+                             "untrained tiny one)")
     parser.add_argument("--training", action="store_true",
                         help="instead: samples/s of the paper decoders' training step at 256x256, before and after "
                              "the paper preset's settings, phase by phase (--quick: tiny, 32x32)")
@@ -38,10 +38,18 @@ def run(args) -> int:
     if not 0 <= threads <= MAX_THREADS:
         raise ConfigError(f"--threads {threads} must be 0 (all cores) to {MAX_THREADS} threads")
     checkpoint = getattr(args, "checkpoint", "") or ""
-    if checkpoint and os.path.isdir(checkpoint):
-        raise ConfigError(f"--checkpoint {checkpoint} is a folder, not a checkpoint file")
-    if checkpoint and not os.path.isfile(checkpoint):
-        raise ConfigError(f"--checkpoint {checkpoint} does not exist")
+    problem = file_problem(checkpoint) if checkpoint else None
+    if problem:
+        raise ConfigError(f"--checkpoint {checkpoint} {problem}")
+    if checkpoint and getattr(args, "training", False):
+        raise ConfigError("--checkpoint names the decoder of the fast mode's drift error; --training measures the "
+                          "training step, which uses none: give one or the other")
+    if checkpoint:  # the drift error's decoder (--quick too), checked before anything is measured
+        from master import config as configuration
+        from master.decoders.cache import check_kind, loaded
+
+        config = configuration.load()
+        check_kind("conv", checkpoint, loaded(checkpoint, config["experiment"]["resolution"], config["camera"]["blur"]))
     if getattr(args, "training", False):
         from master.bench import training
         from master import config as configuration
@@ -54,7 +62,8 @@ def run(args) -> int:
         else:
             print(training.table(report))
         return 0
-    settings = replace(settings, threads=threads, error_checkpoint=checkpoint)
+    settings = replace(settings, threads=threads, error_checkpoint=checkpoint,
+                       **({"error_model": "cached"} if checkpoint else {}))  # --quick measures it on CKPT too
     report = run_suite(settings)
     if getattr(args, "json", False):
         json.dump(report, sys.stdout, indent=1, default=float)

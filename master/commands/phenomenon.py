@@ -41,7 +41,6 @@ def run(args) -> int:
     from master.runtime.context import RunContext
     from master.phenomena.report import report
 
-    from master import config as configuration
     from master.sweeps import plan
     from master.sweeps.folder import check_folder
 
@@ -56,7 +55,8 @@ def run(args) -> int:
         return 0
     path = Path(args.config) if args.config else sweep_file(args.name)
     chosen = tuple(registry.BUILT_IN) if getattr(args, "model", "both") == "both" else (args.model,)
-    per_point = {model: registry.get(model).trials_per_point(configuration.load(model_name=model)) for model in chosen}
+    # a model of a population: its trials per point as the sweep file sets them ([causal] participants), else its own
+    per_point = {model: registry.get(model).trials_per_point(plan.base_config(path, model)[0]) for model in chosen}
     trials = {model: count for model, count in per_point.items() if count}  # a population: one participant a trial
     for model in chosen:  # every model's points checked before anything runs or is written
         plan.load(path, model, trials.get(model))

@@ -55,6 +55,25 @@ MAX_DEPTH = 16  # tables and arrays within each other; the shipped files nest th
 # torch threads (train.threads): twice the hardware threads of the largest common server (two 128-core CPUs
 # with 2-way SMT: 512); a thread count is a setting that makes bits, not a measure of the machine.
 MAX_THREADS = 1024
+def file_problem(path, what: str = "checkpoint file") -> str | None:
+    """Why ``path`` cannot be read as a ``what``, by its kind before it is opened (a FIFO would wait for a writer
+    forever, a device would never end): "does not exist", "is a folder, not a ...", "is not a regular file (...)";
+    None for a regular file (a link to one counts)."""
+    import stat
+
+    try:
+        kind = os.stat(path).st_mode
+    except FileNotFoundError:
+        return "does not exist"
+    except OSError as error:
+        return f"cannot be read: {error.strerror or error}"
+    if stat.S_ISDIR(kind):
+        return f"is a folder, not a {what}"
+    if not stat.S_ISREG(kind):
+        return "is not a regular file (a FIFO, a device or a socket)"
+    return None
+
+
 INFINITE_KEYS = ("brain.spatial_sd", "brain.action_time_constant", "body.release_time")  # inf: the paper's model
 
 
@@ -138,6 +157,10 @@ def merge(base: dict, overrides: dict, where: str = "") -> dict:
     return merged
 
 
+def is_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
 def check_type(path: str, value, default):
     """``value`` of config key ``path`` checked against the type of its ``default``, and returned.
 
@@ -164,6 +187,10 @@ def check_type(path: str, value, default):
         ok = isinstance(value, list)
         if ok and default and all(isinstance(item, str) for item in default):
             ok = all(isinstance(item, str) for item in value)  # a list of names
+        elif ok and default and all(is_number(item) for item in default):  # a list of numbers: each one finite
+            if not all(is_number(item) and (abs(item) <= 2**63 if isinstance(item, int) else math.isfinite(item))
+                       for item in value):
+                raise ConfigError(f"config key {path} = {value!r} must be a list of finite numbers")
     else:
         ok = isinstance(value, type(default))
     if not ok:
@@ -265,9 +292,9 @@ def validate(config: dict) -> None:
         raise ConfigError(f"decoder.visual_variance must be positive, got {config['decoder']['visual_variance']}")
     for kind in ("conv", "vae"):  # a checkpoint named must be there, whether or not its decoder runs
         given = config["decoder"][f"{kind}_checkpoint"]
-        if given and not Path(given).is_file():
-            raise ConfigError(f"decoder.{kind}_checkpoint: {given} " + (
-                "is a folder, not a checkpoint file" if Path(given).is_dir() else "does not exist"))
+        problem = file_problem(given) if given else None
+        if problem:
+            raise ConfigError(f"decoder.{kind}_checkpoint: {given} {problem}")
     if not config["decoder"]["relinearise_tolerance"] >= 0:
         raise ConfigError(f"decoder.relinearise_tolerance must be >= 0 deg, got "
                           f"{config['decoder']['relinearise_tolerance']}")

@@ -194,3 +194,25 @@ def check_reach(config: dict) -> None:
             raise ConfigError(f"conditions.{name} = {config['conditions'][name]} m (rubber_arm.offset_y = "
                               f"{config['rubber_arm']['offset_y']} m) puts the rubber hand out of the arm's reach: "
                               f"{str(error).partition(': ')[2]}") from None
+
+
+def declared_range(config: dict, key: str) -> tuple[str, float | None, float | None, str] | None:
+    """The component parameter that configuration ``key`` sets as it is (TASK_SOURCES and the model's sources) and
+    the range its component declares: (``component.variable``, min, max, unit), None for a key that sets none."""
+    model = models.of(config)
+    for path, source in {**TASK_SOURCES, **model.parameter_sources}.items():
+        if config_key(source) != key:
+            continue
+        name, _, variable = path.partition(".")
+        if name == "decoder":  # built around a trained network: its one parameter's range, without one
+            from components.vision.component import MIN_VISUAL_VARIANCE
+
+            return (path, MIN_VISUAL_VARIANCE, None, "1") if variable == "visual_variance" else None
+        makers = {"rubber_arm": RubberArm, "stimulus": Stimulus, "body": ArmPlant, "brain": model.brain,
+                  "camera": lambda: Camera(resolution=config["experiment"]["resolution"])}
+        if name not in makers:
+            return None
+        declared = makers[name]().variables.get(variable)
+        if declared is not None:
+            return path, declared.min, declared.max, declared.unit
+    return None

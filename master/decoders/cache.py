@@ -25,6 +25,7 @@ import numpy as np
 from components.body import camera, kinematics
 from components.vision.checkpoint import CheckpointError
 from components.vision.component import Decoder, GenerativeModel, jacobian_images
+from master.config import file_problem
 from master.cosim import ConfigError
 from master.runtime.pool import Workers, run_jobs
 from master.decoders.training import load_decoder, prepare_data, train_decoder, train_settings
@@ -43,10 +44,9 @@ def checkpoint_path(kind: str, config: dict, must_exist: bool = False, device: s
     resolved: a decoder trained on a GPU has a name of its own)."""
     given = config["decoder"].get(f"{kind}_checkpoint") or ""
     if given:
-        if Path(given).is_dir():
-            raise ConfigError(f"decoder.{kind}_checkpoint: {given} is a folder, not a checkpoint file")
-        if not Path(given).is_file():
-            raise ConfigError(f"decoder.{kind}_checkpoint: {given} does not exist")
+        problem = file_problem(given)
+        if problem:
+            raise ConfigError(f"decoder.{kind}_checkpoint: {given} {problem}")
         return given
     settings = train_settings(config).identity()
     blur = config["camera"]["blur"]

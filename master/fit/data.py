@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import csv
 import difflib
+import io
 import math
 import os
 import stat
@@ -109,6 +110,9 @@ def read_data(path: str | Path) -> Data:
                     raise ConfigError(f"{name} line {line}: column {column} = {text} must be "
                                       f"{'>= 0' if column == 'delay_s' else 'positive'}")
                 record[column] = number
+            elif not text.isprintable():  # a line break, a tab, a control character: a name is one line of text
+                raise ConfigError(f"{name} line {line}: column {column} = {text[:40]!r} holds a character that is not "
+                                  "printable (a line break, a tab, a control character); a name is one line of text")
             else:
                 record[column] = text
         values.append((line, record))
@@ -136,11 +140,14 @@ def read_rows(path: str | Path) -> tuple[list[tuple[int, list[str]]], list[str]]
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as error:
         raise ConfigError(f"data file {path} is not UTF-8 text (byte at position {error.start})") from None
-    try:
-        parsed = list(csv.reader(text.splitlines()))
+    try:  # each record with the line it starts on; a quoted value keeps its line breaks (read_data refuses them)
+        reader, parsed, line = csv.reader(io.StringIO(text, newline="")), [], 1
+        for row in reader:
+            parsed.append((line, row))
+            line = reader.line_num + 1
     except csv.Error as error:
         raise ConfigError(f"{name}: not a CSV file ({error})") from None
-    numbered = [(line, row) for line, row in enumerate(parsed, start=1)
+    numbered = [(line, row) for line, row in parsed
                 if any(cell.strip() for cell in row) and not row[0].lstrip().startswith("#")]  # blank, comment
     if not numbered:
         raise ConfigError(f"{name}: empty (no header)")

@@ -19,7 +19,29 @@ import time
 
 import numpy as np
 
+from master.cosim import SimulationError
 from master.fit.plan import Parameter
+
+
+class TrainingError(SimulationError):
+    """The estimator's training failed during the work (its loss is not finite): one line, exit status 1, as a
+    failed run (docs/configuration.md); the simulations are kept, so the same command resumes."""
+
+    def __init__(self, reason: str):
+        RuntimeError.__init__(self, reason)
+        self.component, self.time, self.reason, self.status, self.trials = "estimator", 0.0, reason, "error", ()
+
+    def __reduce__(self):
+        return type(self), (self.reason,)
+
+
+def unusable(estimator) -> str | None:
+    """Why a built estimator cannot be sampled, or None: a weight that is NaN or infinite (its flow gives NaN
+    samples, which sbi rejects as outside the prior forever)."""
+    for name, tensor in estimator.state_dict().items():
+        if tensor.is_floating_point() and not bool(tensor.isfinite().all()):
+            return f"its weight {name} holds NaN or infinity"
+    return None
 
 
 def torch_prior(parameters: list[Parameter]):
@@ -200,9 +222,19 @@ def train(parameters: list[Parameter], theta: np.ndarray, x: np.ndarray, setting
     inference = NPE(prior=flow_prior(parameters, settings), density_estimator=builder(settings),
                     show_progress_bars=False, tracker=NoTracker())
     inference.append_simulations(*flow_pairs(parameters, settings, theta, x))
-    estimator = inference.train(training_batch_size=settings["batch_size"], learning_rate=settings["learning_rate"],
-                                max_num_epochs=settings["max_epochs"], show_train_summary=False)
+    try:
+        estimator = inference.train(training_batch_size=settings["batch_size"],
+                                    learning_rate=settings["learning_rate"], max_num_epochs=settings["max_epochs"],
+                                    show_train_summary=False)
+    except ValueError as error:
+        if "NaN/Inf" not in str(error):  # sbi's assert_all_finite on the loss
+            raise
+        estimator = None
     summary = inference.summary
+    if estimator is None or unusable(estimator) or not math.isfinite(float(summary["best_validation_loss"][-1])):
+        raise TrainingError(f"training the estimator failed: its loss became NaN or infinite (fit.estimator."
+                            f"learning_rate = {settings['learning_rate']:g}, batch_size = {settings['batch_size']}); "
+                            "lower fit.estimator.learning_rate. The simulations are kept: the same command resumes")
     return estimator, {"epochs": int(summary["epochs_trained"][-1]),
                        "best_validation_loss": float(summary["best_validation_loss"][-1]),
                        "seconds": round(time.perf_counter() - began, 3), "training_participants": int(len(theta))}

@@ -25,9 +25,11 @@ import numpy as np
 
 from master import models
 from master.cosim import ConfigError
+from master.runtime.pool import workers_problem
 from master import config as configuration
 from master.tasks.illusion.wiring import TASK_SOURCES, batchable_keys
 from master.models.base import config_key
+from master.config.sources import declared_range
 from master.fit.data import MEASURES, Data, check_against
 
 PRIORS = ("uniform", "log-uniform", "normal")
@@ -43,6 +45,21 @@ CHOICES = {"density": ("maf", "nsf", "mdn"), "space": ("bounded", "unconstrained
 WHOLE = {"simulations": 1000, "calibration": 100, "seed": 0, "trials_per_cell": 1, "participants_per_batch": 10,
          "posterior_samples": 1000, "calibration_samples": 99, "predictive_draws": 10, "predictive_participants": 8}
 MAX_SIMULATIONS = 100_000
+MAX_NOISE_SD = 1000.0  # fit.noise.MEASURE, in the measure's unit (cm, N): docs/safety.md
+# The largest value of each whole-number estimator key (docs/safety.md): a flow twenty times sbi's width (50) and
+# about thirteen times its depth (5) is far beyond what MAX_SIMULATIONS participants can train; an ensemble of 32;
+# a batch of every simulation; 100 000 epochs (early stopping ends sbi's training long before); torch's threads
+# bounded as train.threads is. A learning rate above 1 moves each weight by more than its initial scale per step.
+MAX_ESTIMATOR = {"hidden_features": 1024, "transforms": 64, "batch_size": MAX_SIMULATIONS, "max_epochs": 100_000,
+                 "threads": configuration.MAX_THREADS, "ensemble": 32}
+MAX_LEARNING_RATE = 1.0
+# Weights per transform of sbi's flows, at most this many times hidden x (hidden + parameters + statistics + 1)
+# (measured on maf, nsf and mdn, 1 to 16 parameters and 1 to 24 statistics: at most 6.1); bytes per weight in
+# training: the weight, its gradient and Adam's two moments, float32; bytes of activations kept for the backward
+# pass per batch row, transform and hidden unit (measured in one training step: maf 43, nsf 87, mdn 31).
+FLOW_WEIGHTS_FACTOR = 8
+BYTES_PER_TRAINED_WEIGHT = 16
+ACTIVATION_BYTES = 128
 CALIBRATION_DESIGNS = ("random", "latin-hypercube")  # how the held-out participants are drawn: draw_participants
 
 
@@ -190,6 +207,15 @@ def read_parameter(written: str, spec, config: dict) -> Parameter:
         raise ConfigError(f"{where}: a log-uniform prior needs low > 0, got {parameter.low}")
     if prior == "normal" and parameter.sd <= 0:
         raise ConfigError(f"{where}.sd must be positive, got {parameter.sd}")
+    declared = declared_range(config, key)  # the prior's support within the range the component declares
+    if declared is not None:
+        path, lowest, highest, unit = declared
+        if (lowest is not None and parameter.low < lowest) or (highest is not None and parameter.high > highest):
+            side = "low" if lowest is not None and parameter.low < lowest else "high"
+            raise ConfigError(f"{where}: the {prior} prior's support [{parameter.low:g}, {parameter.high:g}] leaves "
+                              f"{path}'s range [{'-inf' if lowest is None else f'{lowest:g}'}, "
+                              f"{'inf' if highest is None else f'{highest:g}'}] {unit}: give {side} within that range "
+                              f"(a prior draws values the simulator refuses, and a posterior follows it there)")
     for bound in (parameter.low, parameter.high):  # the prior's support must be a valid configuration
         if math.isfinite(bound):
             table, name = key.split(".")
@@ -218,8 +244,14 @@ def read_plan(path: str, data: Data, model: str | None = None) -> FitPlan:
     for key, default in WHOLE.items():
         value = settings.get(key, default)
         lowest = 0 if key in ("seed", "calibration", "predictive_draws", "predictive_participants") else 1
-        if not isinstance(value, int) or isinstance(value, bool) or value < lowest or value > MAX_SIMULATIONS * 10:
+        if not isinstance(value, int) or isinstance(value, bool) or value < lowest:
             raise ConfigError(f"fit.{key} must be a whole number of at least {lowest}, got {value!r}")
+        if key in ("simulations", "calibration") and value > MAX_SIMULATIONS:
+            raise ConfigError(f"fit.{key} = {value} is over the limit of {MAX_SIMULATIONS} (the most simulated "
+                              "participants a fit runs, fit.simulations and fit.calibration together)")
+        if value > MAX_SIMULATIONS * 10:
+            raise ConfigError(f"fit.{key} = {value} is over the limit of {MAX_SIMULATIONS * 10} (ten times the most "
+                              "simulated participants a fit runs)")
         whole[key] = value
     if whole["simulations"] + whole["calibration"] > MAX_SIMULATIONS:
         raise ConfigError(f"fit.simulations + fit.calibration is over the limit of {MAX_SIMULATIONS}")
@@ -229,8 +261,8 @@ def read_plan(path: str, data: Data, model: str | None = None) -> FitPlan:
     if design not in CALIBRATION_DESIGNS:
         raise ConfigError(f"fit.calibration_design = {design!r} is not one of {', '.join(CALIBRATION_DESIGNS)}")
     workers = settings.get("workers")
-    if workers is not None and (not isinstance(workers, int) or isinstance(workers, bool) or workers < 1):
-        raise ConfigError(f"fit.workers must be a whole number of at least 1, got {workers!r}")
+    if workers is not None and workers_problem("fit.workers", workers):
+        raise ConfigError(workers_problem("fit.workers", workers))
     base = configuration.merge(configuration.load(quick=quick, model_name=model), fixed)
     if "decoders" not in fixed.get("experiment", {}):
         base["experiment"]["decoders"] = ["conv"]
@@ -255,23 +287,70 @@ def read_plan(path: str, data: Data, model: str | None = None) -> FitPlan:
             raise configuration.unknown_key(f"fit.noise.{key}", MEASURES, "fit")
         if not isinstance(value, (int, float)) or isinstance(value, bool) or not (math.isfinite(value) and value >= 0):
             raise ConfigError(f"fit.noise.{key} = {value!r} must be a number >= 0")
+        if value > MAX_NOISE_SD:
+            raise ConfigError(f"fit.noise.{key} = {value!r} is over the limit of {MAX_NOISE_SD:g} (in the measure's "
+                              "unit: 10 m of drift, 1 kN of force, far beyond any drift the arm's reach or force its "
+                              "servos allow; a larger sd buries every simulation in noise)")
     estimator = settings.get("estimator", {})
     if not isinstance(estimator, dict):
         raise ConfigError("fit.estimator must be a table")
     for key, value in estimator.items():
         if key not in ESTIMATOR_DEFAULTS:
             raise configuration.unknown_key(f"fit.estimator.{key}", ESTIMATOR_DEFAULTS, "fit")
-        default = ESTIMATOR_DEFAULTS[key]
-        if isinstance(default, str):
-            if value not in CHOICES[key]:
-                raise ConfigError(f"fit.estimator.{key} = {value!r} is not one of {', '.join(CHOICES[key])}")
-        elif (not isinstance(value, (int, float)) or isinstance(value, bool) or not value > 0
-              or (isinstance(default, int) and not isinstance(value, int))):
-            raise ConfigError(f"fit.estimator.{key} = {value!r} must be a positive "
-                              f"{'whole number' if isinstance(default, int) else 'number'}")
+        check_estimator_key(key, value)
+    chosen = {**ESTIMATOR_DEFAULTS, **estimator}
+    check_estimator_memory(chosen, len(fitted), len(data.cells) * len(measures))
     return FitPlan(fitted, base, {**whole, "model": model, "quick": quick, "workers": workers,
                                      "calibration_design": design}, measures,
-                   {m: float(noise.get(m, 0.0)) for m in measures}, {**ESTIMATOR_DEFAULTS, **estimator})
+                   {m: float(noise.get(m, 0.0)) for m in measures}, chosen)
+
+
+def check_estimator_key(key: str, value) -> None:
+    """One ``fit.estimator`` key: one of its choices, or a number of its type within (0, its maximum]."""
+    default = ESTIMATOR_DEFAULTS[key]
+    if isinstance(default, str):
+        if value not in CHOICES[key]:
+            raise ConfigError(f"fit.estimator.{key} = {str(value)[:60]!r} is not one of {', '.join(CHOICES[key])}")
+        return
+    if (not isinstance(value, (int, float)) or isinstance(value, bool) or not value > 0 or not math.isfinite(value)
+            or (isinstance(default, int) and not isinstance(value, int))):
+        raise ConfigError(f"fit.estimator.{key} = {value!r} must be a positive "
+                          f"{'whole number' if isinstance(default, int) else 'finite number'}")
+    top = MAX_ESTIMATOR.get(key, MAX_LEARNING_RATE)
+    if value > top:
+        raise ConfigError(f"fit.estimator.{key} = {value!r} is over the limit of {top:g} ({ESTIMATOR_LIMITS_WHY[key]})")
+
+
+ESTIMATOR_LIMITS_WHY = {
+    "hidden_features": "about twenty times sbi's 50: wider than the most simulations a fit runs can train",
+    "transforms": "about thirteen times sbi's 5: deeper than the most simulations a fit runs can train",
+    "batch_size": f"fit.simulations is at most {MAX_SIMULATIONS}: one batch of them all",
+    "max_epochs": "sbi's early stopping ends a training long before",
+    "threads": "twice the hardware threads of the largest common server, as train.threads",
+    "ensemble": "each member is one more training of the whole estimator",
+    "learning_rate": "a step that moves each weight by more than its initial scale: the loss diverges"}
+
+
+def estimator_memory(settings: dict, parameters: int, statistics: int) -> int:
+    """About how many bytes training the estimators of ``settings`` needs at its peak: every ensemble member's
+    weights (with their gradients and Adam's moments) and one batch's activations (FLOW_WEIGHTS_FACTOR and the
+    bytes above: upper bounds, to refuse what cannot fit, not to plan)."""
+    hidden, transforms = settings["hidden_features"], settings["transforms"]
+    weights = FLOW_WEIGHTS_FACTOR * transforms * hidden * (hidden + parameters + statistics + 1)
+    activations = settings["batch_size"] * transforms * hidden * ACTIVATION_BYTES
+    return settings["ensemble"] * weights * BYTES_PER_TRAINED_WEIGHT + activations
+
+
+def check_estimator_memory(settings: dict, parameters: int, statistics: int) -> None:
+    """A ConfigError, before any simulation, for an estimator whose training needs more memory than this machine
+    has, saying how much."""
+    needed, available = estimator_memory(settings, parameters, statistics), configuration.physical_memory()
+    if available and needed > available:
+        raise ConfigError(f"training the estimator would need about {configuration.size(needed)} of memory "
+                          f"({settings['ensemble']} x a {settings['density']} of {settings['transforms']} transforms "
+                          f"of {settings['hidden_features']} hidden features, batches of {settings['batch_size']}), "
+                          f"more than this machine's {configuration.size(available)}; lower fit.estimator."
+                          "hidden_features, transforms, ensemble or batch_size")
 
 
 def with_design(config: dict, data: Data, trials: int) -> dict:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import sys
 import time
 from pathlib import Path
 
@@ -176,9 +177,19 @@ def load_or_train(plan: FitPlan, theta, x, path: Path, identity: str):
         except Exception:  # noqa: BLE001: a damaged or foreign file is trained over
             saved = None
         if isinstance(saved, dict) and saved.get("trained_on") == trained_on and len(saved.get("states", ())) == len(seeds):
-            estimators = [inference.rebuild(plan.parameters, theta, x, plan.estimator, state, seed)
-                          for state, seed in zip(saved["states"], seeds)]
-            return estimators, json.loads(saved["summary"])
+            try:  # its weights must fit the estimator these settings build, and be finite (NaN never samples)
+                estimators = [inference.rebuild(plan.parameters, theta, x, plan.estimator, state, seed)
+                              for state, seed in zip(saved["states"], seeds)]
+                problem = next(filter(None, map(inference.unusable, estimators)), None)
+                summary = json.loads(saved["summary"])
+            except (RuntimeError, KeyError, TypeError, ValueError, AttributeError, RecursionError) as error:
+                lines = [line.strip() for line in str(error).strip().splitlines() if line.strip()]
+                problem = f"its weights do not fit this fit's estimator ({(lines[1:2] or lines[:1] or ['?'])[0]})"
+            if problem is None and isinstance(summary, dict):
+                return estimators, summary
+            problem = problem or "its summary is not a JSON object"
+            print(f"rhi fit: note: {path} does not hold a usable estimator ({problem}); training it again",
+                  file=sys.stderr)
     trained = [inference.train(plan.parameters, theta, x, plan.estimator, seed) for seed in seeds]
     estimators = [estimator.eval() for estimator, _ in trained]
     summary = {**trained[0][1], "seconds": round(sum(part["seconds"] for _, part in trained), 3)}

@@ -19,6 +19,7 @@ from components.body import kinematics
 from components.body.arm_pose import PosedArm
 from components.body.camera import Camera
 from components.brain.goal import GoalOnset
+from components.component import ComponentError
 from master import models
 from master.cosim import ConfigError, simulate
 from master import config as configuration
@@ -60,15 +61,29 @@ def load(path=None, model_name: str = "paper") -> dict:
         config = configuration.merge(config, configuration.read_toml(path))
     configuration.validate(config)
     after, step = config["reach_after"], config["experiment"]["step_size"]
-    for key in ("release", "window"):
+    for key in ("release", "window", "precision_ratio"):
         if not after[key] > 0:
             raise ConfigError(f"reach_after.{key} must be positive, got {after[key]}")
+    from master.tasks.reach.task import check_goal_variance
+
+    check_goal_variance(config, "reach_after.precision_ratio", after["precision_ratio"])
     if len(after["target"]) != 2:
         raise ConfigError(f"reach_after.target = {after['target']} must be [dx, dy] in m from the resting hand")
-    kinematics.inverse(kinematics.REST_HAND[0] + after["target"][0], kinematics.REST_HAND[1] + after["target"][1])
-    config["experiment"]["steps"] = int(round((after["release"] + after["window"]) / step))
+    try:
+        kinematics.inverse(kinematics.REST_HAND[0] + after["target"][0], kinematics.REST_HAND[1] + after["target"][1])
+    except ComponentError as error:
+        raise ConfigError(f"reach_after.target = {after['target']}: {error}") from None
+    config["experiment"]["steps"] = steps = int(round((after["release"] + after["window"]) / step))
     config["stimulus"]["stop_time"] = after["release"]
     config["body"]["release_time"] = after["release"]
+    needed, what = configuration.memory_needed(config)  # the steps the release and the window set, before any work
+    available = configuration.physical_memory()
+    if available and needed > available:
+        raise ConfigError(f"reach_after.release + reach_after.window = {after['release'] + after['window']:g} s is "
+                          f"{steps} steps of {step:g} s: this run would need about {configuration.size(needed)} of "
+                          f"memory ({what}), more than this machine's {configuration.size(available)}; lower "
+                          "reach_after.release or reach_after.window")
+    configuration.validate(config)  # again, with the steps, the touches' end and the release they set
     return config
 
 

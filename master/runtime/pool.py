@@ -33,6 +33,28 @@ def usable_cores() -> int:
         return os.cpu_count() or 1
 
 
+# Worker processes of a local pool (sweep.workers, fit.workers): each is a single-threaded process that imports
+# torch and holds a decoder (a few hundred MB), so workers beyond the cores add memory, not speed; four per core
+# leaves room for workers that wait (on a file, on the scheduler) and refuses a count that would fill the memory.
+WORKERS_PER_CORE = 4
+
+
+def max_workers() -> int:
+    """The most local worker processes a sweep or a fit may ask for: :data:`WORKERS_PER_CORE` x the usable cores."""
+    return WORKERS_PER_CORE * usable_cores()
+
+
+def workers_problem(key: str, value) -> str | None:
+    """Why ``value`` is not a worker count ``key`` may ask for (a whole number from 1 to :func:`max_workers`)."""
+    if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+        return f"{key} must be a whole number of at least 1, got {value!r}"
+    if value > max_workers():
+        return (f"{key} = {value} is over the limit of {max_workers()} ({WORKERS_PER_CORE} x this machine's "
+                f"{usable_cores()} usable cores): each worker is a process holding torch and a decoder, and "
+                "workers beyond the cores add memory, not speed")
+    return None
+
+
 def process_count(jobs: int, processes: int | None = None) -> int:
     """How many processes run ``jobs`` jobs at once, at most ``processes`` (default: the usable cores);
     1: none, the jobs run here."""

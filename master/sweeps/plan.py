@@ -45,6 +45,7 @@ from pathlib import Path
 from master import models
 from master import config as configuration
 from master.cosim import ConfigError
+from master.runtime.pool import workers_problem
 from master.tasks import illusion as experiment
 
 # The default task's name. It is part of every trial's identity (its id, a folder's fingerprint), so it keeps
@@ -176,6 +177,9 @@ def check_settings(settings: dict) -> None:
         value = settings.get(key, 1)
         if not isinstance(value, int) or isinstance(value, bool) or value < 1:
             raise ConfigError(f"sweep.{key} must be a whole number of at least 1, got {value!r}")
+    problem = workers_problem("sweep.workers", settings.get("workers", 1))
+    if problem:
+        raise ConfigError(problem)
     if not isinstance(settings.get("quick", False), bool):
         raise ConfigError(f"sweep.quick must be true or false, got {settings['quick']!r}")
     if "preset" in settings and settings["preset"] not in configuration.PRESETS:
@@ -281,23 +285,30 @@ def plan(configs: list[dict], task: str, batch: int | None = None,
     return trials, positions
 
 
-def load(path: str | Path, model: str | None = None, trials: int | None = None) -> Sweep:
-    """Read and check a sweep file; every point's configuration is validated before anything runs.
-
-    model, trials: instead of the file's ``sweep.model`` and ``sweep.trials`` (`rhi phenomenon --model`).
-    """
+def base_config(path: str | Path, model: str | None = None, trials: int | None = None) -> tuple[dict, dict]:
+    """The sweep file's checked configuration before its points (the defaults, its quick or preset, the model,
+    the file's own tables) and its checked [sweep] settings; model, trials as :func:`load` takes them."""
     fixed = configuration.read_toml(path)
     settings = fixed.pop("sweep", None)
     if not isinstance(settings, dict):
         raise ConfigError(f"sweep file {path} has no [sweep] table (it says what to vary)")
     settings = {**settings, **({"model": model} if model else {}), **({"trials": trials} if trials else {})}
     check_settings(settings)
-    task = settings.get("task", DEFAULT_TASK)
-    resolve_task(task)
+    resolve_task(settings.get("task", DEFAULT_TASK))
     base = configuration.merge(configuration.load(quick=settings.get("quick", False),
                                                   preset_name=settings.get("preset"),
                                                   model_name=settings.get("model", "paper")), fixed)
     configuration.validate(base)
+    return base, settings
+
+
+def load(path: str | Path, model: str | None = None, trials: int | None = None) -> Sweep:
+    """Read and check a sweep file; every point's configuration is validated before anything runs.
+
+    model, trials: instead of the file's ``sweep.model`` and ``sweep.trials`` (`rhi phenomenon --model`).
+    """
+    base, settings = base_config(path, model, trials)
+    task = settings.get("task", DEFAULT_TASK)
     if "trials" in settings:
         base["experiment"]["trials"] = settings["trials"]
     points = (grid_points(settings["grid"]) if "grid" in settings

@@ -26,6 +26,7 @@ from master.cosim import ConfigError
 from master.tasks.illusion.runner import failed_record
 from master.outputs.files import atomic_write
 from master.sweeps import lifeline
+from master.sweeps.folder import record_problem
 from master.sweeps.plan import DEFAULT_TASK, Sweep, TrialSpec, task_location
 
 # Dask's settings for workers whose tasks are long, single-threaded and CPU-bound (docs/sweeps.md): no
@@ -199,6 +200,9 @@ def run_trial(task, config: dict, trial: TrialSpec) -> dict:
     try:
         outcome = task(config, trial.decoder, trial.condition, trial.stimulation, trial.index)
         record = {"status": "ok", "outcome": {key: plain(value) for key, value in outcome.items()}}
+        problem = record_problem(record, default_task=False)  # as it is read back: measures that are numbers
+        if problem:
+            raise TypeError(f"the task's outcome is not one a sweep can table: {problem}")
     except Exception as error:  # noqa: BLE001: any failure of a trial is data, not a crash
         record = failed_record(type(error).__name__, str(error), traceback.format_exc())
     record.update(elapsed_s=round(time.perf_counter() - began, 6), host=socket.gethostname(),

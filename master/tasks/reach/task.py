@@ -121,9 +121,48 @@ def validate(config: dict) -> None:
         check_range(band, reach["ranges"][band])
     if reach["view"] not in VIEWS:
         raise ConfigError(f"reach.view = {reach['view']!r} is not one of {', '.join(VIEWS)}")
+    if attractor(config) == "pixels":  # the body-space attractor takes any positive ratio
+        check_goal_variance(config, "reach.precision_ratio", reach["precision_ratio"])
     if models.of(config).sees_pose and reach["view"] == "off":
         raise ConfigError(f"reach.view = \"off\": the {models.of(config).name} model's brain needs the seen arm (its "
                           "pose encoder reads the camera); use \"on\" or \"auto\"")
+    check_memory(config)
+
+
+def check_goal_variance(config: dict, key: str, ratio: float) -> None:
+    """The goal image's visual variance, decoder.visual_variance / ``ratio`` (the attractor image's Sigma_v / w),
+    within the decoder's range (at least MIN_VISUAL_VARIANCE); a ConfigError naming ``key`` otherwise."""
+    from components.vision.component import MIN_VISUAL_VARIANCE
+
+    variance = config["decoder"]["visual_variance"] / ratio
+    if not variance >= MIN_VISUAL_VARIANCE:
+        raise ConfigError(f"{key} = {ratio:g} is too large: the goal image's visual variance, decoder.visual_variance "
+                          f"/ {key} = {config['decoder']['visual_variance']:g} / {ratio:g} = {variance:g}, would be "
+                          f"below the decoder's smallest, {MIN_VISUAL_VARIANCE:g}; use at most "
+                          f"{config['decoder']['visual_variance'] / MIN_VISUAL_VARIANCE:g} (the released agent's is 2)")
+
+
+def memory_needed(config: dict) -> int:
+    """About how many bytes the reach of ``config`` needs at its peak: each decoder's reaches (reach.goals per
+    band) run in one lockstep batch, recorded at every step, with two cameras (the goal's and the seen arm's),
+    by the experiment's bounds per trial step and per batch pixel (:func:`master.config.memory_needed`)."""
+    experiment, reaches = config["experiment"], config["reach"]["goals"] * len(config["reach"]["bands"])
+    decoders = len(experiment["decoders"])
+    recorded = (experiment["steps"] + 1) * reaches * decoders * configuration.BYTES_PER_TRIAL_STEP
+    images = 2 * reaches * decoders * experiment["resolution"] ** 2 * configuration.BYTES_PER_BATCH_PIXEL
+    return recorded + images
+
+
+def check_memory(config: dict) -> None:
+    """A ConfigError, before any work, for a reach that would need more memory than this machine has."""
+    needed, available = memory_needed(config), configuration.physical_memory()
+    if available and needed > available:
+        experiment, reach = config["experiment"], config["reach"]
+        raise ConfigError(f"this reach would need about {configuration.size(needed)} of memory "
+                          f"({reach['goals']} goals x {len(reach['bands'])} bands x "
+                          f"{len(experiment['decoders'])} decoders of {experiment['steps']} steps at "
+                          f"{experiment['resolution']} x {experiment['resolution']} px), more than this machine's "
+                          f"{configuration.size(available)}; lower reach.goals (--goals) or experiment.steps")
 
 
 def check_range(band: str, values) -> None:
