@@ -180,3 +180,17 @@ def test_a_model_registered_as_an_entry_point_is_found_by_its_name(monkeypatch):
     model = models.get("mine")
     assert model.name == "entry-point" and model.source == point.value
     assert configuration.load(model_name="mine")["model"] == {"name": "entry-point", "source": point.value}
+
+
+def test_a_model_without_its_pose_encoder_at_this_resolution_is_refused_before_any_work(tmp_path, capsys):
+    """--model causal --quick (32 px: no shipped pose encoder there) is one line and exit 2 before any decoder is
+    trained or checked, from rhi experiment and from rhi phenomenon alike, and nothing is written."""
+    (tmp_path / "quick.toml").write_text("[sweep]\nquick = true\n[experiment]\ndecoders = [\"conv\"]\n"
+                                         "conditions = [\"right\"]\nstimulations = [\"sync\"]\n")
+    for command in (["experiment", "--quick", "--model", "causal", "--out", str(tmp_path / "out")],
+                    ["phenomenon", "distance", "--model", "causal", "--config", str(tmp_path / "quick.toml"), "--out",
+                     str(tmp_path / "out")]):
+        assert main(command) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "no shipped conv pose encoder at 32 px" in err[0], err
+        assert not (tmp_path / "out").exists()

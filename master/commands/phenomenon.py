@@ -43,6 +43,7 @@ def run(args) -> int:
 
     from master.sweeps import plan
     from master.sweeps.folder import check_folder
+    from master.sweeps.runner import check_decoders
 
     started = time.perf_counter()
     if args.name in OWN_PROTOCOLS:
@@ -58,8 +59,8 @@ def run(args) -> int:
     # a model of a population: its trials per point as the sweep file sets them ([causal] participants), else its own
     per_point = {model: registry.get(model).trials_per_point(plan.base_config(path, model)[0]) for model in chosen}
     trials = {model: count for model, count in per_point.items() if count}  # a population: one participant a trial
-    for model in chosen:  # every model's points checked before anything runs or is written
-        plan.load(path, model, trials.get(model))
+    for model in chosen:  # every model's points, decoders and pose encoders checked before anything is written
+        check_decoders(plan.load(path, model, trials.get(model)))
     check_folder(Path(args.out))
     own = report_manifest(Path(args.out), args.name)
     Path(args.out).mkdir(parents=True, exist_ok=True)

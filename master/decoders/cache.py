@@ -25,6 +25,7 @@ import numpy as np
 from components.body import camera, kinematics
 from components.vision.checkpoint import CheckpointError
 from components.vision.component import Decoder, GenerativeModel, jacobian_images
+from master import models
 from master.config import file_problem
 from master.cosim import ConfigError
 from master.runtime.pool import Workers, run_jobs
@@ -66,10 +67,28 @@ def checkpoint_path(kind: str, config: dict, must_exist: bool = False, device: s
     return str(path)
 
 
+def shipped_pose_encoder(kind: str, resolution: int) -> Path:
+    """The shipped pose encoder of decoder slot ``kind`` at ``resolution`` px: ``checkpoints/pose-KIND-rRES.pt``."""
+    return SHIPPED / f"pose-{kind}-r{resolution}.pt"
+
+
+def pose_encoder_path(kind: str, config: dict) -> str:
+    """The pose encoder of decoder slot ``kind``: the model's own (``causal.<kind>_pose_encoder``, say), or the
+    shipped one at this resolution; ConfigError when there is none."""
+    given = models.of(config).pose_encoder_file(kind, config)
+    path = Path(given) if given else shipped_pose_encoder(kind, config["experiment"]["resolution"])
+    if not path.is_file():
+        what = f"no pose encoder at {path}" if given else \
+            f"no shipped {kind} pose encoder at {config['experiment']['resolution']} px ({path})"
+        raise ConfigError(f"{what}: the brain or the reach's goal reads the seen arm's pose (make one with "
+                          "`python -m master.decoders.pose_encoders FOLDER`)")
+    return str(path)
+
+
 def check_decoders(config: dict, device: str = "cpu") -> None:
     """Before any work: every checkpoint named in ``[decoder]`` loads, is of its slot's kind and fits the
     camera (resolution, blur, ranges); every decoder still to be trained has valid ``[train]`` settings at
-    this resolution and a usable cache folder. A ConfigError or CheckpointError (one line) otherwise.
+    this resolution and a usable cache folder; a model that reads a pose encoder has one for each slot. A ConfigError or CheckpointError (one line) otherwise.
     A checkpoint named for a decoder the experiment does not run is checked too: never silently ignored."""
     needs_training = []
     for kind in KINDS:
@@ -83,6 +102,9 @@ def check_decoders(config: dict, device: str = "cpu") -> None:
     if needs_training:
         train_settings(config)
         check_cache_folder()
+    if models.of(config).sees_pose:  # the model reads the seen arm through a pose encoder of each slot
+        for kind in config["experiment"]["decoders"]:
+            pose_encoder_path(kind, config)
 
 
 def check_kind(kind: str, path: str, model: GenerativeModel) -> None:

@@ -24,35 +24,12 @@ from components.vision import checkpoint
 from components.vision.networks import preset
 from components.vision.pose_encoder import PoseModel, coverage, load_encoder, save_encoder, train_encoder, \
     variance_scale
-from master import models
-from master.cosim import ConfigError
 from master.decoders import training_data
 from master.decoders.training import prepare_data, train_settings
 
 CALIBRATION_POSES, CALIBRATION_SEED = 500, 101
 COVERAGE_POSES, COVERAGE_SEED = 500, 202
 BALL_REACH = 0.25  # m: the ball is anywhere from the hand to this far forward of it (the stimulus' ball_distance)
-
-
-SHIPPED = Path(__file__).parent / "checkpoints"
-
-
-def shipped_path(kind: str, resolution: int) -> Path:
-    """The shipped pose encoder of decoder slot ``kind`` at ``resolution`` px: ``checkpoints/pose-KIND-rRES.pt``."""
-    return SHIPPED / f"pose-{kind}-r{resolution}.pt"
-
-
-def encoder_path(kind: str, config: dict) -> str:
-    """The pose encoder of decoder slot ``kind``: the model's own (``causal.<kind>_pose_encoder``, say), or the
-    shipped one at this resolution; ConfigError when there is none."""
-    given = models.of(config).pose_encoder_file(kind, config)
-    path = Path(given) if given else shipped_path(kind, config["experiment"]["resolution"])
-    if not path.is_file():
-        what = f"no pose encoder at {path}" if given else \
-            f"no shipped {kind} pose encoder at {config['experiment']['resolution']} px ({path})"
-        raise ConfigError(f"{what}: the brain or the reach's goal reads the seen arm's pose (make one with "
-                          "`python -m master.decoders.pose_encoders FOLDER`)")
-    return str(path)
 
 
 def held_out(samples: int, seed: int, resolution: int, blur: float) -> tuple[np.ndarray, np.ndarray]:
@@ -109,7 +86,7 @@ def main(argv: list[str]) -> int:
     """``python -m master.decoders.pose_encoders OUT_FOLDER``: build both pose encoders at the default settings into
     ``argv[0]`` and print their calibration; returns the exit status, 0."""
     from master import config as configuration
-    from master.decoders.cache import cache_folder, checkpoint_path
+    from master.decoders.cache import cache_folder, checkpoint_path, shipped_pose_encoder
 
     out = Path(argv[0])
     out.mkdir(parents=True, exist_ok=True)
@@ -117,7 +94,7 @@ def main(argv: list[str]) -> int:
     settings = train_settings(config)
     for kind in ("conv", "vae"):
         model = build(kind, config, checkpoint_path("vae", config, must_exist=True), cache_folder())
-        path = out / shipped_path(kind, settings.resolution).name
+        path = out / shipped_pose_encoder(kind, settings.resolution).name
         save_encoder(path, model, preset(settings.preset), settings.resolution)
         shown = {key: model.metadata[key] for key in ("variance_scale", "coverage_50", "coverage_90",
                                                       "rms_error_deg", "median_sd_deg")}

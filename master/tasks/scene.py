@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from master import models
 from master.cosim import ConfigError, System
-from master.decoders.pose_encoders import encoder_path
+from master.decoders.cache import pose_encoder_path
 from master.models.base import Scene
 
 
@@ -46,10 +46,10 @@ def assemble(parts: list, links) -> System:
 
 def pose_encoders(config: dict, kind: str, threads: int | None):
     """``make(name)``: a pose encoder component reading decoder slot ``kind``'s image at the run's resolution
-    (the model's own checkpoint or the shipped one, :func:`encoder_path`)."""
+    (the model's own checkpoint or the shipped one, :func:`master.decoders.cache.pose_encoder_path`)."""
     def make(name: str):
         from components.vision.pose_encoder import PoseEncoder, load_encoder
-        return PoseEncoder(load_encoder(encoder_path(kind, config)), name=name,
+        return PoseEncoder(load_encoder(pose_encoder_path(kind, config)), name=name,
                            resolution=config["experiment"]["resolution"], threads=threads)
     return make
 

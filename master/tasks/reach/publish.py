@@ -11,7 +11,7 @@ from master import models
 from master.cosim import SimulationError
 from master.tasks.reach import task as reach
 from master.decoders.cache import check_decoders, ensure_checkpoints
-from master.tasks.scene import encoder_path
+from master.decoders.cache import pose_encoder_path
 from master.runtime.context import RunContext
 from master.runtime.pool import JOB_THREADS, Workers, run_jobs
 from master.tasks.illusion.runner import bar_positions, step_bar, without_failures
@@ -101,7 +101,7 @@ def run_into(out, config: dict, context: RunContext | None = None) -> dict:
     trials = reach.plan(config)
     for kind in config["experiment"]["decoders"]:  # the encoders and the wiring, before any work
         if reach.attractor(config) == "body" or models.of(config).sees_pose:
-            encoder_path(kind, config)
+            pose_encoder_path(kind, config)
     with output_folder(out, force) as staging, Workers() as workers:
         checkpoints, training_seconds = ensure_checkpoints(config, progress=progress, workers=workers)
         kinds = config["experiment"]["decoders"]
