@@ -158,6 +158,7 @@ def merge(base: dict, overrides: dict, where: str = "") -> dict:
 
 
 def is_number(value) -> bool:
+    """Whether ``value`` is an int or a float (TOML's numbers), not a Boolean."""
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
