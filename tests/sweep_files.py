@@ -88,3 +88,17 @@ def single_core(function, *arguments):
     finally:
         os.sched_setaffinity(0, cores)
         torch.set_num_threads(threads)
+
+
+def one_trial_sweep_folder(work):
+    """A sweep folder of one trial, as rhi sweep prepares it before running, and the path of that trial's record:
+    (the sweep, work/out/trials/ID.json, not written yet)."""
+    from master.sweeps import plan as sweeps
+    from master.sweeps.folder import sweep_folder
+
+    sweep = sweeps.load(sweep_file(work / "s.toml", grid={"conditions.left": [-0.1]}, trials=1, conditions=("left",),
+                                   workers=1))
+    with sweep_folder(work / "out", sweep, False):
+        pass
+    return sweep, work / "out" / "trials" / f"{sweep.trials[0].id}.json"
+

@@ -280,16 +280,10 @@ BAD_RECORDS = {"empty_object": "{}", "array": "[]", "ok_without_outcome": '{"sta
 
 @pytest.mark.parametrize("name", [*BAD_RECORDS, "fifo"])
 def test_a_malformed_trial_record_in_a_sweep_folder_is_refused_naming_it(tmp_path, name):
-    from master.sweeps import plan as sweeps
-    from master.sweeps.folder import sweep_folder
-    from tests.sweep_files import sweep_file
+    from tests.sweep_files import one_trial_sweep_folder
 
     work = prepared(tmp_path)
-    sweep = sweeps.load(sweep_file(work / "s.toml", grid={"conditions.left": [-0.1]}, trials=1, conditions=("left",),
-                                   workers=1))
-    with sweep_folder(work / "out", sweep, False):
-        pass
-    record = work / "out" / "trials" / f"{sweep.trials[0].id}.json"
+    _, record = one_trial_sweep_folder(work)
     if name == "fifo":
         os.mkfifo(record)
     else:

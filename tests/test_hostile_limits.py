@@ -548,16 +548,10 @@ def test_a_planted_trial_record_with_a_drift_in_words_is_refused_naming_it(tmp_p
     """(refused already by the record check of master/sweeps/folder.py; this case holds it)"""
     import json
 
-    from master.sweeps import plan as sweeps
-    from master.sweeps.folder import sweep_folder
-    from tests.sweep_files import sweep_file
+    from tests.sweep_files import one_trial_sweep_folder
 
     work = prepared(tmp_path)
-    sweep = sweeps.load(sweep_file(work / "s.toml", grid={"conditions.left": [-0.1]}, trials=1, conditions=("left",),
-                                   workers=1))
-    with sweep_folder(work / "out", sweep, False):
-        pass
-    record = work / "out" / "trials" / f"{sweep.trials[0].id}.json"
+    _, record = one_trial_sweep_folder(work)
     record.write_text(json.dumps({"status": "ok", "outcome": {"drift_cm": "lots", "force_n": 0.0, "gamma_final": 0.1}}))
     before = tree(tmp_path)
     refused(rhi(tmp_path, "sweep", "--config", "s.toml", "--out", "out", timeout=30),
