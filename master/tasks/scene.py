@@ -1,9 +1,10 @@
 """A task's system around a model: the one place a model's components, links and parameters join a task's.
 
-Every task builds its system with :func:`model_system`: the task's components (its world: arms, cameras,
-stimuli, decoders), the model's (:meth:`master.models.Model.parts`, then its brain), then the task's
+Every task builds its system with :func:`assemble`: the task's components (its world: arms, cameras, stimuli,
+decoders), the model's (:func:`model_parts`: :meth:`master.models.Model.parts`, then its brain), then the task's
 components after the brain (the body), wired by the task's links and the model's, and given the task's
-parameters and the model's (:func:`master.config.sources.model_parameters`).
+parameters and the model's (:func:`master.config.sources.model_parameters`; :func:`declared` keeps those the
+system's components declare).
 """
 from __future__ import annotations
 
