@@ -194,3 +194,14 @@ def test_a_model_without_its_pose_encoder_at_this_resolution_is_refused_before_a
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and "no shipped conv pose encoder at 32 px" in err[0], err
         assert not (tmp_path / "out").exists()
+
+
+def test_a_phenomenon_refused_at_its_scheduler_leaves_no_folder(tmp_path, capsys):
+    """rhi phenomenon --scheduler garbage: one line, exit 2, and the folder it made is gone (it was empty)."""
+    (tmp_path / "tiny.toml").write_text("[sweep]\nquick = true\n[experiment]\ndecoders = [\"conv\"]\n"
+                                        "conditions = [\"right\"]\nstimulations = [\"sync\"]\n")
+    assert main(["phenomenon", "distance", "--model", "paper", "--config", str(tmp_path / "tiny.toml"), "--scheduler",
+                 "garbage", "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "garbage" in err[0], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["tiny.toml"]

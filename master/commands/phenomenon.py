@@ -50,9 +50,9 @@ def run(args) -> int:
         protocol = __import__(f"master.phenomena.{args.name.replace('-', '_')}", fromlist=["_"])
         config = protocol.load(args.config, "paper" if args.model == "both" else args.model)
         written = protocol.run_into(args.out, config, RunContext(force=args.force))
-        print(f"rhi phenomenon {args.name}: wrote {', '.join(str(Path(args.out) / name) for name in written)} "
+        print(f"rhi phenomenon {args.name}: wrote {', '.join(str(out / name) for name in written)} "
               f"({time.perf_counter() - started:.0f} s)")
-        print((Path(args.out) / written[0]).read_text(), end="")
+        print((out / written[0]).read_text(), end="")
         return 0
     path = Path(args.config) if args.config else sweep_file(args.name)
     chosen = tuple(registry.BUILT_IN) if getattr(args, "model", "both") == "both" else (args.model,)
@@ -61,21 +61,28 @@ def run(args) -> int:
     trials = {model: count for model, count in per_point.items() if count}  # a population: one participant a trial
     for model in chosen:  # every model's points, decoders and pose encoders checked before anything is written
         check_decoders(plan.load(path, model, trials.get(model)))
-    check_folder(Path(args.out))
-    own = report_manifest(Path(args.out), args.name)
-    Path(args.out).mkdir(parents=True, exist_ok=True)
-    folders, status = {}, 0
-    for model in chosen:
-        folders[model] = Path(args.out) / registry.get(model).name
-        status = max(status, sweep_and_report(path, folders[model], args.scheduler, args.force, args.debug, model,
-                                              trials.get(model)))
-    written = report(args.name, path, Path(args.out), folders, trials)
-    for name in written:
-        own.add(name)
-    own.save()
-    print(f"rhi phenomenon {args.name}: wrote {', '.join(str(Path(args.out) / name) for name in written)} "
+    out = Path(args.out)
+    check_folder(out)
+    own = report_manifest(out, args.name)
+    created = not out.exists()
+    out.mkdir(parents=True, exist_ok=True)
+    try:
+        folders, status = {}, 0
+        for model in chosen:
+            folders[model] = out / registry.get(model).name
+            status = max(status, sweep_and_report(path, folders[model], args.scheduler, args.force, args.debug, model,
+                                                  trials.get(model)))
+        written = report(args.name, path, out, folders, trials)
+        for name in written:
+            own.add(name)
+        own.save()
+    except BaseException:  # refused or stopped before any file: the folder this run made goes, as it came
+        if created and out.is_dir() and not any(out.iterdir()):
+            out.rmdir()
+        raise
+    print(f"rhi phenomenon {args.name}: wrote {', '.join(str(out / name) for name in written)} "
           f"({time.perf_counter() - started:.0f} s)")
-    print((Path(args.out) / written[0]).read_text(), end="")
+    print((out / written[0]).read_text(), end="")
     return status
 
 
