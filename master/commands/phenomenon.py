@@ -45,11 +45,11 @@ def run(args) -> int:
     from master.sweeps.folder import check_folder
     from master.sweeps.runner import check_decoders
 
-    started = time.perf_counter()
+    started, out = time.perf_counter(), Path(args.out)
     if args.name in OWN_PROTOCOLS:
         protocol = __import__(f"master.phenomena.{args.name.replace('-', '_')}", fromlist=["_"])
         config = protocol.load(args.config, "paper" if args.model == "both" else args.model)
-        written = protocol.run_into(args.out, config, RunContext(force=args.force))
+        written = protocol.run_into(out, config, RunContext(force=args.force))
         print(f"rhi phenomenon {args.name}: wrote {', '.join(str(out / name) for name in written)} "
               f"({time.perf_counter() - started:.0f} s)")
         print((out / written[0]).read_text(), end="")
@@ -61,7 +61,6 @@ def run(args) -> int:
     trials = {model: count for model, count in per_point.items() if count}  # a population: one participant a trial
     for model in chosen:  # every model's points, decoders and pose encoders checked before anything is written
         check_decoders(plan.load(path, model, trials.get(model)))
-    out = Path(args.out)
     check_folder(out)
     own = report_manifest(out, args.name)
     created = not out.exists()
