@@ -26,6 +26,7 @@ Example::
 """
 from __future__ import annotations
 
+import hashlib
 import importlib
 import importlib.util
 import sys
@@ -112,7 +113,7 @@ def _load(spec: str) -> Model:
         path = Path(where)
         if not path.is_file():
             raise ConfigError(f"model {spec!r}: no file {path}")
-        module_name = f"rhi_user_model_{abs(hash(str(path.resolve())))}"
+        module_name = f"rhi_user_model_{hashlib.sha256(str(path.resolve()).encode()).hexdigest()[:16]}"
         module = sys.modules.get(module_name)
         if module is None:
             loader = importlib.util.spec_from_file_location(module_name, path)

@@ -1,4 +1,5 @@
-"""The rubber-hand experiment on the engine: protocol and seeds, wiring, measures, decoders, training data.
+"""The rubber-hand illusion task: its system and one lockstep batch (wiring), the runner, measures, the run in memory
+and into DIR (publish), the fast check.
 
 The one obvious call, in memory (``result.write(DIR)`` publishes what ``rhi experiment`` writes)::
 
@@ -27,5 +28,6 @@ def run_experiment(config=None, body=None, context=None, workers=None):
     from master.tasks.illusion.publish import run_experiment as run_protocol
     return run_protocol(config, body, context, workers)
 
-__all__ = ["run_experiment", "RunContext", "Trial", "make_trial", "plan", "rubber_pose", "trial_seed", "CONNECTIONS", "RECORD", "build_system",
-           "parameters", "run_batch", "measures", "run", "trial_outcome", "without_failures"]
+
+__all__ = ["run_experiment", "RunContext", "Trial", "make_trial", "plan", "rubber_pose", "trial_seed", "CONNECTIONS",
+           "RECORD", "build_system", "parameters", "run_batch", "measures", "run", "trial_outcome", "without_failures"]

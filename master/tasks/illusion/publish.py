@@ -123,13 +123,26 @@ def run_experiment(config: dict | None = None, body: str | None = None, context:
     began = time.perf_counter()
     config = configuration.load() if config is None else config
     context = context or RunContext()
+    declared = checked_before_work(config, body, context.device)
     if workers is None:
         with Workers(1 if context.device != "cpu" else context.processes) as own:
-            result = run_experiment(config, body, context, own)
-        result.began = began
-        return result
-    check_decoders(config, context.device)
-    declared = body_factory(body, config)[1]
+            result = simulate_protocol(config, body, context, own, declared)
+    else:
+        result = simulate_protocol(config, body, context, workers, declared)
+    result.began = began
+    return result
+
+
+def checked_before_work(config: dict, body: str | None, device: str):
+    """What can be checked before any training or run: the decoders' checkpoints or training settings (and the
+    model's pose encoders), the body FMU; returns the body's parameter names (None: the native plant)."""
+    check_decoders(config, device)
+    return body_factory(body, config)[1]
+
+
+def simulate_protocol(config: dict, body: str | None, context: RunContext, workers: Workers, declared):
+    """:func:`run_experiment` on ``workers`` once checked (``declared``: :func:`checked_before_work`'s); the
+    caller sets the result's ``began``."""
     checkpoints, training_seconds = ensure_checkpoints(config, progress=context.progress, device=context.device,
                                                        workers=workers)
     checked = time.perf_counter()
@@ -152,7 +165,7 @@ def run_experiment(config: dict | None = None, body: str | None = None, context:
         "timings_s": {"training": training_seconds, "fast_check": check_seconds, "trials": run_seconds},
         "failed_trials": [{**trial.__dict__, "error": error} for trial, error in failures.items()],
     }
-    return ExperimentResult(config, trials, times, per_step, final, summary, failures, provenance, began)
+    return ExperimentResult(config, trials, times, per_step, final, summary, failures, provenance)
 
 
 def run_into(out, config: dict, body: str | None = None, context: RunContext | None = None) -> dict:
@@ -165,10 +178,9 @@ def run_into(out, config: dict, body: str | None = None, context: RunContext | N
     """
     began, context = time.perf_counter(), context or RunContext()
     check_output(out, context.force)
-    check_decoders(config, context.device)
-    body_factory(body, config)
+    declared = checked_before_work(config, body, context.device)
     with output_folder(out, context.force) as staging, Workers(1 if context.device != "cpu" else None) as workers:
-        result = run_experiment(config, body, context, workers)
+        result = simulate_protocol(config, body, context, workers, declared)
         result.began = began
         result.write_files(staging, workers)
     return result.failures
