@@ -31,12 +31,13 @@ def mode_outcomes(mode: str) -> list[dict]:
     from master import config as configuration
     from master.tasks.illusion import runner
     from master.decoders.cache import checkpoint_path
+    from master.runtime.context import RunContext
     from master.tasks.illusion.measures import end_of_trial
 
     config = configuration.load(overrides={"experiment.trials": 1, "experiment.steps": STEPS[mode]})
     kinds = config["experiment"]["decoders"]
     checkpoints = {kind: checkpoint_path(kind, config, must_exist=True) for kind in kinds}
-    trials, times, per_step, _, failures = runner.run(config, checkpoints, processes=1,
+    trials, times, per_step, _, failures = runner.run(config, checkpoints, context=RunContext(processes=1),
                                                       fast={kind: mode == "fast" for kind in kinds})
     assert not failures, failures
     final = end_of_trial(times, per_step)

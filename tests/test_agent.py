@@ -21,6 +21,7 @@ from components.fmu import extracted, guard_library
 from master.cosim import System, simulate
 from master.cosim.loop import tick_times
 from master import config as configuration
+from master.config import sources
 from master.tasks.illusion import wiring
 from master.decoders.cache import decoder_component
 from master.config.protocol import make_trial, plan
@@ -88,7 +89,7 @@ def test_every_port_is_declared_by_a_component_and_every_start_is_the_configurat
         assert agent.variables[name].unit == inner.variable(path).unit
         assert agent.variables[name].description.startswith(inner.variable(path).description)
     # Every parameter the experiment sets on the five components is an agent parameter, or is fixed by design.
-    paths = [p for p in wiring.PARAMETER_SOURCES if not p.startswith("body.")]
+    paths = [p for p in sources.PARAMETER_SOURCES if not p.startswith("body.")]
     assert {p for p in paths if exposed(p, quick)} == set(parameter_paths(inner, quick))
     for path in parameter_paths(inner, quick):
         name, variable = path.partition(".")[2], inner.variable(path)
@@ -97,7 +98,7 @@ def test_every_port_is_declared_by_a_component_and_every_start_is_the_configurat
             continue
         port = agent.variables[name]
         assert (port.unit, port.min, port.max, port.type) == (variable.unit, variable.min, variable.max, variable.type)
-        key = wiring.config_key(wiring.PARAMETER_SOURCES[path])
+        key = sources.config_key(sources.PARAMETER_SOURCES[path])
         table, _, entry = (key or "").partition(".")
         assert port.start == (quick[table][entry] if key else variable.start), path  # defaults.toml, one truth
     assert sorted(agent_connections()) == sorted(

@@ -21,11 +21,12 @@ from components.vision.networks import build
 from components.vision.training import TrainSettings
 from master import config as configuration
 from master.config import protocol
+from master.config import sources
 from master.tasks.illusion import wiring
 
 RESOLUTION = 16
-SOURCES = wiring.PARAMETER_SOURCES
-PLAIN = sorted(path for path, source in SOURCES.items() if wiring.config_key(source))
+SOURCES = sources.PARAMETER_SOURCES
+PLAIN = sorted(path for path, source in SOURCES.items() if sources.config_key(source))
 DERIVED = sorted(path for path, source in SOURCES.items() if source.startswith("derived:"))
 
 
@@ -69,11 +70,10 @@ def test_every_component_parameter_has_exactly_one_source(systems, declared):
         missing = [f"{name}.{v.name}" for name, component in system.components.items()
                    for v in component.variables.values()
                    if v.causality == "parameter" and f"{name}.{v.name}" not in SOURCES]
-        assert not missing, f"{kind} system: parameters without an entry in wiring.PARAMETER_SOURCES: {missing}"
+        assert not missing, f"{kind} system: parameters without an entry in sources.PARAMETER_SOURCES: {missing}"
     stale = sorted(set(SOURCES) - set(declared))
-    assert not stale, f"wiring.PARAMETER_SOURCES names parameters no component declares: {stale}"
+    assert not stale, f"sources.PARAMETER_SOURCES names parameters no component declares: {stale}"
     # A dict literal keeps the last of two equal keys silently: read the tables' sources for duplicates.
-    from master.config import sources
     from master.models import paper
     keys = []
     for module, name in ((sources, "TASK_SOURCES"), (paper, "BRAIN_SOURCES")):
@@ -87,17 +87,17 @@ def test_every_component_parameter_has_exactly_one_source(systems, declared):
 def test_every_source_is_handled_one_way():
     """Plain keys are passed as configured; the rest are per trial, derived or given to a constructor."""
     for path, source in SOURCES.items():
-        ways = [name for name, holds in (("plain", bool(wiring.config_key(source))), ("per trial", path in wiring.PER_TRIAL),
-                                         ("derived", path in wiring.DERIVED), ("constructed", path in wiring.CONSTRUCTED))
+        ways = [name for name, holds in (("plain", bool(sources.config_key(source))), ("per trial", path in sources.PER_TRIAL),
+                                         ("derived", path in sources.DERIVED), ("constructed", path in sources.CONSTRUCTED))
                 if holds]
         assert len(ways) == 1, f"{path}: source {source!r} is handled {ways or 'no way'}"
-        assert source.startswith("derived:") == (path in wiring.DERIVED), \
-            f"{path}: only a 'derived:' source may have (and must have) a value in wiring.DERIVED"
+        assert source.startswith("derived:") == (path in sources.DERIVED), \
+            f"{path}: only a 'derived:' source may have (and must have) a value in sources.DERIVED"
 
 
 @pytest.mark.parametrize("path", PLAIN)
 def test_toml_value_is_the_start_value_and_is_passed_as_is(path, declared):
-    key = wiring.config_key(SOURCES[path])
+    key = sources.config_key(SOURCES[path])
     value, start = toml_value(key), declared[path].start
     assert same(value, start), (f"defaults.toml {key} = {value!r} ({type(value).__name__}) but the component's "
                                 f"{path} starts at {start!r} ({type(start).__name__})")
@@ -121,7 +121,7 @@ def test_per_trial_sources_take_the_trial_s_entry():
     config = configuration.load(overrides={"experiment.trials": 2})
     trials = protocol.plan(config)
     given = wiring.parameters(trials, config)
-    for path, field in wiring.PER_TRIAL.items():
+    for path, field in sources.PER_TRIAL.items():
         key = SOURCES[path].split()[0]
         for index, trial in enumerate(trials):
             if key == "experiment.seed":
@@ -139,7 +139,7 @@ def test_per_trial_sources_take_the_trial_s_entry():
 
 
 def test_constructed_sources_name_a_key_whose_default_is_the_constructor_s(systems):
-    for path in wiring.CONSTRUCTED:
+    for path in sources.CONSTRUCTED:
         key = SOURCES[path].split()[0]
         assert re.fullmatch(r"[a-z_]+\.[a-z_]+", key), f"{path}: {SOURCES[path]!r} does not start with its key"
         toml_value(key)
@@ -167,7 +167,7 @@ def test_derived_sources_give_their_reason_and_value(path):
     assert reason, f"{path}: a derived source must say why it is not a configuration key"
     config = configuration.load()
     given = wiring.parameters(protocol.plan(config)[:1], config)[path]
-    assert np.array_equal(given, wiring.DERIVED[path]())
+    assert np.array_equal(given, sources.DERIVED[path]())
 
 
 def test_derived_values():

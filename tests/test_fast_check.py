@@ -10,6 +10,7 @@ from master.tasks.illusion import runner
 from master.decoders.cache import checkpoint_path
 from master.tasks.illusion.measures import end_of_trial
 from master.config.protocol import make_trial
+from master.runtime.context import RunContext
 
 
 @pytest.fixture
@@ -39,7 +40,7 @@ def test_the_verdict_compares_the_fast_and_exact_drifts_of_the_protocol_s_own_tr
     # The exact drifts are those of the experiment run exact: same trials and seeds, in a batch of another size
     # (the decoder's float32 sums then differ in their last bits, hence the tolerance).
     trials, times, per_step, _, _ = runner.run({**config, "decoder": {**config["decoder"], "fast": False}},
-                                               checkpoints, processes=1)
+                                               checkpoints, context=RunContext(processes=1))
     final = end_of_trial(times, per_step)["drift_cm"]
     for name, drift in zip(verdict["trials"], exact):
         condition, stimulation, index = name.split()

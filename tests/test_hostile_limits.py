@@ -495,7 +495,7 @@ def test_the_causal_participants_of_a_phenomenon_s_config_file_count(tmp_path, m
     path.write_text(shipped + ("" if participants is None else f"\n[causal]\nparticipants = {participants}\n"))
     given = {}
 
-    def sweep_and_report(path, out, scheduler=None, force=False, debug=False, model=None, trials=None):
+    def sweep_and_report(path, out, context, model=None, trials=None):
         given.update(trials=trials)
         raise Planned
 

@@ -5,6 +5,8 @@ Truth: the fixed-gamma example's gamma is the configuration's value at every ste
 so its synchronous and asynchronous trials, which differ only in their delays, give the same numbers to the
 last bit; the registry's refusals are read off the files written here."""
 import csv
+import importlib
+import inspect
 import re
 from pathlib import Path
 
@@ -33,6 +35,15 @@ TINY = {  # each registered task at tiny size: one decoder, one condition, a few
 
 def test_every_registered_task_has_a_tiny_size_here():
     assert set(TINY) == set(TASKS)
+
+
+def test_every_registered_task_names_the_function_describing_its_scenario():
+    from master.tasks.scene import Scenario
+
+    for task in TASKS.values():
+        module, _, function = task.scenario.partition(":")
+        describe = getattr(importlib.import_module(module), function)
+        assert inspect.signature(describe).return_annotation in (Scenario, "Scenario"), task.name
 
 
 
@@ -139,11 +150,12 @@ def test_no_model_name_is_tested_outside_the_registry():
 def test_the_model_parameters_reach_the_brain_per_trial():
     """A batch whose trials carry their own fixed_gamma.gamma gives each its own brain.gamma0 (a fit's batch)."""
     from master.tasks.illusion import make_trial
+    from master.config import sources
     from master.tasks.illusion import wiring
 
     base = configuration.load(quick=True, model_name=EXAMPLE)
     trials = [make_trial(base, "conv", "left", "sync", 0, (("fixed_gamma.gamma", value),)) for value in (0.2, 0.7)]
-    assert "fixed_gamma.gamma" in wiring.batchable_keys(base)
+    assert "fixed_gamma.gamma" in sources.batchable_keys(base)
     assert np.array_equal(wiring.parameters(trials, base)["brain.gamma0"], [0.2, 0.7])
 
 

@@ -22,7 +22,7 @@ from components.component import ComponentError
 from master.commands.cli import main
 from master.cosim import System, simulate
 from master.tasks.reach import task as reach
-from master.tasks.illusion import wiring
+from master.config import sources
 from master.export.agent_fmu import MANIFEST, agent_from_resources
 from master.export.body import build_fmu
 from master.export.reach_agent import ReachAgent
@@ -68,7 +68,7 @@ def native(config, trials):
 
 
 def body_parameters(config, prefix="body."):
-    return {prefix + path[5:]: value for path, value in wiring.shared_parameters(config, ("body",)).items()}
+    return {prefix + path[5:]: value for path, value in sources.shared_parameters(config, ("body",)).items()}
 
 
 def goals(trials, prefix="agent."):

@@ -32,6 +32,7 @@ from master.tasks.illusion import runner
 from master.runtime.pool import process_count
 from master.decoders.training_data import HALF_RANGES
 from master.outputs.files import atomic_write
+from master.runtime.context import RunContext
 
 KINDS = ("conv", "vae")
 
@@ -61,7 +62,7 @@ def lockstep_run(config: dict, checkpoints: dict[str, str], processes: int) -> d
     side by side on ``processes`` single-threaded workers (one after the other here when 1). The time is the
     batches' own, from the first one's start to the last one's end (the workers' start excluded, as the
     sweep's task window excludes its pool's)."""
-    seconds = runner.run(config, checkpoints, processes=processes)[3]
+    seconds = runner.run(config, checkpoints, context=RunContext(processes=processes))[3]
     side_by_side = process_count(len(seconds), processes) > 1
     total = max(seconds.values()) if side_by_side else sum(seconds.values())
     trials = len(experiment.plan(config))

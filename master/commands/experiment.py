@@ -71,7 +71,7 @@ def run(args) -> int:
     from master.tasks.illusion.publish import run_into
 
     failures = run_into(args.out, config, args.body,
-                        RunContext(progress=True, force=args.force, device=resolve_device(args.device)))
+                        RunContext.of(args, progress=True, device=resolve_device(args.device)))
     for trial, error in failures.items():
         print(f"rhi experiment: trial failed and left out: {trial.decoder}/{trial.condition}/{trial.stimulation} "
               f"trial {trial.index}: {error}", file=sys.stderr)

@@ -32,13 +32,14 @@ def run(args) -> int:
 
     from master.cosim import ConfigError
     from master.fit.run import fit
+    from master.runtime.context import RunContext
 
     if importlib.util.find_spec("sbi") is None:  # an install without the fit extra
         raise ConfigError("rhi fit needs the sbi package: pip install -c constraints.txt -e '.[fit]' "
                           "(make setup installs it)")
 
     out = Path(args.out)
-    result = fit(args.data, args.config, out, getattr(args, "model", None), args.scheduler, args.debug)
+    result = fit(args.data, args.config, out, getattr(args, "model", None), RunContext.of(args))
     timing = result["posterior_seconds_per_participant"]
     line = (f"rhi fit: {len(result['participants'])} participants, {len(result['parameters'])} parameters, "
             f"{result['simulations']['participants']} simulated participants ({result['simulations']['trials']} "

@@ -37,7 +37,7 @@ def run(args) -> int:
     from master.runtime.context import RunContext
     from master.tasks.reach.publish import run_into
 
-    failures = run_into(args.out, config, RunContext(progress=True, force=args.force))
+    failures = run_into(args.out, config, RunContext.of(args, progress=True))
     for trial, error in failures.items():
         print(f"rhi reach: reach failed and left out: {trial.decoder}/{trial.band} goal {trial.index}: {error}",
               file=sys.stderr)

@@ -25,29 +25,29 @@ def add_arguments(parser) -> None:
 
 def run(args) -> int:
     """The command: 0 when every trial succeeded, 1 when some failed (each listed on one line)."""
-    return sweep_and_report(args.config, args.out, args.scheduler, getattr(args, "force", False),
-                            getattr(args, "debug", False), getattr(args, "model", None))
-
-
-def sweep_and_report(path, out, scheduler: str | None = None, force: bool = False, debug: bool = False,
-                     model: str | None = None, trials: int | None = None) -> int:
-    """Run the sweep file ``path`` into ``out`` (resumably) and print what was done; 0 when every trial succeeded,
-    1 when some failed. model, trials: instead of the file's ``sweep.model`` and ``sweep.trials``."""
-    from master.sweeps import plan as sweeps
     from master.runtime.context import RunContext
+
+    return sweep_and_report(args.config, args.out, RunContext.of(args), getattr(args, "model", None))
+
+
+def sweep_and_report(path, out, context, model: str | None = None, trials: int | None = None) -> int:
+    """Run the sweep file ``path`` into ``out`` (resumably) and print what was done; 0 when every trial succeeded,
+    1 when some failed. context: a :class:`~master.runtime.context.RunContext` (force, scheduler, debug). model,
+    trials: instead of the file's ``sweep.model`` and ``sweep.trials``."""
+    from master.sweeps import plan as sweeps
     from master.sweeps.run import run_into
 
     sweep = sweeps.load(path, model, trials)
     task = sweeps.resolve_task(sweep.task)
     out = Path(out)
-    records, now = run_into(sweep, task, out, RunContext(force=force, scheduler=scheduler, debug=debug))
+    records, now = run_into(sweep, task, out, context)
     ok = sum(record["status"] == "ok" for record in records.values())
     failures = [(t, records[t.id]) for t in sweep.trials if records.get(t.id, {}).get("status") == "failed"]
     for trial, record in failures[:MAX_LISTED]:
         print(f"rhi sweep: failed: point {trial.point} ({sweeps.describe(sweep.points[trial.point])}) "
               f"{trial.decoder}/{trial.condition}/{trial.stimulation} trial {trial.index} "
               f"[{trial.id}]: {record['error']}", file=sys.stderr)
-        if debug and record.get("traceback"):
+        if context.debug and record.get("traceback"):
             print(record["traceback"], file=sys.stderr)
     if len(failures) > MAX_LISTED:
         print(f"rhi sweep: ... and {len(failures) - MAX_LISTED} more failures, listed in {out / 'index.csv'}",

@@ -27,7 +27,7 @@ class Trial:
     offset_x: float
     delay_min: float
     delay_max: float
-    # ((key, value), ...): this trial's own values of parameter keys (wiring.batchable_keys), in a lockstep
+    # ((key, value), ...): this trial's own values of parameter keys (sources.batchable_keys), in a lockstep
     # batch that runs several configurations at once (a sweep's chunk of several points); () = the config's
     overrides: tuple = ()
 
@@ -43,7 +43,7 @@ def make_trial(config: dict, decoder: str, condition: str, stimulation: str, ind
     """The trial of this cell and repetition under ``config``: its seed, rubber-hand offset and delay law.
 
     overrides: ``((key, value), ...)``, the trial's own values of parameter keys in a batch of several
-    configurations (:func:`master.tasks.illusion.wiring.parameters` gives them to the components per trial).
+    configurations (:func:`master.config.sources.parameters` gives them to the components per trial).
     """
     delays = config["stimulations"][stimulation]
     return Trial(decoder, condition, stimulation, index,

@@ -172,16 +172,16 @@ def _loaded(path: str, version: int, resolution: int, blur: float) -> Generative
 
 
 def decoder_component(kind: str, path: str, config: dict, fast: bool | None = None,
-                      threads: int | None = None, device: str = "cpu") -> Decoder:
+                      threads: int | None = None, device: str = "cpu", name: str = "decoder") -> Decoder:
     """The exact decoder, or the linearised one of the fast mode when ``fast`` (default: ``decoder.fast``)
-    is true; on ``threads`` torch threads (default: the usable cores) and on ``device``."""
+    is true; on ``threads`` torch threads (default: the usable cores) and on ``device``; component ``name``."""
     model = loaded(path, config["experiment"]["resolution"], config["camera"]["blur"])
     check_kind(kind, path, model)
     if config["decoder"]["fast"] if fast is None else fast:
         from components.vision.fast import LinearisedDecoder
-        return LinearisedDecoder(model, name="decoder", relinearise_tolerance=config["decoder"]["relinearise_tolerance"],
+        return LinearisedDecoder(model, name=name, relinearise_tolerance=config["decoder"]["relinearise_tolerance"],
                                  threads=threads, device=device)
-    return Decoder(model, name="decoder", threads=threads, device=device)
+    return Decoder(model, name=name, threads=threads, device=device)
 
 
 def jacobian_pair(kind: str, path: str, config: dict) -> np.ndarray:

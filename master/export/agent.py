@@ -34,6 +34,7 @@ from components.variables import Variable
 from master.cosim import Connection, SimulationError, Session, System
 from master.tasks.illusion import wiring
 from master.config.protocol import make_trial
+from master.config import sources as parameter_sources
 from master.config.sources import sources
 
 BODY = "body"  # the experiment's name for the body component
@@ -128,7 +129,7 @@ def agent_connections(agent: str = "agent", body: str = BODY, links=None) -> lis
 
 def parameter_paths(system: System, config: dict) -> list[str]:
     """The inner parameters that are the agent's parameters: every scalar one the experiment sets
-    (``wiring.PARAMETER_SOURCES``) but those fixed when the agent is built (constructor arguments,
+    (:data:`master.config.sources.PARAMETER_SOURCES`) but those fixed when the agent is built (constructor arguments,
     the blur the decoder was trained on) and the derived ones (the brain's start belief, the rest pose)."""
     return [f"{name}.{variable.name}" for name, component in system.components.items()
             for variable in component.variables.values()
@@ -141,13 +142,13 @@ def exposed(path: str, config: dict) -> bool:
     configuration (the task's sources and the model's, :func:`master.config.sources.sources`), not the body's, not
     fixed when the agent is built, not derived."""
     source = sources(config).get(path)
-    return (source is not None and not path.startswith(BODY + ".") and path not in wiring.CONSTRUCTED
+    return (source is not None and not path.startswith(BODY + ".") and path not in parameter_sources.CONSTRUCTED
             and path not in FIXED_AT_BUILD and not source.startswith("derived:"))
 
 
 def configured(path: str, variable: Variable, config: dict):
     """The start of an agent parameter: the configuration's value for a plain key, else the variable's own."""
-    key = wiring.config_key(sources(config)[path])
+    key = parameter_sources.config_key(sources(config)[path])
     if key is None:
         return variable.start
     table, name = key.split(".")
@@ -249,11 +250,11 @@ class Agent(Component):
     # -- the inner session ----------------------------------------------------------------------
     def inner_parameters(self) -> dict:
         """The inner system's parameters for this agent's current values: the experiment's
-        (``wiring.parameters``) for what the agent does not expose, the agent's own for the rest."""
+        (:func:`master.config.sources.parameters`) for what the agent does not expose, the agent's own for the rest."""
         trial = make_trial(self.config, self.kind, self.config["experiment"]["conditions"][0],
                            self.config["experiment"]["stimulations"][0], 0)
-        given = {path: value for path, value in wiring.parameters([trial], self.config).items()
-                 if path.partition(".")[0] in self._system.components and path not in wiring.CONSTRUCTED}
+        given = {path: value for path, value in parameter_sources.parameters([trial], self.config).items()
+                 if path.partition(".")[0] in self._system.components and path not in parameter_sources.CONSTRUCTED}
         for name, path in self.parameters.items():
             given[path] = join_seed(self.values[SEED_LOW], self.values[SEED_HIGH]) if path == SEED else self.values[name]
         return given

@@ -142,7 +142,7 @@ def export_agent(out, config: dict, kind: str | None = None, task: str = "illusi
         The FMU and the checkpoint it carries.
     """
     from master.decoders.cache import check_decoders, ensure_checkpoints
-    from master.tasks.illusion.wiring import check_parameters
+    from master.config.sources import check_parameters
     from master.export.tasks import task as task_named
 
     kind = kind or config["experiment"]["decoders"][0]

@@ -34,7 +34,7 @@ from components.variables import Variable
 from master.cosim import System
 from master.tasks.reach import task as reach
 from master.tasks.illusion import wiring
-from master.config.sources import sources
+from master.config.sources import config_key, sources
 from master.decoders.training_data import HALF_RANGES
 from master.export.agent import OBSERVED, Agent, parameter_paths
 
@@ -104,7 +104,7 @@ class ReachAgent(Agent):
         if ("goal_decoder" in inner.components or "decoder" in inner.components) and VISUAL_VARIANCE not in paths:
             paths.insert(0, VISUAL_VARIANCE)
         for path in paths:
-            name, key = path.partition(".")[2], wiring.config_key(sources(self.config)[path])
+            name, key = path.partition(".")[2], config_key(sources(self.config)[path])
             declared = inner.variable(path if present(inner, path) else "goal_decoder." + name)
             table, entry = key.split(".")
             variables.append(Variable(name, "parameter", declared.type, start=self.config[table][entry],

@@ -25,7 +25,7 @@ from xml.etree import ElementTree as ET
 import numpy as np
 
 from master.cosim import ConfigError
-from master.tasks.illusion import wiring
+from master.config.sources import shared_parameters
 from master.export.agent import agent_connections
 from master.export.tasks import task as task_named
 from master.outputs.files import atomic_write, check_output_file
@@ -99,7 +99,7 @@ def body_parameters(config: dict, declared: dict) -> dict:
     """The body FMU's parameters: the configuration's ``body.*`` values that the body declares (as run_batch);
     the same for every trial."""
     return {path.partition(".")[2]: (declared[path.partition(".")[2]][1], np.asarray(value).reshape(-1)[0])
-            for path, value in wiring.shared_parameters(config, (BODY,)).items()
+            for path, value in shared_parameters(config, (BODY,)).items()
             if path.partition(".")[2] in declared}
 
 

@@ -17,14 +17,15 @@ from master.cosim import ConfigError
 from master import config as configuration
 from master.tasks.reach import task as reach
 from master.tasks.illusion import wiring
+from master.config.sources import parameters
 from master.config.protocol import Trial, make_trial, plan
 from master.export.agent import SEED, SEED_HIGH, SEED_LOW, body_links, exposed, split_seed
 
 
 def agent_parameters(trial: Trial, config: dict, declared: dict) -> dict:
-    """The agent FMU's parameters for ``trial``: ``{name: (type, value)}`` from ``wiring.parameters``
+    """The agent FMU's parameters for ``trial``: ``{name: (type, value)}`` from :func:`master.config.sources.parameters`
     (the experiment's own values), the seed split into two Integers."""
-    given = wiring.parameters([trial], config)
+    given = parameters([trial], config)
     values = {}
     for path, value in given.items():
         name = path.partition(".")[2]

@@ -27,7 +27,7 @@ from master import models
 from master.cosim import ConfigError
 from master.runtime.pool import workers_problem
 from master import config as configuration
-from master.tasks.illusion.wiring import TASK_SOURCES, batchable_keys
+from master.config.sources import TASK_SOURCES, batchable_keys
 from master.models.base import config_key
 from master.config.sources import declared_range
 from master.fit.data import MEASURES, Data, check_against

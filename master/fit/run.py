@@ -24,6 +24,7 @@ from master.fit import report
 from master.fit.calibration import calibrate
 from master.fit.data import Data, read_data
 from master.fit.plan import FitPlan, draw_participants, read_plan, simulation_seed
+from master.runtime.context import RunContext
 from master.fit.simulate import Pool, participants_sweep, simulate, statistics, with_noise
 from master.outputs.files import atomic_write
 from master.outputs.provenance import package_versions
@@ -90,9 +91,11 @@ def prepare_folder(out: Path, identity: str, simulations: str | None = None) -> 
     atomic_write(manifest, json.dumps({"command": COMMAND, "fingerprint": identity}, indent=1) + "\n")
 
 
-def fit(data_path: str, config_path: str, out: Path, model: str | None = None, scheduler: str | None = None,
-        debug: bool = False, log=print) -> dict:
-    """The whole fit (module notes); returns run.json's content."""
+def fit(data_path: str, config_path: str, out: Path, model: str | None = None, context: RunContext | None = None,
+        log=print) -> dict:
+    """The whole fit (module notes); returns run.json's content. context: its ``scheduler`` (None: a process pool
+    of ``fit.workers``) and ``debug``."""
+    context = context or RunContext()
     began = time.perf_counter()
     data = read_data(data_path)
     plan = read_plan(config_path, data, model)
@@ -103,7 +106,7 @@ def fit(data_path: str, config_path: str, out: Path, model: str | None = None, s
     created = not out.exists()
     prepare_folder(out, identity, sweep.fingerprint)
     try:
-        with Pool(scheduler, settings["workers"], debug) as pool:
+        with Pool(context.scheduler, settings["workers"], context.debug) as pool:
             return _fit(data, plan, drawn, sweep, out, pool, log, began, identity)
     except ConfigError:  # refused before any simulation ran (a worker, a decoder): a DIR this fit made goes again
         if created and not any((out / "simulations" / "trials").glob("*.json")):

@@ -5,6 +5,7 @@ movement after a delay; no touch. The paper's brain perceives (its action is not
 is the participant's own, and the released agent's illusion task ran without action); its gamma weighs the
 delay between the seen and the felt turning points of the movement by eqs. 8-9
 (:mod:`components.brain.turning_points`). Drift and gamma are the means over the last movement period.
+The task's system: :mod:`master.tasks.moving_hand`.
 """
 from __future__ import annotations
 
@@ -15,36 +16,20 @@ from pathlib import Path
 import numpy as np
 
 from components.body import kinematics
-from components.body.camera import Camera
-from components.body.movement import MirroredArm, Movement
-from components.body.plant import ArmPlant
-from components.brain.turning_points import TurningPoints
-from master import models
-from master.cosim import ConfigError, simulate
 from master import config as configuration
-from master.tasks.illusion import wiring
-from master.decoders.cache import check_decoders, decoder_component, per_decoder
-from master.runtime.context import RunContext
-from master.runtime.pool import JOB_THREADS, Workers
-from master.config.protocol import rubber_pose, trial_seed
+from master import models
+from master.cosim import ConfigError
+from master.decoders.cache import check_decoders, per_decoder
 from master.outputs import tables
 from master.outputs.files import atomic_write, output_folder
 from master.outputs.provenance import package_versions
-from master.config.sources import model_parameters
-from master.tasks.scene import assemble, declared, model_parts
+from master.runtime.context import RunContext
+from master.runtime.pool import Workers
+from master.tasks import moving_hand as task
 
-NAME = "moving-hand"
+NAME = task.NAME
 HUMAN_TABLE = "moving_hand"  # its human references in human.toml
 COLUMNS = ["decoder", "delay_s", "drift_cm", "drift_relative", "gamma", "gamma_relative"]
-CONNECTIONS = [
-    ("body.q_shoulder", "rubber_arm.q_shoulder"), ("body.q_elbow", "rubber_arm.q_elbow"),
-    ("rubber_arm.pose", "turning_points.seen_pose"), ("body.q_shoulder", "turning_points.q_shoulder"),
-    ("rubber_arm.pose", "camera.arm_pose"), ("camera.image", "decoder.image"), ("brain.mu", "decoder.mu"),
-    ("decoder.visual_drive", "brain.visual_drive"), ("decoder.visual_error", "brain.visual_error"),
-    ("decoder.visual_stiffness", "brain.visual_stiffness"),
-    ("turning_points.visual_time", "brain.visual_time"), ("turning_points.tactile_time", "brain.tactile_time"),
-    ("body.q_shoulder", "brain.q_shoulder"), ("body.q_elbow", "brain.q_elbow"),
-    ("movement.u_shoulder", "body.u_shoulder"), ("movement.u_elbow", "body.u_elbow")]
 
 
 def shipped_file() -> Path:
@@ -80,38 +65,10 @@ def load(path=None, model_name: str = "paper") -> dict:
     return config
 
 
-def seeds(config: dict, delays: list[float]) -> list[int]:
-    """A seed per delay (a model of a population draws each trial's participant from it)."""
-    return [trial_seed(config["experiment"]["seed"], NAME, f"{delay:g}", index) for index, delay in enumerate(delays)]
-
-
-def parameters(config: dict, delays: list[float]) -> dict:
-    """The body's, camera's and decoder's parameters as the experiment gives them, the model's brain's; the
-    rubber arm at the condition's rest pose; the delays per trial; the free body."""
-    given = wiring.shared_parameters(config, ("body", "camera", "decoder"))
-    given.update(model_parameters(config, seeds(config, delays), lambda key: config[key.split(".")[0]][key.split(".")[1]]))
-    moving = config["moving_hand"]
-    shoulder, elbow = rubber_pose(config["conditions"][moving["condition"]], config["rubber_arm"]["offset_y"])
-    given.update({"body.held": False, "rubber_arm.delay": np.array(delays, dtype=float),
-                  "rubber_arm.rest_shoulder": shoulder, "rubber_arm.rest_elbow": elbow,
-                  "movement.amplitude": moving["amplitude"], "movement.period": moving["period"]})
-    return given
-
-
 def decoder_delays(config: dict, kind: str, path: str) -> dict:
     """Every delay of one decoder in one lockstep batch (a job): drift and gamma per delay."""
-    experiment, moving = config["experiment"], config["moving_hand"]
-    delays = list(moving["delays"])
-    system = assemble([Movement(), MirroredArm(step_size=experiment["step_size"]), TurningPoints(),
-                       Camera(resolution=experiment["resolution"]),
-                       decoder_component(kind, path, config, threads=JOB_THREADS),
-                       *model_parts(config, kind, JOB_THREADS), ArmPlant()],
-                      CONNECTIONS + list(models.of(config).links))
-    result = simulate(system, stop_time=experiment["steps"] * experiment["step_size"],
-                      step_size=experiment["step_size"], scheme=experiment["scheme"], batch_size=len(delays),
-                      parameters=declared(parameters(config, delays), system),
-                      record=["brain.mu", "brain.gamma", "body.q_shoulder", "body.q_elbow"])
-    return measures(result.times, result.values, moving["period"])
+    result = task.simulate_delays(config, kind, path)
+    return measures(result.times, result.values, config["moving_hand"]["period"])
 
 
 def measures(times, values, period: float) -> dict:

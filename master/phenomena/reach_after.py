@@ -16,31 +16,21 @@ from pathlib import Path
 import numpy as np
 
 from components.body import kinematics
-from components.body.arm_pose import PosedArm
-from components.body.camera import Camera
-from components.brain.goal import GoalOnset
 from components.component import ComponentError
-from master import models
-from master.cosim import ConfigError, simulate
 from master import config as configuration
-from master.tasks.illusion import wiring
-from master.decoders.cache import check_decoders, decoder_component, loaded, per_decoder
-from master.runtime.context import RunContext
-from master.runtime.pool import JOB_THREADS, Workers
-from master.config.protocol import plan
+from master import models
+from master.cosim import ConfigError
+from master.decoders.cache import check_decoders, per_decoder
 from master.outputs import tables
-from master.tasks.scene import assemble, declared
 from master.outputs.files import atomic_write, output_folder
 from master.outputs.provenance import package_versions
+from master.runtime.context import RunContext
+from master.runtime.pool import Workers
+from master.tasks import reach_after as task
 
-NAME = "reach-after"
+NAME = task.NAME
 COLUMNS = ["decoder", "condition", "stimulation", "n_trials", "drift_at_release_cm_mean", "endpoint_bias_cm_mean",
            "endpoint_bias_cm_sd", "endpoint_error_cm_mean", "gamma_at_release_mean"]
-GOAL_LINKS = [("goal.pose", "goal_camera.arm_pose"), ("goal_camera.image", "goal_decoder.image"),
-              ("brain.mu", "goal_decoder.mu"), ("goal_decoder.visual_drive", "goal_onset.drive"),
-              ("goal_decoder.visual_error", "goal_onset.error"), ("goal_decoder.visual_stiffness", "goal_onset.stiffness"),
-              ("goal_onset.goal_drive", "brain.goal_drive"), ("goal_onset.goal_error", "brain.goal_error"),
-              ("goal_onset.goal_stiffness", "brain.goal_stiffness")]
 
 
 def shipped_file() -> Path:
@@ -87,45 +77,9 @@ def load(path=None, model_name: str = "paper") -> dict:
     return config
 
 
-def target_pose(config: dict) -> tuple[float, float]:
-    """The target's joint angles: the resting hand moved by ``reach_after.target``.
-
-    Returns
-    -------
-    tuple of float
-        (shoulder, elbow) in deg, the hand at ``REST_HAND + target`` (m).
-    """
-    dx, dy = config["reach_after"]["target"]
-    shoulder, elbow = kinematics.inverse(kinematics.REST_HAND[0] + dx, kinematics.REST_HAND[1] + dy)
-    return float(shoulder), float(elbow)
-
-
 def decoder_trials(config: dict, kind: str, path: str):
-    """One decoder's trials in one lockstep batch (a job): the per-trial values of the table."""
-    from components.vision.component import Decoder
-    from components.vision.fast import LinearisedDecoder
-
-    trials = [t for t in plan(config) if t.decoder == kind]
-    resolution = config["experiment"]["resolution"]
-    base = wiring.build_system(decoder_component(kind, path, config, threads=JOB_THREADS), config)
-    model = loaded(path, resolution, config["camera"]["blur"])
-    goal_decoder = (LinearisedDecoder(model, name="goal_decoder", threads=JOB_THREADS,
-                                      relinearise_tolerance=config["decoder"]["relinearise_tolerance"])
-                    if config["decoder"]["fast"] else Decoder(model, name="goal_decoder", threads=JOB_THREADS))
-    parts = list(base.components.values())
-    parts[-2:-2] = [PosedArm("goal"), Camera("goal_camera", resolution=resolution), goal_decoder, GoalOnset()]
-    system = assemble(parts, wiring.CONNECTIONS + list(models.of(config).links) + GOAL_LINKS)
-    given = declared(wiring.parameters(trials, config), system)
-    shoulder, elbow = target_pose(config)
-    given.update({"goal.shoulder": shoulder, "goal.elbow": elbow, "goal_onset.onset": config["reach_after"]["release"],
-                  "goal_decoder.visual_variance": config["decoder"]["visual_variance"]
-                  / config["reach_after"]["precision_ratio"],
-                  "goal_camera.blur": config["camera"]["blur"], "goal_camera.ball_radius": config["camera"]["ball_radius"]})
-    experiment = config["experiment"]
-    result = simulate(system, stop_time=experiment["steps"] * experiment["step_size"],
-                      step_size=experiment["step_size"], batch_size=len(trials), parameters=given,
-                      record=["brain.mu", "brain.gamma", "body.q_shoulder", "body.q_elbow", "body.hand_x",
-                              "body.hand_y"])
+    """One decoder's trials in one lockstep batch (a job): the trials and their per-trial values of the table."""
+    trials, result = task.simulate_trials(config, kind, path)
     return trials, measures(result.times, result.values, config, trials)
 
 
@@ -136,7 +90,7 @@ def measures(times, values, config: dict, trials) -> dict:
     mu = values["brain.mu"]
     perceived, _ = kinematics.forward(mu[..., 0], mu[..., 1])
     real, _ = kinematics.forward(values["body.q_shoulder"], values["body.q_elbow"])
-    target = np.array(kinematics.forward(*target_pose(config)))
+    target = np.array(kinematics.forward(*task.target_pose(config)))
     error_x = 100.0 * (values["body.hand_x"][-1] - target[0])
     error = 100.0 * np.hypot(values["body.hand_x"][-1] - target[0], values["body.hand_y"][-1] - target[1])
     toward = np.sign([t.offset_x for t in trials])

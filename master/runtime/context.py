@@ -30,3 +30,10 @@ class RunContext:
     processes: int | None = None
     scheduler: str | None = None
     debug: bool = False
+
+    @classmethod
+    def of(cls, args, **settings) -> "RunContext":
+        """The settings a command's parsed arguments give (``--force``, ``--scheduler``, ``--debug``, those it has),
+        and ``settings`` (e.g. ``progress=True``, a resolved ``device``)."""
+        return cls(force=getattr(args, "force", False), scheduler=getattr(args, "scheduler", None),
+                   debug=getattr(args, "debug", False), **settings)

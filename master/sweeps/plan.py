@@ -237,9 +237,9 @@ def chunk_cells(configs: list[dict], batch: int | None,
 
 def check_batchable(configs: list[dict], points_per_batch: int) -> None:
     """ConfigError unless the points of each group of ``points_per_batch`` differ only where a lockstep batch
-    lets its trials differ: the batchable parameter keys (:func:`master.tasks.illusion.wiring.batchable_keys`),
+    lets its trials differ: the batchable parameter keys (:func:`master.config.sources.batchable_keys`),
     the master seed, the conditions' offsets and the stimulations' delays (each trial's own)."""
-    from master.tasks.illusion.wiring import batchable_keys
+    from master.config.sources import batchable_keys
 
     def shared(config: dict) -> str:
         kept = {table: dict(values) if isinstance(values, dict) else values for table, values in config.items()

@@ -218,7 +218,7 @@ def run_chunk(config: dict, trials: list[TrialSpec], configs: list[dict] | None 
     batches count theirs)."""
     from master.tasks.illusion import make_trial
     from master.tasks.illusion.runner import batch_outcomes
-    from master.tasks.illusion.wiring import batchable_keys
+    from master.config.sources import batchable_keys
 
     importlib.import_module("master.decoders.cache")  # torch: once per worker, before the clock starts
 

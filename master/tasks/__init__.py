@@ -1,8 +1,10 @@
-"""Tasks: what the agent does, each a system assembled around any registered model (:mod:`master.models`) by the
-one assembly, :func:`master.tasks.scene.assemble`.
+"""Tasks: what the agent does, each described as data (a :class:`master.tasks.scene.Scenario`: the task's
+components, links and records) and built around any registered model (:mod:`master.models`) by one function,
+:func:`master.tasks.scene.build`.
 
-:data:`TASKS` registers them: the command that runs each and where its system is built. Every task runs every
-model (``tests/test_models.py`` runs each registered task with each registered model from the command line).
+:data:`TASKS` registers them: the command that runs each and the function that describes its scenario. Every
+task runs every model (``tests/test_models.py`` runs each registered task with each registered model from the
+command line).
 """
 from __future__ import annotations
 
@@ -21,24 +23,24 @@ class Task:
         One line on what the agent does in it.
     command : tuple of str
         The ``rhi`` command (and its first arguments) that runs it, into ``--out DIR``, with ``--model``.
-    system : str
-        ``module:function`` building its system around the configuration's model (documentation: where to
-        look; the command imports it).
+    scenario : str
+        ``module:function`` returning its :class:`~master.tasks.scene.Scenario` (documentation: where to look;
+        the command imports it).
     """
 
     name: str
     summary: str
     command: tuple
-    system: str
+    scenario: str
 
 
 TASKS = {task.name: task for task in (
     Task("illusion", "the paper's protocol: the hidden arm held, the rubber arm seen and touched, in time or late",
-         ("experiment",), "master.tasks.illusion.wiring:build_system"),
+         ("experiment",), "master.tasks.illusion.wiring:scenario"),
     Task("reach", "the free arm reaching to a seen goal, near and far", ("reach",),
-         "master.tasks.reach.task:build_system"),
+         "master.tasks.reach.task:scenario"),
     Task("moving-hand", "the free arm swinging, the rubber arm repeating the movement after a delay, no touch",
-         ("phenomenon", "moving-hand"), "master.phenomena.moving_hand:decoder_delays"),
+         ("phenomenon", "moving-hand"), "master.tasks.moving_hand:scenario"),
     Task("reach-after", "the illusion's trial, then a reach to a target once the touches stop",
-         ("phenomenon", "reach-after"), "master.phenomena.reach_after:decoder_trials"),
+         ("phenomenon", "reach-after"), "master.tasks.reach_after:scenario"),
 )}

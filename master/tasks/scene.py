@@ -1,17 +1,81 @@
 """A task's system around a model: the one place a model's components, links and parameters join a task's.
 
-Every task builds its system with :func:`assemble`: the task's components (its world: arms, cameras, stimuli,
-decoders), the model's (:func:`model_parts`: :meth:`master.models.Model.parts`, then its brain), then the task's
-components after the brain (the body), wired by the task's links and the model's, and given the task's
-parameters and the model's (:func:`master.config.sources.model_parameters`; :func:`declared` keeps those the
-system's components declare).
+A task describes its system as data, a :class:`Scenario`: its world (arms, cameras, stimuli, decoders), its
+components after the brain (the body), its links and what it records. :func:`build` is the one function that
+makes a system of a scenario and the configuration's model: the world, the model's parts and brain
+(:func:`model_parts`), the body, wired by the task's links and then the model's (:func:`assemble`);
+:func:`run` simulates it at the experiment's step for a batch, given the task's parameters and the model's
+(:func:`master.config.sources.model_parameters`; :func:`declared` keeps those the system's components declare).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from master import models
-from master.cosim import ConfigError, System
+from master.cosim import ConfigError, System, simulate
 from master.decoders.cache import pose_encoder_path
 from master.models.base import Scene
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A task's system as data, around whichever model the configuration names (:func:`build`).
+
+    Attributes
+    ----------
+    world : tuple of Component
+        The task's components before the model's, in step order (the model's parts read their outputs).
+    body : tuple of Component
+        The task's components after the brain, in step order (they receive its action).
+    links : tuple of (str, str)
+        The task's candidate ``("component.output", "component.input")`` links, in order; the model's follow.
+    record : tuple of str
+        The ``component.variable`` paths recorded at every step.
+    kind : str
+        The decoder slot (``"conv"``, ``"vae"``) whose pose encoder the model's parts use.
+    threads : int or None
+        Torch threads of the model's parts (None: torch's default).
+    """
+
+    world: tuple
+    body: tuple
+    links: tuple
+    record: tuple
+    kind: str
+    threads: int | None = None
+
+
+def build(scenario: Scenario, config: dict) -> System:
+    """The system of ``scenario`` with the configuration's model: world, the model's parts and brain, body."""
+    parts = [*scenario.world, *model_parts(config, scenario.kind, scenario.threads), *scenario.body]
+    return assemble(parts, [*scenario.links, *models.of(config).links])
+
+
+def run(scenario: Scenario, config: dict, parameters, batch_size: int, progress=None):
+    """Simulate ``scenario`` (:func:`build`) for the experiment's steps, ``batch_size`` trials in lockstep.
+
+    Parameters
+    ----------
+    scenario : Scenario
+    config : dict
+        The configuration: its model, and ``experiment.steps``, ``step_size`` (s) and ``scheme``.
+    parameters : callable
+        ``parameters(system) -> dict`` of ``component.variable`` values, scalars or (batch_size, ...) arrays.
+    batch_size : int
+        Trials in lockstep, B.
+    progress : callable, optional
+        ``progress(done, total)`` after each step.
+
+    Returns
+    -------
+    master.cosim.Result
+        ``times`` (T,) s and ``values[path]`` (T, B, ...) of ``scenario.record``.
+    """
+    experiment = config["experiment"]
+    system = build(scenario, config)
+    return simulate(system, stop_time=experiment["steps"] * experiment["step_size"],
+                    step_size=experiment["step_size"], scheme=experiment["scheme"], batch_size=batch_size,
+                    parameters=parameters(system), record=list(scenario.record), progress=progress)
 
 
 def assemble(parts: list, links) -> System:

@@ -149,8 +149,7 @@ def simulate_protocol(config: dict, body: str | None, context: RunContext, worke
     modes = verdicts(config, checkpoints, workers, context.progress)
     check_seconds = time.perf_counter() - checked
     trials, times, per_step, run_seconds, failures = experiment.run(
-        config, checkpoints, body, progress=context.progress, fast={kind: mode["fast"] for kind, mode in modes.items()},
-        device=context.device, workers=workers)
+        config, checkpoints, body, context, fast={kind: mode["fast"] for kind, mode in modes.items()}, workers=workers)
     final = end_of_trial(times, per_step)
     summary = tables.summary(trials, final, planned=tables.cells(plan(config)))
     provenance = {

@@ -14,6 +14,7 @@ import numpy as np
 
 from master.cosim import SimulationError
 from master.tasks.illusion.measures import end_of_trial, measures
+from master.runtime.context import RunContext
 from master.runtime.pool import JOB_THREADS, Workers, process_count, run_jobs
 from master.config.protocol import Trial, make_trial, plan
 from master.tasks.illusion.wiring import run_batch
@@ -42,21 +43,22 @@ def without_failures(run_trials, trials: list[Trial]):
     return None, trials, failures
 
 
-def run(config: dict, checkpoints: dict[str, str], body: str | None = None, progress: bool = False,
-        processes: int | None = None, fast: dict[str, bool] | None = None, device: str = "cpu",
-        workers: Workers | None = None):
+def run(config: dict, checkpoints: dict[str, str], body: str | None = None, context: RunContext | None = None,
+        fast: dict[str, bool] | None = None, workers: Workers | None = None):
     """Every trial of the protocol, one lockstep batch per decoder, the batches side by side (the decoders on
-    ``device``; on a GPU the batches run one after the other).
+    ``context.device``; on a GPU the batches run one after the other).
 
-    body: an FMU to use as the body (None: the native plant). processes: most batches at once (default:
-    the usable cores; 1: one after the other, here); the numbers do not depend on it. workers: run the
-    batches on these (left open) instead of workers of their own. fast: per decoder, whether it runs in the
-    fast mode (default: ``decoder.fast`` for all).
+    body: an FMU to use as the body (None: the native plant). context: progress bars, the device, and
+    ``processes``, the most batches at once (default: the usable cores; 1: one after the other, here); the
+    numbers do not depend on it. workers: run the batches on these (left open) instead of workers of their own.
+    fast: per decoder, whether it runs in the fast mode (default: ``decoder.fast`` for all).
     Returns (trials, times, per_step, seconds, failures): ``per_step[key]`` has shape
     (steps + 1, n_trials) in the order of ``trials`` (the protocol's order, less any failed trial);
     ``seconds`` maps each decoder to its batches' wall time (summed); ``failures`` maps each failed trial to
     its error.
     """
+    context = context or RunContext()
+    progress, processes, device = context.progress, context.processes, context.device
     kinds = config["experiment"]["decoders"]
     fast = fast or {kind: config["decoder"]["fast"] for kind in kinds}
     batches = lockstep_batches(config)

@@ -1,7 +1,6 @@
 """The rubber-hand system: its components, their connections in step order, and one lockstep batch of it.
 
-Its parameters come from :mod:`master.config.sources` (their table and values; the names it uses are
-importable from here too, where callers of the system find them).
+Its parameters come from :mod:`master.config.sources` (their table and values).
 """
 from __future__ import annotations
 
@@ -12,12 +11,10 @@ from components.body.plant import ArmPlant
 from components.body.rubber_arm import RubberArm
 from components.stimulus import Stimulus
 from master import models
-from master.cosim import ConfigError, System, simulate
+from master.cosim import System
 from master.config.protocol import Trial
-from master.config.sources import (CONSTRUCTED, DERIVED, PARAMETER_SOURCES, PER_TRIAL, TASK_SOURCES,  # noqa: F401
-                                   batchable_keys, check_parameters, config_key, parameters, shared_parameters,
-                                   undeclared)
-from master.tasks.scene import assemble, model_parts
+from master.config.sources import parameters, undeclared
+from master.tasks.scene import Scenario, build, run
 
 # Gauss-Seidel order within one step (docs/design.md): the decoder reads the brain's mu of time t and the
 # image of time t; the brain then integrates; the body finally receives the new action.
@@ -47,25 +44,27 @@ RECORD = ["brain.mu", "brain.gamma", "brain.u_shoulder", "brain.u_elbow", "brain
           "decoder.visual_error", "stimulus.ball"]
 
 
+def scenario(decoder, config: dict, body=None) -> Scenario:
+    """The rubber-hand task as data: the rubber arm, the stimulus, the camera and ``decoder`` before the model,
+    ``body`` (default: the native pymunk plant) after it, :data:`CONNECTIONS`, and :data:`RECORD` with the
+    model's own paths."""
+    kind = decoder.model.metadata.get("kind", "conv") if hasattr(decoder, "model") else "conv"
+    return Scenario(world=(RubberArm(), Stimulus(), Camera(resolution=config["experiment"]["resolution"]), decoder),
+                    body=(body if body is not None else ArmPlant(),), links=tuple(CONNECTIONS),
+                    record=(*RECORD, *models.of(config).record), kind=kind, threads=getattr(decoder, "threads", None))
+
+
 def build_system(decoder, config: dict, body=None) -> System:
     """The rubber-hand system around a decoder component, with the configuration's model (its parts and brain);
     ``body`` defaults to the native pymunk plant."""
-    model = models.of(config)
-    kind = decoder.model.metadata.get("kind", "conv") if hasattr(decoder, "model") else "conv"
-    parts = [RubberArm(), Stimulus(), Camera(resolution=config["experiment"]["resolution"]), decoder,
-             *model_parts(config, kind, getattr(decoder, "threads", None)), body if body is not None else ArmPlant()]
-    return assemble(parts, CONNECTIONS + list(model.links))
+    return build(scenario(decoder, config, body), config)
 
 
 def run_batch(decoder, trials: list[Trial], config: dict, body=None, progress=None):
     """Run ``trials`` (all with this decoder component) in lockstep; returns the master's Result."""
-    experiment = config["experiment"]
-    system = build_system(decoder, config, body)
     given = parameters(trials, config)
-    for path in undeclared(given, system):
-        del given[path]
-    return simulate(system, stop_time=experiment["steps"] * experiment["step_size"],
-                    step_size=experiment["step_size"], scheme=experiment["scheme"], batch_size=len(trials),
-                    parameters=given, record=RECORD + list(models.of(config).record), progress=progress)
 
-
+    def declared_by(system: System) -> dict:
+        dropped = set(undeclared(given, system))
+        return {path: value for path, value in given.items() if path not in dropped}
+    return run(scenario(decoder, config, body), config, declared_by, len(trials), progress)

@@ -20,13 +20,12 @@ from components.body.arm_pose import JointPose, PosedArm
 from components.body.camera import Camera
 from components.body.plant import ArmPlant
 from master import models
-from master.cosim import ConfigError, System, simulate
+from master.cosim import ConfigError, System
 from master import config as configuration
-from master.tasks.illusion import wiring
 from master.config.protocol import per_trial
 from master.decoders.training_data import HALF_RANGES
-from master.config.sources import model_parameters
-from master.tasks.scene import assemble, declared, model_parts, pose_encoders
+from master.config.sources import model_parameters, shared_parameters
+from master.tasks.scene import Scenario, build, declared, pose_encoders, run
 
 ATTRACTORS = ("auto", "pixels", "body")
 VIEWS = ("auto", "on", "off")
@@ -263,49 +262,45 @@ def pixel_decoder_seen(config: dict) -> bool:
 
 
 def connections(config: dict) -> list[tuple[str, str]]:
-    """The reach system's candidate connections under ``config``, in step order: :func:`links`, then the
-    model's (``Model.links``: the causal model's seen pose, camera -> pose encoder -> brain)."""
-    return links(attractor(config), view(config), pixel_decoder_seen(config)) + list(models.of(config).links)
+    """The reach task's links under ``config`` (:func:`links`; the model's follow them, :func:`build`)."""
+    return links(attractor(config), view(config), pixel_decoder_seen(config))
+
+
+def scenario(kind: str, path: str, config: dict, threads: int = 1, extra=()) -> Scenario:
+    """The reach task of decoder ``kind`` (checkpoint ``path``) as data: the goal's arm and camera and its term
+    (:func:`links`), the seen arm and its camera when in view, before the model; the free body after it;
+    :data:`RECORD`, the goal's hand and the ``extra`` paths recorded."""
+    from master.decoders.cache import check_kind, decoder_component, loaded
+
+    resolution = config["experiment"]["resolution"]
+    check_kind(kind, path, loaded(path, resolution, config["camera"]["blur"]))  # whether or not a decoder is used
+
+    def decoder(name):
+        return decoder_component(kind, path, config, threads=threads, name=name)
+
+    world = [PosedArm("goal"), Camera("goal_camera", resolution=resolution)]
+    if attractor(config) == "pixels":
+        world.append(decoder("goal_decoder"))
+    else:
+        from components.brain.goal import GoalAttractor
+        world += [pose_encoders(config, kind, threads)("goal_encoder"), GoalAttractor()]
+    if view(config):
+        world += [JointPose("arm_pose"), Camera("camera", resolution=resolution)]
+        if pixel_decoder_seen(config):
+            world.append(decoder("decoder"))
+    return Scenario(world=tuple(world), body=(ArmPlant(),), links=tuple(connections(config)), record=(*RECORD, "goal.hand", *extra), kind=kind, threads=threads)
 
 
 def build_system(kind: str, path: str, config: dict, threads: int = 1) -> System:
-    """The reach system of decoder ``kind`` (checkpoint ``path``) under ``config``: the goal's arm and camera
-    and its term (:func:`links`), the seen arm and its camera when in view, the model's parts and brain, the
-    free body."""
-    from components.vision.component import Decoder
-    from components.vision.fast import LinearisedDecoder
-    from master.decoders.cache import check_kind, loaded
-
-    resolution = config["experiment"]["resolution"]
-    model = loaded(path, resolution, config["camera"]["blur"])
-    check_kind(kind, path, model)
-
-    def decoder(name):
-        if config["decoder"]["fast"]:
-            return LinearisedDecoder(model, name=name, relinearise_tolerance=config["decoder"]["relinearise_tolerance"],
-                                     threads=threads)
-        return Decoder(model, name=name, threads=threads)
-
-    encoders = pose_encoders(config, kind, threads)
-    parts = [PosedArm("goal"), Camera("goal_camera", resolution=resolution)]
-    if attractor(config) == "pixels":
-        parts.append(decoder("goal_decoder"))
-    else:
-        from components.brain.goal import GoalAttractor
-        parts += [encoders("goal_encoder"), GoalAttractor()]
-    if view(config):
-        parts += [JointPose("arm_pose"), Camera("camera", resolution=resolution)]
-        if pixel_decoder_seen(config):
-            parts.append(decoder("decoder"))
-    parts += [*model_parts(config, kind, threads), ArmPlant()]
-    return assemble(parts, connections(config))
+    """The reach system of decoder ``kind`` (checkpoint ``path``) under ``config`` (:func:`scenario`)."""
+    return build(scenario(kind, path, config, threads), config)
 
 
 def parameters(trials: list[ReachTrial], config: dict, system: System) -> dict:
     """Every parameter of the reach system: the experiment's sources for the body, cameras and decoders
-    (:data:`master.tasks.illusion.wiring.TASK_SOURCES`), the model's for its brain, the goal per trial, and the
+    (:data:`master.config.sources.TASK_SOURCES`), the model's for its brain, the goal per trial, and the
     goal's precision."""
-    given = wiring.shared_parameters(config, ("body", "camera", "decoder"))
+    given = shared_parameters(config, ("body", "camera", "decoder"))
     for key in ("blur", "ball_radius"):
         given[f"goal_camera.{key}"] = config["camera"][key]
     given["goal.shoulder"] = np.array([t.goal_pose[0] for t in trials])
@@ -320,15 +315,11 @@ def parameters(trials: list[ReachTrial], config: dict, system: System) -> dict:
 
 
 def run_reaches(kind: str, path: str, trials: list[ReachTrial], config: dict, threads: int = 1, progress=None,
-              extra=()):
+                extra=()):
     """Run ``trials`` (all of decoder ``kind``) in lockstep; returns the master's Result (RECORD, the goal's
     hand and the ``extra`` paths recorded)."""
-    experiment = config["experiment"]
-    system = build_system(kind, path, config, threads)
-    record = RECORD + (["goal.hand"] if "goal" in system.components else []) + list(extra)
-    return simulate(system, stop_time=experiment["steps"] * experiment["step_size"],
-                    step_size=experiment["step_size"], scheme=experiment["scheme"], batch_size=len(trials),
-                    parameters=parameters(trials, config, system), record=record, progress=progress)
+    return run(scenario(kind, path, config, threads, extra), config, lambda system: parameters(trials, config, system),
+               len(trials), progress)
 
 
 # -- measures --------------------------------------------------------------------------------------------------
