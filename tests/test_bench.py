@@ -31,6 +31,7 @@ ISSUE_TARGETS = {"exact_batched_peak_fraction_paper": (">=", 0.5), "fast_protoco
                  # the default run from an empty cache, and the sweep against lockstep
                  "default_run_wall_s": ("<=", 100), "default_run_cpu_utilisation": (">=", 1.7),
                  "sweep_vs_lockstep_rate": (">=", 0.8),
+                 "fit_trial_cpu_causal_vs_paper": ("<=", 1.5),  # the causal model as cheap per fit trial
                  "paper_protocol_seconds": ("<=", 180)}  # the paper protocol with its trained decoders
 
 
@@ -130,6 +131,24 @@ def test_sweep_rate_against_lockstep(report):
     assert math.isclose(rate["wall_vs_lockstep"], sweep["agent_steps_per_s"] / lockstep["agent_steps_per_s"])
     assert report["targets"]["sweep_vs_lockstep_rate"]["value"] == rate["window_vs_lockstep"]
     assert "sweep against lockstep" in table(report)
+
+
+def test_fit_unit_counts_and_divides(report):
+    """CPU-s per 1500-step trial of fit-like batches (quick: 2 batches of 2 participants x the 6 cells, 10 steps):
+    the trials counted are those simulated, each unit is its CPU-s over them scaled to 1500 steps, and the ratio is
+    the quotient of the two columns."""
+    unit = report["fit_unit"]
+    assert (unit["participants_per_batch"], unit["cells"], unit["batches"]) == (2, 6, 2)
+    for model in ("paper", "causal"):
+        row = unit["models"][model]
+        assert row["trials"] == 2 * 2 * 6 and row["failed"] == 0 and row["steps"] == 10
+        assert len(row["batch_cpu_s"]) == 2 and all(0 < s < math.inf for s in row["batch_cpu_s"])
+        assert math.isclose(row["cpu_s"], sum(row["batch_cpu_s"]))
+        assert math.isclose(row["cpu_s_per_1500_step_trial"], row["cpu_s"] / 24 * 1500 / 10)
+    assert math.isclose(unit["causal_vs_paper"], unit["models"]["causal"]["cpu_s_per_1500_step_trial"]
+                        / unit["models"]["paper"]["cpu_s_per_1500_step_trial"])
+    assert report["targets"]["fit_trial_cpu_causal_vs_paper"]["value"] == unit["causal_vs_paper"]
+    assert "causal/paper" in table(report)
 
 
 def test_table_names_every_mode_and_target(report):

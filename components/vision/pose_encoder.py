@@ -30,9 +30,13 @@ import torch
 from components.component import Component, ComponentError, StepFailure
 from components.variables import Variable
 from components.vision.component import available_cores
+from components.vision.image_sharing import FeatureStore, digest, distinct, weights_key
 from components.vision.networks import Encoder, normalise, sizes_dict, sizes_from_dict
 
 FORMAT = "rhi-pose-encoder/1"
+MIN_ROWS = 2      # images per convolution call at least: torch on the CPU convolves a batch of one another way (other bits)
+STORE_MB = 64.0   # the process's store of convolution features: 2 KiB an image at 64 px, so ~30 000 images
+STORE = FeatureStore(STORE_MB)  # one per process: a fit's batches, one after another, show the same pictures
 
 
 def gaussian_nll(mean, log_variance, target):
@@ -83,6 +87,22 @@ class PoseModel:
         """Uncalibrated angles and variances, (B, 2) deg and deg^2, of images (B, R, R)."""
         with torch.no_grad():
             mean, log_variance = self.encoder(torch.from_numpy(np.ascontiguousarray(images, np.float32)))
+        return self._angles(mean, log_variance)
+
+    def features(self, images: np.ndarray) -> np.ndarray:
+        """The convolutional stages' output (B, C, s, s) float32 of images (B, R, R): the encoder's first half."""
+        with torch.no_grad():
+            return self.encoder.convolutions(torch.from_numpy(np.ascontiguousarray(images, np.float32))[:, None]).numpy()
+
+    def from_features(self, features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Calibrated angles and variances (B, 2) of :meth:`features`' output (B, C, s, s): the encoder's second
+        half, the same operations as :meth:`__call__` after the convolutions."""
+        with torch.no_grad():
+            out = self.encoder.dense(torch.from_numpy(features))
+        angles, variance = self._angles(out[:, :2], out[:, 2:])
+        return angles, variance * self.scale
+
+    def _angles(self, mean, log_variance) -> tuple[np.ndarray, np.ndarray]:
         angles = self.rest_pose + mean.double().numpy() * self.half_ranges
         return angles, np.exp(log_variance.double().numpy()) * self.half_ranges ** 2
 
@@ -159,15 +179,26 @@ def load_encoder(path) -> PoseModel:
 
 
 class PoseEncoder(Component):
-    """Pose-encoder component: the image in; the seen arm's angles and their calibrated variance out."""
+    """Pose-encoder component: the image in; the seen arm's angles and their calibrated variance out.
+
+    The network's convolutions run once per distinct image (``share``): trials showing the same picture share
+    them (:func:`~components.vision.image_sharing.distinct`), and what they gave is kept for the next step or
+    batch that shows it (one store per process, :data:`STORE_MB`). The dense layers still run on every trial's
+    row, in one batch of all B trials as before, so the outputs are the unshared computation's bit for bit
+    wherever the convolutions give each image the same numbers in a batch of any size >= :data:`MIN_ROWS`
+    (torch convolves a batch of one another way). That is checked on each run's first images against the whole
+    batch's forward pass; where it fails the component runs unshared. ``evaluated`` counts the images the
+    convolutions ran on.
+    """
 
     def __init__(self, model: PoseModel, name: str = "pose_encoder", resolution: int | None = None,
-                 threads: int | None = None):
+                 threads: int | None = None, share: bool = True):
         trained = model.metadata.get("resolution")
         if resolution is not None and trained is not None and trained != resolution:
             raise ComponentError(f"{name}: the pose encoder was trained at {trained} px, the camera renders "
                                  f"{resolution} px")
-        self.model, self.threads = model, threads or available_cores()
+        self.model, self.threads, self.share = model, threads or available_cores(), share
+        self.sharing, self.evaluated, self._key = False, 0, ()
         side = resolution or trained
         super().__init__(name, [
             Variable("image", "input", "Array", shape=(side, side), element="float32", start=None, unit="1",
@@ -179,8 +210,15 @@ class PoseEncoder(Component):
         ])
 
     def initialize(self):
-        """Set torch's threads and publish the pose of the initial ``image``."""
+        """Set torch's threads, check the shared path on the initial ``image`` and publish its pose."""
         torch.set_num_threads(self.threads)
+        # the features depend on the weights and, through the kernels' split of work, on the thread count
+        self._key = (weights_key(self.model.encoder), torch.get_num_threads())
+        self.sharing, self.evaluated = self.share and self.batch_size >= MIN_ROWS, 0
+        if self.sharing:
+            self._check_finite()
+            whole, shared = self.model(self.values["image"]), self._shared()
+            self.sharing = all(np.array_equal(a, b) for a, b in zip(whole, shared))
         self._update()
 
     def step(self, t, h):
@@ -194,8 +232,29 @@ class PoseEncoder(Component):
         """
         self._update()
 
-    def _update(self):
-        image = self.values["image"]
-        if not np.all(np.isfinite(image)):
+    def _check_finite(self):
+        if not np.all(np.isfinite(self.values["image"])):
             raise StepFailure(f"{self.name}: the image is not finite")
-        self.values["pose"], self.values["pose_variance"] = self.model(image)
+
+    def _update(self):
+        self._check_finite()
+        self.values["pose"], self.values["pose_variance"] = (self._shared() if self.sharing
+                                                             else self.model(self.values["image"]))
+
+    def _shared(self) -> tuple[np.ndarray, np.ndarray]:
+        """The outputs with the convolutions run once per distinct image not in the store."""
+        image = self.values["image"]
+        first, inverse = distinct(image)
+        keys = [(*self._key, digest(image[b])) for b in first]
+        features = [STORE.get(key) for key in keys]
+        missing = [n for n, found in enumerate(features) if found is None]
+        if missing:
+            rows = image[first[missing]]
+            if len(rows) < MIN_ROWS:  # a batch of one runs another kernel: pad with a copy, dropped after
+                rows = np.concatenate([rows, np.repeat(rows[-1:], MIN_ROWS - len(rows), axis=0)])
+            computed = self.model.features(rows)
+            for n, row in zip(missing, computed):
+                features[n] = row.copy()  # its own memory: the store counts what it keeps
+                STORE.put(keys[n], features[n])
+            self.evaluated += len(missing)
+        return self.model.from_features(np.stack(features)[inverse])

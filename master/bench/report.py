@@ -36,6 +36,8 @@ def targets(report: dict) -> dict:
         "default_run_cpu_utilisation": (report["default_run"].get("cpu_utilisation"), ">=", 1.7),
         # Over the sweep's task window (master/bench/sweep_rate.py): its start-up is a constant, not a rate.
         "sweep_vs_lockstep_rate": (report["sweep_rate"]["window_vs_lockstep"], ">=", 0.8),
+        # CPU-s per 1500-step trial of fit-like batches (master/bench/fit_unit.py), causal over paper, one run.
+        "fit_trial_cpu_causal_vs_paper": (report["fit_unit"]["causal_vs_paper"], "<=", 1.5),
         # The whole protocol at 256 x 256 with the trained paper decoders (measured only when cached).
         "paper_protocol_seconds": (protocol["seconds"] if protocol.get("trained") and protocol["preset"] == "paper"
                                    else None, "<=", 180.0),
@@ -98,6 +100,12 @@ def table(report: dict) -> str:
                  f"{s['sweep']['window_agent_steps_per_s']:.0f} over its tasks "
                  f"({100 * s['window_vs_lockstep']:.0f} %), {s['sweep']['agent_steps_per_s']:.0f} over the whole "
                  f"command ({100 * s['wall_vs_lockstep']:.0f} %, {s['sweep']['wall_s']:.1f} s)")
+    f = report["fit_unit"]
+    lines.append(f"fit's unit, {f['preset']}-{f['resolution']} ({f['weights']}; {f['batches']} batches of "
+                 f"{f['participants_per_batch']} participants x {f['cells']} cells, {f['models']['paper']['steps']} "
+                 "steps): CPU-s per 1500-step trial " + ", ".join(
+                     f"{model} {row['cpu_s_per_1500_step_trial']:.4f}" for model, row in f["models"].items())
+                 + f"; causal/paper {f['causal_vs_paper']:.2f}")
     o = report["master_overhead"]
     lines += [f"body FMU per step: fmpy.simulate_fmu {1e3 * o['fmpy_step_s']:.3f} ms, this master "
               f"{1e3 * o['master_step_s']:.3f} ms ({o['wall_ratio']:.2f}x; master loop "

@@ -47,12 +47,18 @@ class BenchSettings:
     sweep_steps: int = 1500
     sweep_trained: bool = True   # the trained default decoders (shipped) rather than untrained ones
     sweep_workers: int = 0       # the sweep's local pool; 0: one per usable core
+    fit_preset: tuple = ("default", 64)  # the fit's unit of work (master/bench/fit_unit.py)
+    fit_trained: bool = True     # the trained default conv decoder and shipped pose encoder rather than untrained ones
+    fit_participants: int = 10   # per lockstep batch: fit.participants_per_batch's default
+    fit_batches: int = 2         # one after another: the first pays for every picture, the next finds them kept
+    fit_steps: int = 1500
 
 
 QUICK = BenchSettings(presets=(("tiny", 32),), batch=6, max_steps=3, budget_s=0.5, protocol_steps=10,
                       protocol_preset=("tiny", 32), protocol_trained="", error_trials=1, error_steps=30,
                       error_model="untrained", fmu_steps=20, matmul_size=256, default_run=False,
-                      sweep_preset=("tiny", 32), sweep_trials=1, sweep_steps=10, sweep_workers=1, sweep_trained=False)
+                      sweep_preset=("tiny", 32), sweep_trials=1, sweep_steps=10, sweep_workers=1, sweep_trained=False,
+                      fit_preset=("tiny", 32), fit_trained=False, fit_participants=2, fit_steps=10)
 
 
 def untrained(preset: str, resolution: int, seed: int) -> GenerativeModel:

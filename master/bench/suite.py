@@ -20,7 +20,8 @@ same body FMU (both set the inputs and read the outputs every step), the whole p
 in fast mode (in a child process, for its peak memory), the fast mode's drift error against
 the exact integrator with a trained default decoder when one is cached (docs/performance.md), and
 the protocol as a sweep on the local pool against the same trials in lockstep
-(:mod:`master.bench.sweep_rate`).
+(:mod:`master.bench.sweep_rate`), and the fit's unit of work: CPU-s per simulated 1500-step trial in fit-like
+batches, paper's model and causal (:mod:`master.bench.fit_unit`).
 """
 from __future__ import annotations
 
@@ -42,6 +43,7 @@ from master.bench.baseline import PaperStyleAgent
 from master.bench.fmu_overhead import master_overhead
 from master.bench.protocol import fast_error, peak_rss_mb, projected, protocol_in_child
 from master.bench.default_run import default_run
+from master.bench.fit_unit import fit_unit
 from master.bench.report import targets
 from master.bench.settings import BenchSettings, protocol_config, protocol_trials, timed, untrained
 from master.bench.sweep_rate import sweep_rate
@@ -219,6 +221,7 @@ def run_suite(settings: BenchSettings = BenchSettings()) -> dict:
     report["master_overhead"] = master_overhead(settings.fmu_steps)
     report["default_run"] = default_run() if settings.default_run else {"skipped": "default_run = False"}
     report["sweep_rate"] = sweep_rate(settings)
+    report["fit_unit"] = fit_unit(settings)
     report["memory"] = {"bench_peak_rss_mb": peak_rss_mb(),
                         "protocol_peak_rss_mb": report["protocol_fast"]["peak_rss_mb"]}
     report["machine"]["load_average_before"], report["machine"]["load_average_after"] = load_before, os.getloadavg()
