@@ -146,3 +146,29 @@ def test_a_causal_batch_with_sharing_is_the_unshared_one_bit_for_bit(tiny_causal
     for path, values in results[0].values.items():
         assert np.array_equal(values, results[1].values[path], equal_nan=True), path
     assert np.ptp(results[0].values["brain.mu"][-1], axis=0).max() > 0  # the participants differ
+
+
+def test_a_causal_batch_runs_no_decoder_unless_a_trial_reads_its_pixel_term(tiny_causal, monkeypatch):
+    """``causal.pixel_weight = 0`` multiplies the decoder's terms by 0: the batch leaves the decoder out, and the
+    brain's numbers are those of the batch that runs it (the same bits); a trial of its own weight > 0 needs it."""
+    import dataclasses
+
+    from components.vision.component import Decoder, GenerativeModel
+    from components.vision.networks import build
+
+    def decoder():
+        torch.manual_seed(0)
+        return Decoder(GenerativeModel(build("conv", "tiny", RESOLUTION).decoder, kinematics.REST_POSE, HALF_RANGES,
+                                       {"kind": "conv"}), threads=1)
+
+    trials = participants_batch(tiny_causal, 1)
+    without = wiring.run_batch(decoder(), trials, tiny_causal)
+    monkeypatch.setattr(scene, "reads_pixels", lambda config, trials=(): True)  # the decoder run, its terms x 0
+    with_decoder = wiring.run_batch(decoder(), trials, tiny_causal)
+    assert "decoder.visual_error" in with_decoder.values and "decoder.visual_error" not in without.values
+    for path, values in without.values.items():
+        assert np.array_equal(values, with_decoder.values[path], equal_nan=True), path
+    assert np.ptp(without.values["brain.mu"][:, 0], axis=0).max() > 0  # the belief moved: not constants
+    monkeypatch.undo()
+    own = [dataclasses.replace(trials[0], overrides=(("causal.pixel_weight", 0.5),)), *trials[1:]]
+    assert scene.reads_pixels(tiny_causal, own) and not scene.reads_pixels(tiny_causal, trials)

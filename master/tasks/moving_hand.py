@@ -57,7 +57,8 @@ def scenario(config: dict, kind: str, path: str) -> Scenario:
     return Scenario(world=(Movement(), MirroredArm(step_size=experiment["step_size"]), TurningPoints(),
                            Camera(resolution=experiment["resolution"]),
                            decoder_component(kind, path, config, threads=JOB_THREADS)),
-                    body=(ArmPlant(),), links=tuple(CONNECTIONS), record=RECORD, kind=kind, threads=JOB_THREADS)
+                    body=(ArmPlant(),), links=tuple(CONNECTIONS), record=RECORD, kind=kind, threads=JOB_THREADS,
+                    pixel_term=("decoder",))
 
 
 def simulate_delays(config: dict, kind: str, path: str):

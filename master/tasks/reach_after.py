@@ -68,4 +68,4 @@ def simulate_trials(config: dict, kind: str, path: str):
     """The protocol's trials of decoder ``kind`` in one lockstep batch: (the trials, the master's Result)."""
     trials = [t for t in plan(config) if t.decoder == kind]
     return trials, run(scenario(config, kind, path), config, lambda system: parameters(trials, config, system),
-                       len(trials))
+                       len(trials), trials=trials)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from master import config as configuration
 from master import models
 from master.cosim import ConfigError, System, simulate
 from master.decoders.cache import pose_encoder_path
@@ -35,6 +36,9 @@ class Scenario:
         The decoder slot (``"conv"``, ``"vae"``) whose pose encoder the model's parts use.
     threads : int or None
         Torch threads of the model's parts (None: torch's default).
+    pixel_term : tuple of str
+        The names of world components that only give the brain the decoder's pixel term (``visual_*``): left
+        out, with what they would record, when the model reads no pixel term in any trial (:func:`reads_pixels`).
     """
 
     world: tuple
@@ -43,15 +47,28 @@ class Scenario:
     record: tuple
     kind: str
     threads: int | None = None
+    pixel_term: tuple = ()
 
 
-def build(scenario: Scenario, config: dict) -> System:
-    """The system of ``scenario`` with the configuration's model: world, the model's parts and brain, body."""
-    parts = [*scenario.world, *model_parts(config, scenario.kind, scenario.threads), *scenario.body]
+def reads_pixels(config: dict, trials=()) -> bool:
+    """Whether the model's brain reads the decoder's pixel term (:meth:`master.models.Model.reads_pixels`) in the
+    configuration, or in any of ``trials`` with values of their own (``Trial.overrides``, a fit's batch)."""
+    model = models.of(config)
+    own = {trial.overrides for trial in trials if getattr(trial, "overrides", ())}
+    return model.reads_pixels(config) or any(
+        model.reads_pixels(configuration.merge(config, configuration.nest(dict(values)))) for values in own)
+
+
+def build(scenario: Scenario, config: dict, trials=()) -> System:
+    """The system of ``scenario`` with the configuration's model: world, the model's parts and brain, body (the
+    scenario's pixel-term components only when the brain reads the term in one of ``trials``)."""
+    left_out = () if reads_pixels(config, trials) else scenario.pixel_term
+    parts = [*(part for part in scenario.world if part.name not in left_out),
+             *model_parts(config, scenario.kind, scenario.threads), *scenario.body]
     return assemble(parts, [*scenario.links, *models.of(config).links])
 
 
-def run(scenario: Scenario, config: dict, parameters, batch_size: int, progress=None):
+def run(scenario: Scenario, config: dict, parameters, batch_size: int, progress=None, trials=()):
     """Simulate ``scenario`` (:func:`build`) for the experiment's steps, ``batch_size`` trials in lockstep.
 
     Parameters
@@ -65,17 +82,23 @@ def run(scenario: Scenario, config: dict, parameters, batch_size: int, progress=
         Trials in lockstep, B.
     progress : callable, optional
         ``progress(done, total)`` after each step.
+    trials : sequence of Trial, optional
+        The batch's trials, for :func:`build`.
 
     Returns
     -------
     master.cosim.Result
-        ``times`` (T,) s and ``values[path]`` (T, B, ...) of ``scenario.record``.
+        ``times`` (T,) s and ``values[path]`` (T, B, ...) of ``scenario.record`` (less the components left out;
+        their parameters are not given).
     """
     experiment = config["experiment"]
-    system = build(scenario, config)
+    system = build(scenario, config, trials)
+    left_out = set(scenario.pixel_term) - set(system.components)
+    given = {path: value for path, value in parameters(system).items() if path.partition(".")[0] not in left_out}
+    record = [path for path in scenario.record if path.partition(".")[0] not in left_out]
     return simulate(system, stop_time=experiment["steps"] * experiment["step_size"],
                     step_size=experiment["step_size"], scheme=experiment["scheme"], batch_size=batch_size,
-                    parameters=parameters(system), record=list(scenario.record), progress=progress)
+                    parameters=given, record=record, progress=progress)
 
 
 def assemble(parts: list, links) -> System:

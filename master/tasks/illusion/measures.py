@@ -13,6 +13,7 @@ def measures(result) -> dict[str, np.ndarray]:
     ``action_accel_x_m_s2``, is the horizontal hand acceleration J a_dot: eq. 7's a_dot (deg/s^2)
     through the arm Jacobian at the sensed angles (m/deg), in m/s^2; 0 in row 0, before any step.
     Every key ends in its unit (none: dimensionless); docs/configuration.md lists them (from this function).
+    ``visual_error`` is NaN where no decoder ran (a model that reads no pixel term, :func:`master.tasks.scene.build`).
     """
     values = result.values
     mu = values["brain.mu"]
@@ -35,7 +36,7 @@ def measures(result) -> dict[str, np.ndarray]:
         "action_rate_elbow_deg_s2": values["brain.action_rate"][..., 1],
         "visual_time_s": values["stimulus.visual_time"],
         "tactile_time_s": values["stimulus.tactile_time"],
-        "visual_error": values["decoder.visual_error"],
+        "visual_error": values.get("decoder.visual_error", np.full_like(values["brain.gamma"], np.nan)),
         "free_energy": values["brain.free_energy"],
         "ball_x_m": values["stimulus.ball"][..., 0],
         "ball_y_m": values["stimulus.ball"][..., 1],

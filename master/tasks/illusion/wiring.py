@@ -51,7 +51,8 @@ def scenario(decoder, config: dict, body=None) -> Scenario:
     kind = decoder.model.metadata.get("kind", "conv") if hasattr(decoder, "model") else "conv"
     return Scenario(world=(RubberArm(), Stimulus(), Camera(resolution=config["experiment"]["resolution"]), decoder),
                     body=(body if body is not None else ArmPlant(),), links=tuple(CONNECTIONS),
-                    record=(*RECORD, *models.of(config).record), kind=kind, threads=getattr(decoder, "threads", None))
+                    record=(*RECORD, *models.of(config).record), kind=kind, threads=getattr(decoder, "threads", None),
+                    pixel_term=("decoder",))
 
 
 def build_system(decoder, config: dict, body=None) -> System:
@@ -67,4 +68,4 @@ def run_batch(decoder, trials: list[Trial], config: dict, body=None, progress=No
     def declared_by(system: System) -> dict:
         dropped = set(undeclared(given, system))
         return {path: value for path, value in given.items() if path not in dropped}
-    return run(scenario(decoder, config, body), config, declared_by, len(trials), progress)
+    return run(scenario(decoder, config, body), config, declared_by, len(trials), progress, trials)
