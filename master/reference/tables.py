@@ -37,7 +37,8 @@ MEANINGS = {
     "action_accel_x_m_s2": "the paper's action measure (Fig. 3 d-f): horizontal hand acceleration J a_dot",
     "visual_time_s": "time of the last observed visual event (-inf before any)",
     "tactile_time_s": "time of the last observed tactile event (-inf before any)",
-    "visual_error": "1/2 e^T e (256^2/HW) / Sigma_v, e = s_v - g(mu)",
+    "visual_error": ("1/2 e^T e (256^2/HW) / Sigma_v, e = s_v - g(mu); NaN when the model reads no pixel term "
+                     "(no decoder runs)"),
     "free_energy": "sum (s_p - mu)^2/(2 Sigma_p) + gamma visual_error, at the step's starting mu",
     "ball_x_m": "ball position x", "ball_y_m": "ball position y",
     "drift_cm_mean": "final drift, mean over the cell's trials", "drift_cm_sd": "its sample sd (ddof 1)",
