@@ -42,6 +42,11 @@ ARRAYS = {
 }
 
 
+def declared_body() -> KinematicArm:
+    """The Python arm whose declarations the C body's descriptions, starts and array sizes are written from."""
+    return KinematicArm(name=MODEL_IDENTIFIER)
+
+
 def compile_flags(component: KinematicArm, fmi: str = "2.0") -> list[str]:
     """``-DSTART_NAME=value`` for each parameter's declared start value (repr: every digit of a float); for FMI
     3.0, ``-DFMI_VERSION=3`` and the elements behind each value reference (``-DVARIABLE_SIZES={2,0,...}``)."""
@@ -64,7 +69,7 @@ def build_c_fmu(out: str | os.PathLike, fmi: str = "2.0") -> Path:
     compiler = os.environ.get("CC") or shutil.which("gcc") or shutil.which("cc")
     if not compiler:
         raise ConfigError("no C compiler found (set CC, or install gcc) to build the C body")
-    component = KinematicArm(name=MODEL_IDENTIFIER)
+    component = declared_body()
     headers = Path(fmpy.__file__).parent / "c-code"
     platform = fmpy.platform if fmi == "2.0" else fmpy.platform_tuple  # FMI 3.0 names folders e.g. x86_64-linux
     binary = f"binaries/{platform}/{MODEL_IDENTIFIER}{fmpy.sharedLibraryExtension}"
