@@ -230,23 +230,24 @@ fmi3Status fmi3SetFloat64(fmi3Instance c, const fmi3ValueReference vr[], size_t 
     return fmi3OK;
 }
 
+/* The only Boolean is HELD, a scalar: 1 (logged) unless every reference is HELD and nValues their number. */
+static int not_booleans(Arm *arm, const fmi3ValueReference vr[], size_t n, size_t n_values, const char *message) {
+    for (size_t i = 0; i < n; i++)
+        if (vr[i] != HELD || n != n_values) { log_error(arm, message); return 1; }
+    return 0;
+}
+
 fmi3Status fmi3GetBoolean(fmi3Instance c, const fmi3ValueReference vr[], size_t n, fmi3Boolean value[],
                           size_t n_values) {
-    Arm *arm = c;
-    for (size_t i = 0; i < n; i++) {
-        if (vr[i] != HELD || n != n_values) { log_error(arm, "fmi3GetBoolean: unknown value reference"); return fmi3Error; }
-        value[i] = arm->held;
-    }
+    if (not_booleans(c, vr, n, n_values, "fmi3GetBoolean: not a Boolean value reference")) return fmi3Error;
+    for (size_t i = 0; i < n; i++) value[i] = ((Arm *)c)->held;
     return fmi3OK;
 }
 
 fmi3Status fmi3SetBoolean(fmi3Instance c, const fmi3ValueReference vr[], size_t n, const fmi3Boolean value[],
                           size_t n_values) {
-    Arm *arm = c;
-    for (size_t i = 0; i < n; i++) {
-        if (vr[i] != HELD || n != n_values) { log_error(arm, "fmi3SetBoolean: unknown value reference"); return fmi3Error; }
-        arm->held = value[i];
-    }
+    if (not_booleans(c, vr, n, n_values, "fmi3SetBoolean: not a Boolean value reference")) return fmi3Error;
+    for (size_t i = 0; i < n; i++) ((Arm *)c)->held = value[i];
     return fmi3OK;
 }
 
@@ -262,7 +263,7 @@ fmi3Status fmi3DoStep(fmi3Instance c, fmi3Float64 t, fmi3Float64 h, fmi3Boolean 
 }
 
 /* What this FMU does not offer (no other types, states, derivatives, clocks, events; the description says so):
- * a call with no values succeeds, any other is an error. */
+ * a get or set of no values succeeds, any other call is an error. */
 #define NO_GET(T) fmi3Status fmi3Get##T(fmi3Instance c, const fmi3ValueReference vr[], size_t n, fmi3##T v[], \
                                         size_t nv) { return n ? fmi3Error : fmi3OK; }
 #define NO_SET(T) fmi3Status fmi3Set##T(fmi3Instance c, const fmi3ValueReference vr[], size_t n, const fmi3##T v[], \
@@ -270,67 +271,43 @@ fmi3Status fmi3DoStep(fmi3Instance c, fmi3Float64 t, fmi3Float64 h, fmi3Boolean 
 #define NO_VALUES(T) NO_GET(T) NO_SET(T)
 NO_VALUES(Float32) NO_VALUES(Int8) NO_VALUES(UInt8) NO_VALUES(Int16) NO_VALUES(UInt16) NO_VALUES(Int32)
 NO_VALUES(UInt32) NO_VALUES(Int64) NO_VALUES(UInt64) NO_VALUES(String)
-fmi3Status fmi3GetBinary(fmi3Instance c, const fmi3ValueReference vr[], size_t n, size_t sizes[], fmi3Binary v[],
-                         size_t nv) { return n ? fmi3Error : fmi3OK; }
-fmi3Status fmi3SetBinary(fmi3Instance c, const fmi3ValueReference vr[], size_t n, const size_t sizes[],
-                         const fmi3Binary v[], size_t nv) { return n ? fmi3Error : fmi3OK; }
-fmi3Status fmi3GetClock(fmi3Instance c, const fmi3ValueReference vr[], size_t n, fmi3Clock v[]) {
-    return n ? fmi3Error : fmi3OK;
-}
-fmi3Status fmi3SetClock(fmi3Instance c, const fmi3ValueReference vr[], size_t n, const fmi3Clock v[]) {
-    return n ? fmi3Error : fmi3OK;
-}
-fmi3Status fmi3GetNumberOfVariableDependencies(fmi3Instance c, fmi3ValueReference vr, size_t *n) { return fmi3Error; }
-fmi3Status fmi3GetVariableDependencies(fmi3Instance c, fmi3ValueReference dependent, size_t element[],
-                                       fmi3ValueReference independents[], size_t independent_element[],
-                                       fmi3DependencyKind kinds[], size_t n) { return fmi3Error; }
-fmi3Status fmi3GetFMUState(fmi3Instance c, fmi3FMUState *s) { return fmi3Error; }
-fmi3Status fmi3SetFMUState(fmi3Instance c, fmi3FMUState s) { return fmi3Error; }
-fmi3Status fmi3FreeFMUState(fmi3Instance c, fmi3FMUState *s) { return fmi3Error; }
-fmi3Status fmi3SerializedFMUStateSize(fmi3Instance c, fmi3FMUState s, size_t *n) { return fmi3Error; }
-fmi3Status fmi3SerializeFMUState(fmi3Instance c, fmi3FMUState s, fmi3Byte b[], size_t n) { return fmi3Error; }
-fmi3Status fmi3DeserializeFMUState(fmi3Instance c, const fmi3Byte b[], size_t n, fmi3FMUState *s) { return fmi3Error; }
-#define NO_DERIVATIVE(F) fmi3Status F(fmi3Instance c, const fmi3ValueReference u[], size_t nu, \
-    const fmi3ValueReference k[], size_t nk, const fmi3Float64 seed[], size_t ns, fmi3Float64 d[], size_t nd) { \
-    return fmi3Error; }
-NO_DERIVATIVE(fmi3GetDirectionalDerivative) NO_DERIVATIVE(fmi3GetAdjointDerivative)
+#define ERROR3(F, ...) fmi3Status F(fmi3Instance c, __VA_ARGS__) { return fmi3Error; }
+#define VRS const fmi3ValueReference vr[], size_t n
+ERROR3(fmi3GetBinary, VRS, size_t sizes[], fmi3Binary v[], size_t nv)
+ERROR3(fmi3SetBinary, VRS, const size_t sizes[], const fmi3Binary v[], size_t nv)
+ERROR3(fmi3GetClock, VRS, fmi3Clock v[]) ERROR3(fmi3SetClock, VRS, const fmi3Clock v[])
+ERROR3(fmi3GetNumberOfVariableDependencies, fmi3ValueReference vr, size_t *n)
+ERROR3(fmi3GetVariableDependencies, fmi3ValueReference dependent, size_t element[],
+       fmi3ValueReference independents[], size_t independent_element[], fmi3DependencyKind kinds[], size_t n)
+ERROR3(fmi3GetFMUState, fmi3FMUState *s) ERROR3(fmi3SetFMUState, fmi3FMUState s)
+ERROR3(fmi3FreeFMUState, fmi3FMUState *s) ERROR3(fmi3SerializedFMUStateSize, fmi3FMUState s, size_t *n)
+ERROR3(fmi3SerializeFMUState, fmi3FMUState s, fmi3Byte b[], size_t n)
+ERROR3(fmi3DeserializeFMUState, const fmi3Byte b[], size_t n, fmi3FMUState *s)
+#define DERIVATIVE VRS, const fmi3ValueReference k[], size_t nk, const fmi3Float64 seed[], size_t ns, \
+                   fmi3Float64 d[], size_t nd
+ERROR3(fmi3GetDirectionalDerivative, DERIVATIVE) ERROR3(fmi3GetAdjointDerivative, DERIVATIVE)
 fmi3Status fmi3EnterConfigurationMode(fmi3Instance c) { return fmi3Error; }
 fmi3Status fmi3ExitConfigurationMode(fmi3Instance c) { return fmi3Error; }
-fmi3Status fmi3GetIntervalDecimal(fmi3Instance c, const fmi3ValueReference vr[], size_t n, fmi3Float64 v[],
-                                  fmi3IntervalQualifier q[]) { return fmi3Error; }
-fmi3Status fmi3GetIntervalFraction(fmi3Instance c, const fmi3ValueReference vr[], size_t n, fmi3UInt64 v[],
-                                   fmi3UInt64 r[], fmi3IntervalQualifier q[]) { return fmi3Error; }
-fmi3Status fmi3GetShiftDecimal(fmi3Instance c, const fmi3ValueReference vr[], size_t n, fmi3Float64 v[]) {
-    return fmi3Error;
-}
-fmi3Status fmi3GetShiftFraction(fmi3Instance c, const fmi3ValueReference vr[], size_t n, fmi3UInt64 v[],
-                                fmi3UInt64 r[]) { return fmi3Error; }
-fmi3Status fmi3SetIntervalDecimal(fmi3Instance c, const fmi3ValueReference vr[], size_t n, const fmi3Float64 v[]) {
-    return fmi3Error;
-}
-fmi3Status fmi3SetIntervalFraction(fmi3Instance c, const fmi3ValueReference vr[], size_t n, const fmi3UInt64 v[],
-                                   const fmi3UInt64 r[]) { return fmi3Error; }
-fmi3Status fmi3SetShiftDecimal(fmi3Instance c, const fmi3ValueReference vr[], size_t n, const fmi3Float64 v[]) {
-    return fmi3Error;
-}
-fmi3Status fmi3SetShiftFraction(fmi3Instance c, const fmi3ValueReference vr[], size_t n, const fmi3UInt64 v[],
-                                const fmi3UInt64 r[]) { return fmi3Error; }
+ERROR3(fmi3GetIntervalDecimal, VRS, fmi3Float64 v[], fmi3IntervalQualifier q[])
+ERROR3(fmi3GetIntervalFraction, VRS, fmi3UInt64 v[], fmi3UInt64 r[], fmi3IntervalQualifier q[])
+ERROR3(fmi3GetShiftDecimal, VRS, fmi3Float64 v[]) ERROR3(fmi3GetShiftFraction, VRS, fmi3UInt64 v[], fmi3UInt64 r[])
+ERROR3(fmi3SetIntervalDecimal, VRS, const fmi3Float64 v[])
+ERROR3(fmi3SetIntervalFraction, VRS, const fmi3UInt64 v[], const fmi3UInt64 r[])
+ERROR3(fmi3SetShiftDecimal, VRS, const fmi3Float64 v[])
+ERROR3(fmi3SetShiftFraction, VRS, const fmi3UInt64 v[], const fmi3UInt64 r[])
 fmi3Status fmi3EvaluateDiscreteStates(fmi3Instance c) { return fmi3Error; }
-fmi3Status fmi3UpdateDiscreteStates(fmi3Instance c, fmi3Boolean *update, fmi3Boolean *terminate,
-                                    fmi3Boolean *nominals, fmi3Boolean *values, fmi3Boolean *next_defined,
-                                    fmi3Float64 *next) { return fmi3Error; }
+ERROR3(fmi3UpdateDiscreteStates, fmi3Boolean *update, fmi3Boolean *terminate, fmi3Boolean *nominals,
+       fmi3Boolean *values, fmi3Boolean *next_defined, fmi3Float64 *next)
 fmi3Status fmi3EnterContinuousTimeMode(fmi3Instance c) { return fmi3Error; }
-fmi3Status fmi3CompletedIntegratorStep(fmi3Instance c, fmi3Boolean no_prior, fmi3Boolean *event,
-                                       fmi3Boolean *terminate) { return fmi3Error; }
-fmi3Status fmi3SetTime(fmi3Instance c, fmi3Float64 t) { return fmi3Error; }
-#define NO_STATES(F, CONST) fmi3Status F(fmi3Instance c, CONST fmi3Float64 v[], size_t n) { return fmi3Error; }
-NO_STATES(fmi3SetContinuousStates, const) NO_STATES(fmi3GetContinuousStateDerivatives, )
-NO_STATES(fmi3GetEventIndicators, ) NO_STATES(fmi3GetContinuousStates, ) NO_STATES(fmi3GetNominalsOfContinuousStates, )
+ERROR3(fmi3CompletedIntegratorStep, fmi3Boolean no_prior, fmi3Boolean *event, fmi3Boolean *terminate)
+ERROR3(fmi3SetTime, fmi3Float64 t) ERROR3(fmi3SetContinuousStates, const fmi3Float64 v[], size_t n)
+ERROR3(fmi3GetContinuousStateDerivatives, fmi3Float64 v[], size_t n)
+ERROR3(fmi3GetEventIndicators, fmi3Float64 v[], size_t n) ERROR3(fmi3GetContinuousStates, fmi3Float64 v[], size_t n)
+ERROR3(fmi3GetNominalsOfContinuousStates, fmi3Float64 v[], size_t n)
 fmi3Status fmi3GetNumberOfEventIndicators(fmi3Instance c, size_t *n) { *n = 0; return fmi3OK; }
 fmi3Status fmi3GetNumberOfContinuousStates(fmi3Instance c, size_t *n) { *n = 0; return fmi3OK; }
-fmi3Status fmi3GetOutputDerivatives(fmi3Instance c, const fmi3ValueReference vr[], size_t n, const fmi3Int32 order[],
-                                    fmi3Float64 v[], size_t nv) { return fmi3Error; }
-fmi3Status fmi3ActivateModelPartition(fmi3Instance c, fmi3ValueReference clock, fmi3Float64 t) { return fmi3Error; }
+ERROR3(fmi3GetOutputDerivatives, VRS, const fmi3Int32 order[], fmi3Float64 v[], size_t nv)
+ERROR3(fmi3ActivateModelPartition, fmi3ValueReference clock, fmi3Float64 t)
 
 #else
 /* ---- FMI 2.0 co-simulation ------------------------------------------------------------------ */
@@ -404,26 +381,25 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean no_pr
     return step(c, h) ? fmi2Error : fmi2OK;
 }
 
-/* What this FMU does not offer (canGetAndSetFMUstate etc. are false in its description). */
+/* What this FMU does not offer (canGetAndSetFMUstate etc. are false in its description): a get or set of no
+ * values succeeds, any other call is an error. */
 #define NO_VALUES2(T, V) \
-    fmi2Status fmi2Get##T(fmi2Component c, const fmi2ValueReference vr[], size_t n, V v[]) { return n ? fmi2Error : fmi2OK; } \
-    fmi2Status fmi2Set##T(fmi2Component c, const fmi2ValueReference vr[], size_t n, const V v[]) { return n ? fmi2Error : fmi2OK; }
+    fmi2Status fmi2Get##T(fmi2Component c, const fmi2ValueReference vr[], size_t n, V v[]) { \
+        return n ? fmi2Error : fmi2OK; } \
+    fmi2Status fmi2Set##T(fmi2Component c, const fmi2ValueReference vr[], size_t n, const V v[]) { \
+        return n ? fmi2Error : fmi2OK; }
 NO_VALUES2(Integer, fmi2Integer) NO_VALUES2(String, fmi2String)
-fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *s) { return fmi2Error; }
-fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate s) { return fmi2Error; }
-fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *s) { return fmi2Error; }
-fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate s, size_t *n) { return fmi2Error; }
-fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate s, fmi2Byte b[], size_t n) { return fmi2Error; }
-fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte b[], size_t n, fmi2FMUstate *s) {
-    return fmi2Error;
-}
-fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference u[], size_t nu,
-                                        const fmi2ValueReference z[], size_t nz, const fmi2Real dv[],
-                                        fmi2Real dz[]) { return fmi2Error; }
-fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t n,
-                                       const fmi2Integer order[], const fmi2Real value[]) { return fmi2Error; }
-fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t n,
-                                        const fmi2Integer order[], fmi2Real value[]) { return fmi2Error; }
+#define ERROR2(F, ...) fmi2Status F(fmi2Component c, __VA_ARGS__) { return fmi2Error; }
+ERROR2(fmi2GetFMUstate, fmi2FMUstate *s) ERROR2(fmi2SetFMUstate, fmi2FMUstate s)
+ERROR2(fmi2FreeFMUstate, fmi2FMUstate *s) ERROR2(fmi2SerializedFMUstateSize, fmi2FMUstate s, size_t *n)
+ERROR2(fmi2SerializeFMUstate, fmi2FMUstate s, fmi2Byte b[], size_t n)
+ERROR2(fmi2DeSerializeFMUstate, const fmi2Byte b[], size_t n, fmi2FMUstate *s)
+ERROR2(fmi2GetDirectionalDerivative, const fmi2ValueReference u[], size_t nu, const fmi2ValueReference z[], size_t nz,
+       const fmi2Real dv[], fmi2Real dz[])
+ERROR2(fmi2SetRealInputDerivatives, const fmi2ValueReference vr[], size_t n, const fmi2Integer order[],
+       const fmi2Real value[])
+ERROR2(fmi2GetRealOutputDerivatives, const fmi2ValueReference vr[], size_t n, const fmi2Integer order[],
+       fmi2Real value[])
 fmi2Status fmi2CancelStep(fmi2Component c) { return fmi2Error; }
 fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind k, fmi2Status *v) { return fmi2Discard; }
 fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind k, fmi2Real *v) { return fmi2Discard; }
