@@ -24,10 +24,10 @@ def run(args) -> int:
     from master.export.body import check_fmi, export_body
 
     started = time.perf_counter()
-    variant = args.variant or "native"
-    check_fmi(variant, args.fmi)  # before --out is looked at: a refused version writes nothing
+    variant, fmi = args.variant or "native", getattr(args, "fmi", "2.0")  # FMI 2.0 when a caller does not say
+    check_fmi(variant, fmi)  # before --out is looked at: a refused version writes nothing
     check_out(args, "FMU file", ".fmu")
-    path = export_body(args.out, variant, args.fmi)
-    print(f"wrote {path} ({os.path.getsize(path) / 1024:.0f} KiB, variant {variant}, FMI {args.fmi}) "
+    path = export_body(args.out, variant, fmi)
+    print(f"wrote {path} ({os.path.getsize(path) / 1024:.0f} KiB, variant {variant}, FMI {fmi}) "
           f"in {time.perf_counter() - started:.2f} s")
     return 0
