@@ -79,8 +79,7 @@ def to_xml3(component, arrays: dict) -> str:
     })
     ET.SubElement(root, "CoSimulation", {"modelIdentifier": component.name,
                                          "canHandleVariableCommunicationStepSize": "true"})
-    definitions = unit_definitions(["s", *(v.unit for v in component.variables.values() if v.unit)])
-    root.append(definitions)
+    root.append(unit_definitions(["s", *(v.unit for v in component.variables.values() if v.unit)]))  # s: time
 
     model_variables = ET.SubElement(root, "ModelVariables")
     ET.SubElement(model_variables, "Float64", {"name": "time", "valueReference": str(time_reference),
@@ -89,9 +88,10 @@ def to_xml3(component, arrays: dict) -> str:
     outputs = []
     for name, reference, group, description in rows:
         v = group[0]
+        # as in FMI 2.0: a non-Real port that is not a parameter changes only at communication points
+        variability = "discrete" if v.type != "Real" and v.causality != "parameter" else VARIABILITY[v.causality]
         attributes = {"name": name, "valueReference": str(reference), "causality": v.causality,
-                      "variability": VARIABILITY[v.causality] if v.type == "Real" or v.causality == "parameter"
-                      else "discrete", "description": description}
+                      "variability": variability, "description": description}
         if v.causality in ("output", "local"):
             attributes["initial"] = "calculated"
             outputs.append((reference, v))
