@@ -14,6 +14,8 @@ from fmpy.fmi2 import FMU2Slave
 from fmpy.fmi3 import FMU3Slave
 from fmpy.validation import validate_fmu
 
+from components.body.variants import KinematicArm
+from components.model_description3 import to_xml3
 from master.export.c_body import ARRAYS, build_c_fmu
 
 FMUTOOL = Path(sys.executable).with_name("fmutool")  # fmu-manipulation-toolbox, in the test extra
@@ -171,3 +173,11 @@ def test_a_version_a_variant_cannot_be_built_for_is_one_line_and_nothing_written
     done = export(*args, "--out", "B.fmu", cwd=tmp_path)
     assert done.returncode == 2 and done.stderr.count("\n") == 1 and message in done.stderr, done.stderr
     assert "Traceback" not in done.stderr and list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("members, says", [(("u_shoulder", "q_elbow"), "not consecutive"),
+                                           (("u_elbow", "q_shoulder"), "differ in causality"),
+                                           (("held", "q0_shoulder"), "differ in causality")])
+def test_an_array_of_unlike_ports_is_refused(members, says):
+    with pytest.raises(ValueError, match=says):
+        to_xml3(KinematicArm(), {"bad": ("", members)})
