@@ -1,4 +1,5 @@
-"""``rhi export-body``: the body plant as an FMI 2.0 co-simulation FMU, built with pythonfmu.
+"""``rhi export-body``: the body plant as an FMI 2.0 co-simulation FMU, built with pythonfmu (the C body,
+:mod:`master.export.c_body`, also as FMI 3.0).
 
 The FMU carries its own copy of the ``components`` package (Python sources
 only) next to the slave script ``components/body/fmu_slave.py``, so it runs
@@ -25,6 +26,7 @@ VARIANTS = {
 }
 C_VARIANT = "kinematic-c"  # the kinematic arm written in C (master/export/c_body.py)
 VARIANT_NAMES = (*VARIANTS, C_VARIANT)
+FMI_VERSIONS = {"2.0": VARIANT_NAMES, "3.0": (C_VARIANT,)}  # FMI version -> the variants built for it
 PACKAGE = Path(__file__).resolve().parents[2] / "components"
 
 
@@ -45,11 +47,22 @@ def build_fmu(out, variant: str = "native", component: str | None = None, model_
     return built_beside(out, lambda target: _build(target, model_name, component, extra_files))
 
 
-def export_body(out, variant: str = "native") -> Path:
-    """The body FMU of ``variant`` at ``out``: a pythonfmu one (VARIANTS), or the body written in C (C_VARIANT)."""
+def check_fmi(variant: str, fmi: str) -> None:
+    """ConfigError, in one line, unless ``variant`` can be built for FMI ``fmi`` (FMI_VERSIONS)."""
+    if fmi not in FMI_VERSIONS:
+        raise ConfigError(f"--fmi {fmi!r} is not one of {', '.join(FMI_VERSIONS)}")
+    if variant in VARIANT_NAMES and variant not in FMI_VERSIONS[fmi]:
+        raise ConfigError(f"--fmi {fmi} is built for --variant {' or '.join(FMI_VERSIONS[fmi])} only; "
+                          f"--variant {variant} is FMI 2.0 (pythonfmu)")
+
+
+def export_body(out, variant: str = "native", fmi: str = "2.0") -> Path:
+    """The body FMU of ``variant`` for FMI ``fmi`` at ``out``: a pythonfmu one (VARIANTS, FMI 2.0), or the body
+    written in C (C_VARIANT, FMI 2.0 or 3.0)."""
+    check_fmi(variant, fmi)
     if variant == C_VARIANT:
         from master.export.c_body import build_c_fmu
-        return build_c_fmu(out)
+        return build_c_fmu(out, fmi)
     return build_fmu(out, variant)
 
 

@@ -208,6 +208,21 @@ def body_ports() -> str:
                      for v, row in zip(variables, port_rows(variables))])
 
 
+def c_body_fmi3_ports() -> str:
+    """The C body's FMI 3.0 variables (master.export.c_body.ARRAYS over the Python arm's declarations), each with
+    the FMI 2.0 ports it carries."""
+    from components.model_description3 import TYPES, layout
+    from master.export.c_body import ARRAYS, declared_body
+
+    body = declared_body()
+    rows = [["`time`", "Float64", "", str(len(body.variables)), "independent", "s", ""]]
+    for name, reference, group, _ in layout(body, ARRAYS):
+        v = group[0]
+        rows.append([f"`{name}`", TYPES[v.type], f"[{len(group)}]" if len(group) > 1 else "", str(reference),
+                     v.causality, v.unit or "1", ", ".join(f"`{m.name}`" for m in group)])
+    return markdown(["variable", "type", "dimension", "value reference", "causality", "unit", "FMI 2.0 ports"], rows)
+
+
 def worker_command() -> str:
     """The `dask worker` command with :data:`master.sweeps.runner.WORKER_SETTINGS` as environment variables."""
     from master.sweeps.runner import WORKER_SETTINGS
@@ -220,4 +235,4 @@ def worker_command() -> str:
 TABLES = {"configuration-keys": configuration_keys, "paper-preset": paper_preset, "summary-columns": summary_columns,
           "trials-columns": trials_columns, "sweep-columns": sweep_columns, "phenomenon-columns": phenomenon_columns,
           "agent-ports": agent_ports, "reach-agent-ports": lambda: agent_ports("reach"), "body-ports": body_ports,
-          "worker-command": worker_command}
+          "c-body-fmi3-ports": c_body_fmi3_ports, "worker-command": worker_command}
