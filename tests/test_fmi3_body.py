@@ -181,3 +181,9 @@ def test_a_version_a_variant_cannot_be_built_for_is_one_line_and_nothing_written
 def test_an_array_of_unlike_ports_is_refused(members, says):
     with pytest.raises(ValueError, match=says):
         to_xml3(KinematicArm(), {"bad": ("", members)})
+
+
+def test_an_fmi3_body_where_an_fmi2_body_belongs_is_one_line_naming_the_version(twins):
+    from components.fmu.contract import check_contract
+
+    assert check_contract(str(twins["3.0"])) == ["FMI version '3.0', need 2.0 (export the body with --fmi 2.0)"]
