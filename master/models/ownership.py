@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from master.cosim import ConfigError
 from master.models.base import Model, TrialValues
 from master.models.paper import BRAIN_SOURCES, rest_belief
 
@@ -61,7 +62,11 @@ class OwnershipModel(Model):
         from components.brain.ownership_inference import timing_sd_from_jnd
 
         given = {**super().parameters(trials), "brain.mu0": rest_belief(trials)}
-        given["brain.timing_sd"] = timing_sd_from_jnd(trials.value(DERIVED_FROM))
+        jnd = np.asarray(trials.value(DERIVED_FROM), dtype=float)
+        bad = jnd[~((jnd > 0) & np.isfinite(jnd))]
+        if bad.size:
+            raise ConfigError(f"{DERIVED_FROM} must be a positive, finite time in s, got {float(bad.flat[0])!r}")
+        given["brain.timing_sd"] = timing_sd_from_jnd(jnd)
         given["brain.participant_seed"] = np.asarray(trials.seeds, dtype=np.int64)
         return given
 
