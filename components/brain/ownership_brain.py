@@ -171,7 +171,7 @@ class OwnershipBrain(BeliefBrain):
         """The stability number's formula and values in trial ``i``, for the guard's message."""
         v = self.values
         goal = " + goal_stiffness" if v["goal_stiffness"][i] else ""
-        values = f"Sigma_p = {v['proprioceptive_variance'][i]:g}"
+        values = f"Sigma_p = {v['proprioceptive_variance'][i]:g}, gamma = {rate.gamma[i]:.4g} (not in the number)"
         if goal:
             values += f", goal_stiffness = {v['goal_stiffness'][i]:.4g} 1/s"
         return f"1/Sigma_p{goal}", values
