@@ -26,6 +26,11 @@ OWN_SOURCES = {
     "brain.realignment_rate": "ownership.realignment_rate",
     "brain.participant_seed": "per trial: the trial's seed (its own stream of perceptual timing noise)",
 }
+# Why the keys shared with the paper's model are this model's constants too (docs/model.md's table).
+SHARED_KEYS = {"brain.gamma0": "the paper's initial gamma (Rood et al. 2020: \"The initial gamma value was set to "
+                               "0.01\"), here the prior of ownership and its chain's stationary probability",
+               "stimulus.period": "s, the protocol's stroke period: the asynchrony under two causes is uniform over "
+                                  "one period, density 1/T"}
 DERIVED_FROM = "ownership.timing_jnd"  # the key brain.timing_sd is derived from
 # The free rates: a prior range each (1/s), stated before any fit (docs/model.md, "The ownership model").
 FREE_RATES = {"ownership.switching_rate": (1.0 / 600.0, 1.0), "ownership.realignment_rate": (1.0 / 600.0, 1.0)}
