@@ -59,6 +59,8 @@ def test_stability_guard_through_the_master():
 @pytest.mark.parametrize("name, value", [("q_shoulder", np.nan), ("q_elbow", np.inf), ("visual_stiffness", np.nan),
                                          ("goal_error", np.nan), ("visual_time", np.nan), ("tactile_time", np.inf)])
 def test_non_finite_input_names_the_variable_and_trial(kind, name, value):
+    if name not in kind().variables:
+        pytest.skip(f"{kind.__name__} reads no {name}")  # the ownership brain has no pixel term
     brain = started(batch=3, kind=kind)
     before = outputs(brain)
     values = np.zeros(3)

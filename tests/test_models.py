@@ -22,7 +22,7 @@ from master import config as configuration
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = f"{ROOT / 'examples' / 'my_model.py'}:FixedGamma"
-MODELS = ("paper", "causal", EXAMPLE)
+MODELS = ("paper", "causal", "ownership", EXAMPLE)
 TINY = {  # each registered task at tiny size: one decoder, one condition, a few steps of 0.02 s
     "illusion": "[experiment]\nsteps = 12\ntrials = 1\ndecoders = [\"conv\"]\nconditions = [\"left\"]\n",
     "reach": "[experiment]\nsteps = 12\ndecoders = [\"conv\"]\n[reach]\ngoals = 1\nbands = [\"near\"]\n",
@@ -53,7 +53,7 @@ class EntryPointModel(PaperModel):
     name = "entry-point"
     settings_file = ""
 
-@pytest.mark.parametrize("model", MODELS, ids=("paper", "causal", "example"))
+@pytest.mark.parametrize("model", MODELS, ids=("paper", "causal", "ownership", "example"))
 @pytest.mark.parametrize("task", TASKS)
 def test_every_task_runs_every_model_from_the_command_line(task, model, tmp_path, capsys):
     (tmp_path / "tiny.toml").write_text(TINY[task])
@@ -101,7 +101,7 @@ def test_the_example_model_runs_a_sweep_and_a_fit(quick_cache, tmp_path, monkeyp
 
 
 def test_the_registry_names_the_built_in_models_and_resolves_a_file():
-    assert models.names()[:2] == ("paper", "causal")
+    assert models.names()[:3] == ("paper", "causal", "ownership")
     assert models.get("causal") is models.get("causal")  # once per process
     example = models.get(EXAMPLE)
     assert example.name == "fixed-gamma" and example.source == EXAMPLE
@@ -188,7 +188,7 @@ def test_a_model_registered_as_an_entry_point_is_found_by_its_name(monkeypatch):
 
     point = EntryPoint(name="mine", value="tests.test_models:EntryPointModel", group=models.ENTRY_POINT_GROUP)
     monkeypatch.setattr(models.metadata, "entry_points", lambda group: [point] if group == point.group else [])
-    assert models.names() == ("paper", "causal", "mine")
+    assert models.names() == ("paper", "causal", "ownership", "mine")
     model = models.get("mine")
     assert model.name == "entry-point" and model.source == point.value
     assert configuration.load(model_name="mine")["model"] == {"name": "entry-point", "source": point.value}

@@ -14,6 +14,7 @@ from pathlib import Path
 from master import models as registry
 from master.phenomena import NAMES, sweep_file
 
+BOTH = ("paper", "causal")  # --model both: these side by side (a model's own name runs it alone)
 OWN_PROTOCOLS = ("moving-hand", "reach-after")  # not sweeps: master/phenomena/moving_hand.py, reach_after.py
 
 
@@ -30,7 +31,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--out", metavar="DIR", required=True)
     parser.add_argument("--force", action="store_true", help="replace a different sweep in DIR")
     parser.add_argument("--model", default="both", metavar="NAME",
-                        help="the model to run, or both: the built-in ones side by side on one figure (default: both; "
+                        help="the model to run, or both: paper and causal side by side on one figure (default: both; "
                              "a name or FILE.py:Class, docs/model.md)")
 
 
@@ -55,7 +56,7 @@ def run(args) -> int:
         print((out / written[0]).read_text(), end="")
         return 0
     path = Path(args.config) if args.config else sweep_file(args.name)
-    chosen = tuple(registry.BUILT_IN) if getattr(args, "model", "both") == "both" else (args.model,)
+    chosen = BOTH if getattr(args, "model", "both") == "both" else (args.model,)
     # a model of a population: its trials per point as the sweep file sets them ([causal] participants), else its own
     per_point = {model: registry.get(model).trials_per_point(plan.base_config(path, model)[0]) for model in chosen}
     trials = {model: count for model, count in per_point.items() if count}  # a population: one participant a trial

@@ -1,4 +1,4 @@
-"""Models of the agent, as registered objects: ``paper``, ``causal``, and any a user brings.
+"""Models of the agent, as registered objects: ``paper``, ``causal``, ``ownership``, and any a user brings.
 
 A model is a :class:`Model`: it names its brain, the components it adds to a task's system (a pose
 encoder, say), the connections it adds (as data), the parameter sources it adds, and what it records.
@@ -8,7 +8,7 @@ so a model written once runs in ``rhi experiment``, ``sweep``, ``phenomenon``, `
 
 Names a model may go by, resolved by :func:`get`:
 
-- a built-in name, ``paper`` or ``causal`` (:data:`BUILT_IN`);
+- a built-in name, ``paper``, ``causal`` or ``ownership`` (:data:`BUILT_IN`);
 - a Python entry point in the group ``rhi.models`` (``[project.entry-points."rhi.models"]`` in a package's
   pyproject.toml: ``name = "package.module:Class"``);
 - ``path/to/file.py:Class`` or ``package.module:Class``: a user's model in one file
@@ -38,7 +38,8 @@ from master.models.base import Model
 
 __all__ = ["Model", "BUILT_IN", "ENTRY_POINT_GROUP", "get", "checked", "of", "names", "described", "spec_of"]
 
-BUILT_IN = {"paper": "master.models.paper:PaperModel", "causal": "master.models.causal:CausalModel"}
+BUILT_IN = {"paper": "master.models.paper:PaperModel", "causal": "master.models.causal:CausalModel",
+            "ownership": "master.models.ownership:OwnershipModel"}
 ENTRY_POINT_GROUP = "rhi.models"
 _LOADED: dict[str, Model] = {}  # spec -> the model object, once per process
 

@@ -232,7 +232,40 @@ def worker_command() -> str:
                       ".venv/bin/dask worker tcp://SCHEDULER-HOST:8786 --nworkers $(nproc) --nthreads 1", "```"])
 
 
-TABLES = {"configuration-keys": configuration_keys, "paper-preset": paper_preset, "summary-columns": summary_columns,
+def ownership_constants() -> str:
+    """The ownership model's constants: each brain parameter, the key it comes from, its value (a derived one
+    computed by the code that derives it) and its source, from master/models/ownership.toml's comments; the free
+    rates with their prior ranges (master.models.ownership.FREE_RATES)."""
+    from components.brain.ownership_inference import QUARTILE_Z, timing_sd_from_jnd
+    from master import config as configuration
+    from master.models.ownership import DERIVED_FROM, FREE_RATES, OWN_SOURCES, SHARED_KEYS
+
+    config = configuration.load(model_name="ownership")
+    comments = {key: comment for key, _, comment in commented_keys("models/ownership")}
+
+    def value(key):
+        table, _, name = key.partition(".")
+        return config[table][name]
+
+    rows = []
+    for parameter, source in OWN_SOURCES.items():
+        name = f"`{parameter.partition('.')[2]}`"
+        if source.startswith("per trial:"):
+            continue
+        if source.startswith("derived:"):
+            jnd = value(DERIVED_FROM)
+            rows.append([name, f"`{DERIVED_FROM}` / {QUARTILE_Z:.4f}", f"{float(timing_sd_from_jnd(jnd)):.4f}",
+                         f"derived: {comments[DERIVED_FROM]}"])
+        elif source in FREE_RATES:
+            low, high = FREE_RATES[source]
+            rows.append([name, f"`{source}`", f"fitted (pending); now {value(source):g}",
+                         f"prior log-uniform on [1/{1 / low:g}, {high:g}] 1/s; {comments[source]}"])
+        else:
+            rows.append([name, f"`{source}`", f"{value(source):g}", comments.get(source) or SHARED_KEYS[source]])
+    return markdown(["parameter", "from", "value", "source or derivation"], rows)
+
+
+TABLES = {"ownership-constants": ownership_constants, "configuration-keys": configuration_keys, "paper-preset": paper_preset, "summary-columns": summary_columns,
           "trials-columns": trials_columns, "sweep-columns": sweep_columns, "phenomenon-columns": phenomenon_columns,
           "agent-ports": agent_ports, "reach-agent-ports": lambda: agent_ports("reach"), "body-ports": body_ports,
           "c-body-fmi3-ports": c_body_fmi3_ports, "worker-command": worker_command}

@@ -1,0 +1,88 @@
+"""The ownership model: ownership as accumulated timing evidence, drift as a slow realignment (docs/model.md).
+
+Its system is a task's with the pose encoder added (the camera's image in, the seen pose into the brain) and
+the ownership brain in the paper brain's place; like the causal brain it declares no input for a simulator
+position, so the assembly (:func:`master.tasks.scene.assemble`) leaves out the links that would hand it one.
+Its parameters the paper's brain also has come from ``[brain]`` as for the paper (its ownership prior is the
+paper's ``brain.gamma0``, its stroke period ``stimulus.period``); the rest from ``[ownership]``
+(master/models/ownership.toml) or derived here.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from master.cosim import ConfigError
+from master.models.base import Model, TrialValues
+from master.models.paper import BRAIN_SOURCES, rest_belief
+
+OWN_SOURCES = {
+    "brain.ownership_prior": "brain.gamma0",
+    "brain.stroke_period": "stimulus.period",
+    "brain.coupling_prior": "ownership.coupling_prior",
+    "brain.timing_sd": "derived: ownership.timing_jnd / 0.6745, the sd of a temporal-order judgement's "
+                       "cumulative Gaussian (ownership_inference.timing_sd_from_jnd)",
+    "brain.realignment_weight": "ownership.realignment_weight",
+    "brain.switching_rate": "ownership.switching_rate",
+    "brain.realignment_rate": "ownership.realignment_rate",
+    "brain.participant_seed": "per trial: the trial's seed (its own stream of perceptual timing noise)",
+}
+# Why the keys shared with the paper's model are this model's constants too (docs/model.md's table).
+SHARED_KEYS = {"brain.gamma0": "the paper's initial gamma (Rood et al. 2020: \"The initial gamma value was set to "
+                               "0.01\"), here the prior of ownership and its chain's stationary probability",
+               "stimulus.period": "s, the protocol's stroke period: the asynchrony under two causes is uniform over "
+                                  "one period, density 1/T"}
+DERIVED_FROM = "ownership.timing_jnd"  # the key brain.timing_sd is derived from
+# The free rates: a prior range each (1/s), stated before any fit (docs/model.md, "The ownership model").
+FREE_RATES = {"ownership.switching_rate": (1.0 / 600.0, 1.0), "ownership.realignment_rate": (1.0 / 600.0, 1.0)}
+
+
+def _brain_class():
+    from components.brain.ownership_brain import OwnershipBrain
+    return OwnershipBrain
+
+
+class OwnershipModel(Model):
+    """The ownership brain (:class:`components.brain.ownership_brain.OwnershipBrain`) with the pose encoder."""
+
+    name = "ownership"
+    summary = "the ownership model: ownership from accumulated timing evidence, drift as a slow realignment"
+    settings_file = "ownership.toml"
+    sees_pose = True
+    batchable = (DERIVED_FROM,)
+    links = (("camera.image", "pose_encoder.image"), ("pose_encoder.pose", "brain.seen_pose"))
+    record = ("brain.coupling", "brain.realignment", "brain.ownership_onset")
+
+    def brain(self):
+        """A new :class:`~components.brain.ownership_brain.OwnershipBrain`."""
+        return _brain_class()()
+
+    @property
+    def parameter_sources(self) -> dict:
+        """The paper's brain's sources of the parameters the ownership brain also declares, and its own."""
+        declared = _brain_class()().variables
+        return {**{p: s for p, s in BRAIN_SOURCES.items() if p.partition(".")[2] in declared}, **OWN_SOURCES}
+
+    def parameters(self, trials: TrialValues) -> dict:
+        """The plain sources' values, and the derived ones: timing_sd per trial, the seeds."""
+        from components.brain.ownership_inference import timing_sd_from_jnd
+
+        given = {**super().parameters(trials), "brain.mu0": rest_belief(trials)}
+        jnd = np.asarray(trials.value(DERIVED_FROM), dtype=float)
+        bad = jnd[~((jnd > 0) & np.isfinite(jnd))]
+        if bad.size:
+            raise ConfigError(f"{DERIVED_FROM} must be a positive, finite time in s, got {float(bad.flat[0])!r}")
+        given["brain.timing_sd"] = timing_sd_from_jnd(jnd)
+        given["brain.participant_seed"] = np.asarray(trials.seeds, dtype=np.int64)
+        return given
+
+    def trials_per_point(self, config: dict) -> int | None:
+        """``ownership.participants``: one simulated participant a trial."""
+        return config["ownership"]["participants"]
+
+    def reads_pixels(self, config: dict) -> bool:
+        """Never: the seen arm enters only through the pose encoder and the realignment."""
+        return False
+
+    def pose_encoder_file(self, kind: str, config: dict) -> str:
+        """``ownership.<kind>_pose_encoder``; "" for the shipped one."""
+        return config["ownership"].get(f"{kind}_pose_encoder") or ""

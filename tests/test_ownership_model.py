@@ -1,0 +1,234 @@
+"""The ownership model: each mechanism against a hand computation (the evidence of a touch, gamma after n touches
+in closed form, the realignment against the exact exponential), the brain run step by step on given inputs, the
+wiring (no simulator position reaches the brain), and its settings (the free rates' placeholders, refusals).
+
+Truth: scipy.stats' densities and plain float arithmetic written out here, not the functions under test."""
+import math
+
+import numpy as np
+import pytest
+from scipy.stats import norm, uniform
+
+from components.brain import ownership_inference as oi
+from components.brain.ownership_brain import NOISE_STREAM, OwnershipBrain
+from components.vision import pose_encoder as pe
+from components.vision.networks import Encoder, preset
+from master import config as configuration
+from master import models
+from master.cosim import ConfigError
+from master.models.ownership import FREE_RATES
+from master.tasks.illusion import wiring
+
+STEP = 0.02
+
+
+def logit(p):
+    return math.log(p / (1 - p))
+
+
+def logistic(x):
+    return 1 / (1 + math.exp(-x))
+
+
+def test_timing_sd_is_the_jnd_over_the_quartile_of_the_normal():
+    assert oi.QUARTILE_Z == pytest.approx(norm.ppf(0.75), rel=1e-15)
+    sd = oi.timing_sd_from_jnd(np.array([0.055, 0.060, 0.065]))
+    # JND = the 75 % point of Phi(s / sigma): Phi(JND / sigma) = 0.75
+    assert norm.cdf(0.060 / sd[1]) == pytest.approx(0.75, rel=1e-12)
+    assert sd == pytest.approx([0.0815, 0.0890, 0.0964], abs=5e-5)  # the 82-96 ms of the sources' range
+
+
+@pytest.mark.parametrize("delay", [0.0, 0.05, -0.12, 0.5, 0.9])
+def test_the_evidence_of_a_touch_is_the_log_ratio_of_scipy_densities(delay):
+    sd, period = 0.089, 2.0
+    hand = norm(0.0, sd).logpdf(delay) - uniform(-period / 2, period).logpdf(delay)
+    got = oi.asynchrony_log_likelihood_ratio(np.array([delay]), np.array([sd]), np.array([period]))
+    assert got[0] == pytest.approx(hand, rel=1e-13, abs=1e-13)  # rounding of a few terms
+    if delay == 0.0:  # the peak: -log(sd sqrt(2 pi)) + log T = 2.19 nats, about 1.7 nats on average over the noise
+        assert got[0] == pytest.approx(-math.log(sd * math.sqrt(2 * math.pi)) + math.log(period), rel=1e-13)
+
+
+def bayes_by_hand(gamma, log_ratio):
+    """Bayes' rule written out: p L / (p L + 1 - p)."""
+    ratio = math.exp(log_ratio)
+    return gamma * ratio / (gamma * ratio + 1 - gamma)
+
+
+def test_gamma_after_n_touches_is_the_closed_form_without_switching():
+    from components.brain.body_inference import hazard_predict, posterior
+
+    prior, evidence = 0.01, np.array([1.3, 2.1, -0.4, 1.9, 0.7])
+    gamma = np.array([prior])
+    for value in evidence:
+        for _ in range(100):  # 2 s between touches, no switching: the state holds
+            gamma = hazard_predict(gamma, prior, np.inf, STEP)
+        gamma = posterior(gamma, np.exp([value]))
+    # logit gamma_n = logit gamma_0 + sum of the touches' log ratios
+    assert gamma[0] == pytest.approx(logistic(logit(prior) + evidence.sum()), rel=1e-13)
+
+
+def test_gamma_with_switching_is_the_recursion_written_out():
+    from components.brain.body_inference import hazard_predict, posterior
+
+    prior, rate, period, evidence = 0.01, 0.05, 2.0, [2.0, 2.0, 2.0, 2.0]
+    gamma, hand = np.array([prior]), prior
+    for value in evidence:
+        for _ in range(round(period / STEP)):
+            gamma = hazard_predict(gamma, prior, 1 / rate, STEP)
+        hand = prior + (hand - prior) * math.exp(-rate * period)  # the chain relaxed over one period exactly
+        hand = bayes_by_hand(hand, value)
+        gamma = posterior(gamma, np.exp([value]))
+    assert gamma[0] == pytest.approx(hand, rel=1e-12)  # 400 steps of rounding
+
+
+def test_the_onset_is_kept_from_the_first_crossing():
+    onset = oi.ownership_onset(np.array([np.nan, np.nan, 3.0]), np.array([0.4, 0.5, 0.9]), 7.0)
+    assert np.isnan(onset[0]) and onset[1] == 7.0 and onset[2] == 3.0
+
+
+def test_the_realignment_step_is_the_exact_exponential():
+    seen, felt = np.array([[150.0, -80.0]]), np.array([[140.0, -90.0]])
+    target = oi.realignment_target(seen, felt, np.array([0.39]), np.array([0.73]))
+    assert target == pytest.approx(np.array([[0.39 * 0.73 * 10.0, 0.39 * 0.73 * 10.0]]), rel=1e-15)
+    b, rate = np.array([[1.0, -2.0]]), np.array([0.04])
+    for _ in range(1500):  # 30 s
+        b = oi.realignment_step(b, target, rate, STEP)
+    exact = target + (np.array([[1.0, -2.0]]) - target) * math.exp(-0.04 * 30.0)
+    assert b == pytest.approx(exact, rel=1e-12)  # 1500 roundings
+    assert oi.realignment_step(b, target, np.array([0.0]), STEP) == pytest.approx(b, rel=0)  # k = 0: held
+
+
+def test_the_belief_rate_is_minus_the_gradient_of_the_free_energy():
+    s_p, b, mu, variance = np.array([[140.0, -90.0]]), np.array([[2.0, 1.0]]), np.array([[141.0, -88.0]]), 1.5
+    rate = oi.belief_rate(s_p, b, mu, np.array([variance]))
+    assert rate == pytest.approx(np.array([[(142.0 - 141.0) / 1.5, (-89.0 + 88.0) / 1.5]]), rel=1e-15)
+    eps = 1e-6
+    for j in range(2):
+        up, down = mu.copy(), mu.copy()
+        up[0, j] += eps
+        down[0, j] -= eps
+        slope = (oi.free_energy(s_p, b, up, np.array([variance]))
+                 - oi.free_energy(s_p, b, down, np.array([variance]))) / (2 * eps)
+        assert -slope[0] == pytest.approx(rate[0, j], rel=1e-6)  # central difference of a quadratic
+
+
+def brain(batch, **given):
+    """An ownership brain of ``batch`` trials, initialized with ``given`` parameters (the rest its defaults)."""
+    made = OwnershipBrain()
+    made.instantiate(batch)
+    for name, value in {"mu0": (140.0, -90.0), **given}.items():
+        made.set(name, value)
+    made.initialize()
+    return made
+
+
+def step(made, t, s_p, seen, visual=-np.inf, tactile=-np.inf):
+    for name, value in (("q_shoulder", s_p[0]), ("q_elbow", s_p[1]), ("seen_pose", seen),
+                        ("visual_time", visual), ("tactile_time", tactile)):
+        made.set(name, np.broadcast_to(np.asarray(value, float), made.values[name].shape).copy())
+    made.step(t, STEP)
+
+
+def test_the_brain_accumulates_each_touch_with_its_own_noise_and_records_the_onset():
+    sd, period, seed, prior = 0.089, 2.0, 7, 0.01
+    made = brain(1, timing_sd=sd, stroke_period=period, participant_seed=seed, ownership_prior=prior,
+                 coupling_prior=0.73, switching_rate=0.0, realignment_rate=0.0)
+    noise = np.random.default_rng([seed, NOISE_STREAM])
+    odds_gamma, odds_coupling, onset, touches = logit(prior), logit(0.73), None, 0
+    for k in range(round(12.0 / STEP)):
+        t = k * STEP
+        touch = k > 0 and k % round(period / STEP) == 0  # a visual and a tactile event 0.03 s apart
+        visual = (k // 100) * 2.0 if k >= 100 else -np.inf
+        tactile = visual - 0.03 if k >= 100 else -np.inf
+        step(made, t, (140.0, -90.0), (150.0, -80.0), visual, tactile)
+        if touch:
+            touches += 1
+            perceived = 0.03 + sd * noise.standard_normal()
+            value = norm(0, sd).logpdf(perceived) + math.log(period)
+            odds_gamma, odds_coupling = odds_gamma + value, odds_coupling + value
+            if onset is None and logistic(odds_gamma) >= 0.5:
+                onset = t + STEP
+        assert made.values["gamma"][0] == pytest.approx(logistic(odds_gamma), rel=1e-12), t
+        assert made.values["coupling"][0] == pytest.approx(logistic(odds_coupling), rel=1e-12), t
+    assert touches == 5
+    shown = made.values["ownership_onset"][0]
+    assert (onset is None and np.isnan(shown)) or shown == pytest.approx(onset, abs=1e-12)
+
+
+def test_the_brain_realigns_toward_the_seen_arm_without_touch_and_the_belief_follows():
+    w, prior, rate = 0.39, 0.73, 0.05
+    made = brain(1, realignment_weight=w, coupling_prior=prior, realignment_rate=rate, switching_rate=0.02)
+    s_p, seen = np.array([140.0, -90.0]), np.array([150.0, -84.0])
+    for k in range(round(20.0 / STEP)):
+        step(made, k * STEP, s_p, seen)
+    # no touch: the coupling holds at its prior (its chain's stationary value), b = w rho d (1 - exp(-k t))
+    assert made.values["coupling"][0] == pytest.approx(prior, rel=1e-14)
+    assert made.values["gamma"][0] == pytest.approx(0.01, rel=1e-14)  # ownership needs evidence
+    exact = w * prior * (seen - s_p) * (1 - math.exp(-rate * 20.0))
+    assert made.values["realignment"][0] == pytest.approx(exact, rel=1e-12)
+    # the belief lags b by about Sigma_p = 1 s: mu - s_p within b's change over a few seconds
+    assert made.values["mu"][0] - s_p == pytest.approx(exact, rel=0.1)
+
+
+def test_an_asynchronous_touch_takes_the_coupling_away():
+    made = brain(1, participant_seed=3)
+    step(made, 0.0, (140.0, -90.0), (150.0, -80.0), 2.0, 1.4)  # 0.6 s apart: log ratio about -22 nats
+    assert made.values["coupling"][0] < 1e-6 and made.values["gamma"][0] < 1e-8
+
+
+@pytest.fixture(scope="module")
+def tiny_ownership(tmp_path_factory):
+    """A configuration of the ownership model at 16 px with an untrained tiny pose encoder."""
+    folder = tmp_path_factory.mktemp("pose")
+    path = folder / "pose.pt"
+    pe.save_encoder(path, pe.PoseModel(Encoder(preset("tiny"), 16), (147.7, -91.2), (40.0, 50.0), (1.0, 1.0)),
+                    preset("tiny"), 16)
+    return configuration.load(overrides={"experiment.resolution": 16, "experiment.steps": 20, "experiment.trials": 1,
+                                         "ownership.conv_pose_encoder": str(path),
+                                         "ownership.vae_pose_encoder": str(path)}, model_name="ownership")
+
+
+def test_the_ownership_brain_never_reads_a_simulator_position(tiny_ownership):
+    from components.body import kinematics
+    from components.vision.component import Decoder, GenerativeModel
+    from components.vision.networks import build
+
+    model = GenerativeModel(build("conv", "tiny", 16).decoder, kinematics.REST_POSE, (40.0, 50.0), {"kind": "conv"})
+    system = wiring.build_system(Decoder(model, threads=1), tiny_ownership)
+    links = [(c.source, c.target) for c in system.connections]
+    graph = {}
+    for source, target in links:
+        graph.setdefault(source.split(".")[0], set()).add(target.split(".")[0])
+    into_brain = {s for s, t in links if t.startswith("brain.")}
+    assert not (into_brain & {"rubber_arm.hand", "body.hand_x", "body.hand_y", "stimulus.ball"})
+    assert {s for s in into_brain if s.startswith("body.")} == {"body.q_shoulder", "body.q_elbow"}
+    assert "pose_encoder.pose" in into_brain
+    assert "brain" not in graph.get("rubber_arm", ())  # the rubber arm reaches the brain only via the camera
+    assert not any(v.unit == "m" for v in OwnershipBrain().variables.values() if v.causality == "input")
+
+
+def test_the_free_rates_hold_the_centre_of_their_prior_until_fitted():
+    config = configuration.load(model_name="ownership")
+    for key, (low, high) in FREE_RATES.items():
+        table, _, name = key.partition(".")
+        assert config[table][name] == pytest.approx(math.sqrt(low * high), abs=5e-5)  # written to 4 digits
+
+
+def test_the_model_takes_its_prior_and_period_from_one_source_each():
+    sources = models.get("ownership").parameter_sources
+    assert sources["brain.ownership_prior"] == "brain.gamma0" and sources["brain.stroke_period"] == "stimulus.period"
+    assert "ownership" not in configuration.load()  # the defaults stay the paper's model
+
+
+@pytest.mark.parametrize("key, value, message", [
+    ("ownership.timing_jnd", -0.06, "ownership.timing_jnd must be a positive, finite time in s, got -0.06"),
+    ("ownership.switching_rate", -1.0, "ownership.switching_rate"),
+    ("ownership.coupling_prior", 1.0, "ownership.coupling_prior"),
+    ("ownership.realignment_weight", 1.5, "ownership.realignment_weight"),
+])
+def test_bad_settings_are_one_line_before_any_work(key, value, message):
+    from master.config.sources import check_parameters
+
+    with pytest.raises(ConfigError, match=message) as caught:
+        check_parameters(configuration.load(overrides={key: value}, model_name="ownership"))
+    assert "\n" not in str(caught.value)
