@@ -26,11 +26,11 @@ from pathlib import Path
 import numpy as np
 
 from master import config as configuration
+from master import models
 from master.config.protocol import make_trial
 from master.tasks.illusion.runner import batch_outcomes
 
 TRIAL_STEPS = 1500  # the unit's trial: the protocol's 1500 steps (30 s at 0.02 s)
-MODELS = ("paper", "causal")
 # Per model: (key, prior, low, high): a few-fold range around each default, as a fit's priors (docs/fit/*.toml).
 PRIORS = {
     "paper": (("decoder.visual_variance", "log-uniform", 5.0, 80.0),
@@ -79,8 +79,9 @@ def model_config(model: str, settings, folder: Path) -> tuple[dict, str]:
     from master.bench.sweep_rate import untrained_checkpoint
 
     checkpoint = untrained_checkpoint("conv", preset_name, resolution, settings.seed, folder)
-    if model == "causal":
-        overrides["causal.conv_pose_encoder"] = untrained_pose_encoder(preset_name, resolution, settings.seed, folder)
+    key = models.get(model).pose_encoder_key
+    if key:
+        overrides[key.format(kind="conv")] = untrained_pose_encoder(preset_name, resolution, settings.seed, folder)
     return configuration.load(overrides=overrides, model_name=model), checkpoint
 
 
@@ -105,7 +106,7 @@ def model_unit(model: str, settings, folder: Path) -> dict:
     from components.vision import pose_encoder
 
     config, checkpoint = model_config(model, settings, folder)
-    rng = np.random.default_rng([settings.seed, MODELS.index(model)])
+    rng = np.random.default_rng([settings.seed, settings.fit_models.index(model)])
     warm = configuration.merge(config, {"experiment": {"steps": settings.min_steps}})
     batch_outcomes(warm, "conv", participants(warm, 1, rng, model), checkpoint)
     pose_encoder.STORE.clear()
@@ -122,20 +123,23 @@ def model_unit(model: str, settings, folder: Path) -> dict:
 
 
 def fit_unit(settings) -> dict:
-    """Both models' fit-like batches and the ratio of their units (causal / paper), measured in this run.
+    """The fit-like batches of ``settings.fit_models`` (a baseline, then the model compared with it) and the
+    ratio of their units, measured in this run.
 
     Returns
     -------
     dict
         ``preset``, ``resolution``, ``weights``, ``participants_per_batch``, ``cells``, ``batches``, ``models``
-        (per model: :func:`model_unit`'s dict) and ``causal_vs_paper``.
+        (per model: :func:`model_unit`'s dict) and ``<compared>_vs_<baseline>`` (``causal_vs_paper``).
     """
     preset_name, resolution = settings.fit_preset
+    baseline, compared = settings.fit_models
     with tempfile.TemporaryDirectory(prefix="rhi_bench_fit_") as name:
-        rows = {model: model_unit(model, settings, Path(name)) for model in MODELS}
-    cells = rows["paper"]["trials"] // (settings.fit_participants * settings.fit_batches)
+        rows = {model: model_unit(model, settings, Path(name)) for model in settings.fit_models}
+    cells = rows[baseline]["trials"] // (settings.fit_participants * settings.fit_batches)
     return {"preset": preset_name, "resolution": resolution,
             "weights": "trained (cached or shipped)" if settings.fit_trained else f"untrained, torch seed {settings.seed}",
             "participants_per_batch": settings.fit_participants, "cells": cells, "batches": settings.fit_batches,
             "models": rows,
-            "causal_vs_paper": rows["causal"]["cpu_s_per_1500_step_trial"] / rows["paper"]["cpu_s_per_1500_step_trial"]}
+            f"{compared}_vs_{baseline}": (rows[compared]["cpu_s_per_1500_step_trial"]
+                                          / rows[baseline]["cpu_s_per_1500_step_trial"])}

@@ -48,6 +48,7 @@ class BenchSettings:
     sweep_trained: bool = True   # the trained default decoders (shipped) rather than untrained ones
     sweep_workers: int = 0       # the sweep's local pool; 0: one per usable core
     fit_preset: tuple = ("default", 64)  # the fit's unit of work (master/bench/fit_unit.py)
+    fit_models: tuple = ("paper", "causal")  # its baseline, then the model whose cost is compared with it
     fit_trained: bool = True     # the trained default conv decoder and shipped pose encoder rather than untrained ones
     fit_participants: int = 10   # per lockstep batch: fit.participants_per_batch's default
     fit_batches: int = 2         # one after another: the first pays for every picture, the next finds them kept

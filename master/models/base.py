@@ -110,6 +110,9 @@ class Model:
     sees_pose : bool
         Whether the brain reads the seen arm's pose through a pose encoder of the camera's image (it then
         needs the camera to see the arm, and a pose encoder at the run's resolution).
+    pose_encoder_key : str
+        The configuration key naming the pose encoder checkpoint of decoder slot ``{kind}`` (e.g.
+        ``"causal.{kind}_pose_encoder"``); "" or an empty value: the shipped one.
     source : str
         Set by the registry: "" for a built-in model, else the spec it was loaded from.
     """
@@ -123,6 +126,7 @@ class Model:
     links: tuple = ()
     record: tuple = ()
     sees_pose: bool = False
+    pose_encoder_key: str = ""
     source: str = ""
 
     def brain(self) -> Component:
@@ -162,9 +166,12 @@ class Model:
         return True
 
     def pose_encoder_file(self, kind: str, config: dict) -> str:
-        """The pose encoder checkpoint this model reads decoder slot ``kind``'s image with; "" for the shipped
-        one at the run's resolution."""
-        return ""
+        """The pose encoder checkpoint this model reads decoder slot ``kind``'s image with (the value of
+        :attr:`pose_encoder_key`); "" for the shipped one at the run's resolution."""
+        if not self.pose_encoder_key:
+            return ""
+        table, _, key = self.pose_encoder_key.format(kind=kind).partition(".")
+        return config.get(table, {}).get(key) or ""
 
     def trials_per_point(self, config: dict) -> int | None:
         """Trials per point of a phenomenon's sweep (``rhi phenomenon``): None for the sweep file's own; a model

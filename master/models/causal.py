@@ -51,6 +51,7 @@ class CausalModel(Model):
     summary = "the causal model: body-space vision, causal inference over space and time, a population"
     settings_file = "causal.toml"
     sees_pose = True
+    pose_encoder_key = "causal.{kind}_pose_encoder"
     batchable = (DERIVED_FROM,)
     links = (("camera.image", "pose_encoder.image"), ("pose_encoder.pose", "brain.seen_pose"),
              ("pose_encoder.pose_variance", "brain.seen_pose_variance"))
@@ -85,6 +86,3 @@ class CausalModel(Model):
         """Only when ``causal.pixel_weight`` > 0."""
         return config["causal"]["pixel_weight"] > 0
 
-    def pose_encoder_file(self, kind: str, config: dict) -> str:
-        """``causal.<kind>_pose_encoder``; "" for the shipped one."""
-        return config["causal"].get(f"{kind}_pose_encoder") or ""

@@ -48,6 +48,7 @@ class OwnershipModel(Model):
     summary = "the ownership model: ownership from accumulated timing evidence, drift as a slow realignment"
     settings_file = "ownership.toml"
     sees_pose = True
+    pose_encoder_key = "ownership.{kind}_pose_encoder"
     batchable = (DERIVED_FROM,)
     links = (("camera.image", "pose_encoder.image"), ("pose_encoder.pose", "brain.seen_pose"))
     record = ("brain.coupling", "brain.realignment", "brain.ownership_onset")
@@ -83,6 +84,3 @@ class OwnershipModel(Model):
         """Never: the seen arm enters only through the pose encoder and the realignment."""
         return False
 
-    def pose_encoder_file(self, kind: str, config: dict) -> str:
-        """``ownership.<kind>_pose_encoder``; "" for the shipped one."""
-        return config["ownership"].get(f"{kind}_pose_encoder") or ""
