@@ -85,4 +85,3 @@ class CausalModel(Model):
     def reads_pixels(self, config: dict) -> bool:
         """Only when ``causal.pixel_weight`` > 0."""
         return config["causal"]["pixel_weight"] > 0
-

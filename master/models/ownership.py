@@ -83,4 +83,3 @@ class OwnershipModel(Model):
     def reads_pixels(self, config: dict) -> bool:
         """Never: the seen arm enters only through the pose encoder and the realignment."""
         return False
-
