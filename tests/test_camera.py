@@ -193,6 +193,19 @@ def test_the_ball_window_equals_drawing_and_blurring_the_whole_frame(ball):
     assert full.sum() > 1 and np.abs(windowed - full).max() < 1e-6
 
 
+@pytest.mark.parametrize("shape, resolution, blur", [
+    ((12, 12), 64, camera.BLUR_SIGMA), ((64, 64), 64, camera.BLUR_SIGMA), ((9, 17), 256, camera.BLUR_SIGMA),
+    ((32, 32), 32, 0.04), ((16, 16), 64, 0.0)])
+def test_blur_is_scipys_gaussian_filter_to_the_bit(shape, resolution, blur):
+    """The camera's blur (weights made once, two correlate1d passes) against scipy's gaussian_filter itself."""
+    from scipy.ndimage import gaussian_filter
+    layer = np.random.default_rng(7).random(shape).astype(np.float32)
+    sigma = blur / (camera.FIELD_X[1] - camera.FIELD_X[0]) * resolution
+    expected = gaussian_filter(layer, sigma, mode="constant", truncate=3.0).astype(np.float32)
+    got = camera._blur(layer, resolution, blur)
+    assert got.dtype == np.float32 and got.tobytes() == expected.tobytes()
+
+
 def test_blur_and_ball_radius_are_parameters_with_the_constants_as_defaults():
     poses = np.array([REST_POSE, inverse(-0.45, 0.5)])
     balls = np.array([[-0.3, 0.6], [-0.45, 0.55]])

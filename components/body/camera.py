@@ -97,12 +97,40 @@ def _check_length(name: str, value) -> float:
     return float(value)
 
 
-def _blur(layer: np.ndarray, resolution: int, blur: float = BLUR_SIGMA) -> np.ndarray:
-    """Gaussian blur of ``blur`` metres (sd); zero outside the layer (black beyond the field of view)."""
-    sigma = blur / (FIELD_X[1] - FIELD_X[0]) * resolution
-    from scipy.ndimage import gaussian_filter  # here, not at the top: a refused command never pays for scipy
+def gaussian_weights(sigma: float, truncate: float = 3.0) -> np.ndarray:
+    """The 1-D Gaussian weights scipy.ndimage.gaussian_filter1d correlates with (order 0), the same numbers.
 
-    return gaussian_filter(layer, sigma, mode="constant", truncate=3.0).astype(np.float32)
+    Radius ``int(truncate * sigma + 0.5)`` taps, phi(x) = exp(-x^2 / (2 sigma^2)) normalised to sum 1, reversed
+    for correlation (scipy.ndimage._filters._gaussian_kernel1d, scipy 1.x); sigma in pixels.
+    """
+    radius = int(truncate * float(sigma) + 0.5)
+    x = np.arange(-radius, radius + 1)
+    phi = np.exp(-0.5 / (sigma * sigma) * x ** 2)
+    return (phi / phi.sum())[::-1]
+
+
+def _blur(layer: np.ndarray, resolution: int, blur: float = BLUR_SIGMA) -> np.ndarray:
+    """Gaussian blur of ``blur`` metres (sd); zero outside the layer (black beyond the field of view).
+
+    scipy's gaussian_filter(layer, sigma, mode="constant", truncate=3.0) as it computes it, rows then columns
+    into an output of the layer's dtype, with the weights made once (:func:`gaussian_weights`): the same bytes
+    without the wrapper's set-up on every call (the ball's small window is blurred every step).
+    """
+    sigma = blur / (FIELD_X[1] - FIELD_X[0]) * resolution
+    if sigma <= 1e-15:  # gaussian_filter leaves such an axis alone
+        return layer.astype(np.float32)
+    from scipy.ndimage import correlate1d  # here, not at the top: a refused command never pays for scipy
+
+    weights = _weights.get(sigma)
+    if weights is None:
+        weights = _weights[sigma] = gaussian_weights(sigma)
+    output = np.zeros_like(layer)  # gaussian_filter's output: the input's dtype (float32 here), then the cast
+    correlate1d(layer, weights, 0, output, "constant", 0.0, 0)
+    correlate1d(output, weights, 1, output, "constant", 0.0, 0)
+    return output.astype(np.float32)
+
+
+_weights: dict[float, np.ndarray] = {}  # sigma (px) -> its weights; a run uses one or two
 
 
 def arm_layer(pose_deg, resolution: int, blur: float = BLUR_SIGMA) -> np.ndarray:
@@ -255,19 +283,21 @@ class Camera(Component):
         balls = np.asarray(self.values["ball"], dtype=np.float64)
         if not np.all(np.isfinite(poses)):
             raise StepFailure(f"{self.name}.arm_pose is not finite: {poses.tolist()}")
-        images = np.empty((self.batch_size, self.resolution, self.resolution), np.float32)
-        arm_layers, drawn = {}, {}  # pose bytes -> arm layer; (pose, ball) bytes -> first trial drawn
-        for trial in range(self.batch_size):
+        # Trials whose (pose, ball) are the same bytes share one drawing: the distinct rows of the raw bytes, each
+        # drawn once in the order of its first trial, then gathered to every trial in one copy.
+        rows = np.ascontiguousarray(np.concatenate([poses, balls], axis=1)).view(np.dtype((np.void, 32))).ravel()
+        _, firsts, which = np.unique(rows, return_index=True, return_inverse=True)
+        drawn = np.empty((len(firsts), self.resolution, self.resolution), np.float32)
+        arm_layers = {}  # pose bytes -> arm layer
+        for position in np.argsort(firsts, kind="stable"):
+            trial = firsts[position]
             pose = poses[trial].tobytes()
-            first = drawn.setdefault(pose + balls[trial].tobytes(), trial)
-            if first != trial:
-                images[trial] = images[first]
-                continue
             if pose not in arm_layers:
                 known = self._arm_layers.get(pose)
                 arm_layers[pose] = known if known is not None else arm_layer(poses[trial], self.resolution,
                                                                               self._blur_sigma)
             alpha = ball_alpha(balls[trial], self.resolution, self._blur_sigma, self._ball_radius)
-            composite(arm_layers[pose], alpha, out=images[trial])
+            composite(arm_layers[pose], alpha, out=drawn[position])
+        images = drawn[which.reshape(-1)]
         self._arm_layers = arm_layers  # only the poses of this step: the rest are gone for good
         self.values["image"] = images
