@@ -114,6 +114,7 @@ class ArmPlant(Component):
         self._arms: list[tuple[pymunk.Body, pymunk.Body]] = []
         self._cells: list[tuple[pymunk.DampedSpring, pymunk.DampedSpring] | None] = []
         self._pins: list[tuple[pymunk.PivotJoint, pymunk.PivotJoint]] = []  # (shoulder, elbow) per trial
+        self._held, self._springs = np.zeros(0, int), []  # see _held_springs
         self._order, self._regular, self._bodies = np.zeros(0, int), True, 0  # the space's bodies (initialize)
 
     # -- set-up ------------------------------------------------------------------------------
@@ -156,6 +157,7 @@ class ArmPlant(Component):
         # when the batch buffers are (B, 2) views.
         self._order = np.stack([upper, forearm], axis=1).reshape(-1)
         self._regular = bool(np.array_equal(self._order, np.arange(2 * self.batch_size)))
+        self._held_springs()
         self._publish(np.zeros((self.batch_size, 2)))
 
     def _slots(self):
@@ -223,8 +225,7 @@ class ArmPlant(Component):
         arms = 2 * self.batch_size
         joint = torque[:arms].reshape(-1, 2) if regular else np.zeros((self.batch_size, 2))  # (upper, forearm) each
         relative, tau = np.empty((self.batch_size, 2)), np.empty((self.batch_size, 2))
-        held = [trial for trial, cell in enumerate(self._cells) if cell is not None]
-        springs = [spring._constraint for trial in held for spring in self._cells[trial]]
+        held, springs = self._held, self._springs
         get_impulse = chipmunk.cpConstraintGetImpulse
         impulses = np.zeros(len(springs))
         get_bodies, set_bodies, angular, torque_field = (pymunk.batch.get_space_bodies, pymunk.batch.set_space_bodies,
@@ -262,14 +263,20 @@ class ArmPlant(Component):
         back in the order they were added, trial by trial: each trial's joints are solved in the order they would
         have in a space of its own, and its numbers do not depend on the other trials of the batch.
         """
-        due = [trial for trial, cell in enumerate(self._cells)
-               if cell is not None and t >= self.values["release_time"][trial] - 1e-9]
-        if not due:
+        due = np.flatnonzero(np.isin(np.arange(self.batch_size), self._held)
+                             & (t >= self.values["release_time"] - 1e-9))
+        if not len(due):
             return
         for trial in due:
             self._cells[trial] = None
         self.space.remove(*self.space.constraints)
         self.space.add(*(joint for pins, cell in zip(self._pins, self._cells) for joint in (*pins, *(cell or ()))))
+        self._held_springs()
+
+    def _held_springs(self):
+        """The held trials, and their load cells' springs (x, y per trial) as Chipmunk constraints, in that order."""
+        self._held = np.array([trial for trial, cell in enumerate(self._cells) if cell is not None], dtype=int)
+        self._springs = [spring._constraint for trial in self._held for spring in self._cells[trial]]
 
     def _publish(self, force):
         """Replace every output array from the bodies' current state (never mutate in place).
