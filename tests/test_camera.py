@@ -235,6 +235,27 @@ def test_the_component_draws_with_its_blur_and_ball_radius():
         assert images[step].tobytes() != render(poses[step], 32, balls[step]).tobytes()
 
 
+def test_runs_after_the_first_reuse_the_kept_drawings_and_give_renders_bytes():
+    """A second run of the same inputs draws nothing new and gives render's bytes (render draws afresh); a run with
+    another blur or ball radius in between does not take the first run's drawings; kept drawings are read-only."""
+    rubber, rest = inverse(-0.45, 0.5), np.array(REST_POSE)
+    poses = [np.array([rubber, rest, rubber])] * 3
+    balls = [np.array([[-0.45, 0.7 - 0.05 * k], [-0.30, 0.6], [np.nan, np.nan]]) for k in range(3)]
+    expected = [render(poses[k], 32, balls[k]).tobytes() for k in range(3)]
+    run_camera(poses, balls)
+    drawn = camera.kept_ball_alpha.cache_info().misses, camera.kept_arm_layer.cache_info().misses
+    other = run_camera(poses, balls, blur=0.031, ball_radius=0.021)
+    again = run_camera(poses, balls)
+    assert [image.tobytes() for image in again] == expected
+    assert [image.tobytes() for image in other] == [render(poses[k], 32, balls[k], blur=0.031, ball_radius=0.021)
+                                                      .tobytes() for k in range(3)]
+    assert camera.kept_ball_alpha.cache_info().misses - drawn[0] == 5  # the other run: 3 + 1 ball places, a NaN
+    assert camera.kept_arm_layer.cache_info().misses - drawn[1] == 2   # the other run's two poses
+    layer = camera.kept_arm_layer(rest.tobytes(), 32, camera.BLUR_SIGMA)
+    with pytest.raises(ValueError):
+        layer[0, 0] = 1.0
+
+
 @pytest.mark.parametrize("name", ["blur", "ball_radius"])
 def test_per_trial_blur_or_ball_radius_is_refused_naming_it(name):
     poses, balls = [np.array([REST_POSE, REST_POSE])], [np.full((2, 2), np.nan)]
