@@ -136,6 +136,18 @@ def test_decay_to_the_floor_and_the_clamp_of_the_update():
     assert posterior_common_cause(np.array([1.0, 0.5]), np.zeros(2), np.array([10.0, 0.0]), 0.2, 0.5)[0] == 1.0
 
 
+
+def test_gamma_without_a_new_pair_is_the_decay_alone_to_the_bit():
+    """A step with no new pair skips Bayes' rule: the same bytes as choosing between the two branches element-wise
+    (np.where over both, as for a step where some trial has a pair), touched and untouched trials alike."""
+    rng = np.random.default_rng(5)
+    gamma, tactile = rng.uniform(0.01, 1.0, 8), np.where(np.arange(8) < 3, -np.inf, rng.uniform(0.0, 9.0, 8))
+    visual, floor, none = rng.uniform(0.0, 9.0, 8), np.full(8, 0.01), np.zeros(8, bool)
+    both = np.clip(np.where(none, posterior_common_cause(gamma, np.zeros(8), np.zeros(8), 0.2, 0.5),
+                            decayed(gamma, 10.0, tactile, H, 1.0 / 80.0)), floor, 1.0)
+    got = update_gamma(gamma, none, visual, tactile, 10.0, H, floor, 0.2, 0.5, 1.0 / 80.0)
+    assert got.tobytes() == both.tobytes()
+
 # -- the master, a linear decoder and the closed-form fixed point ----------------------------------
 
 def test_fixed_point_is_the_precision_weighted_compromise():

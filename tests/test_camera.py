@@ -193,6 +193,19 @@ def test_the_ball_window_equals_drawing_and_blurring_the_whole_frame(ball):
     assert full.sum() > 1 and np.abs(windowed - full).max() < 1e-6
 
 
+@pytest.mark.parametrize("shape, resolution, blur", [
+    ((12, 12), 64, camera.BLUR_SIGMA), ((64, 64), 64, camera.BLUR_SIGMA), ((9, 17), 256, camera.BLUR_SIGMA),
+    ((32, 32), 32, 0.04), ((16, 16), 64, 0.0)])
+def test_blur_is_scipys_gaussian_filter_to_the_bit(shape, resolution, blur):
+    """The camera's blur (weights made once, two correlate1d passes) against scipy's gaussian_filter itself."""
+    from scipy.ndimage import gaussian_filter
+    layer = np.random.default_rng(7).random(shape).astype(np.float32)
+    sigma = blur / (camera.FIELD_X[1] - camera.FIELD_X[0]) * resolution
+    expected = gaussian_filter(layer, sigma, mode="constant", truncate=3.0).astype(np.float32)
+    got = camera._blur(layer, resolution, blur)
+    assert got.dtype == np.float32 and got.tobytes() == expected.tobytes()
+
+
 def test_blur_and_ball_radius_are_parameters_with_the_constants_as_defaults():
     poses = np.array([REST_POSE, inverse(-0.45, 0.5)])
     balls = np.array([[-0.3, 0.6], [-0.45, 0.55]])
@@ -220,6 +233,27 @@ def test_the_component_draws_with_its_blur_and_ball_radius():
     for step in range(3):
         assert images[step].tobytes() == render(poses[step], 32, balls[step], blur=0.025, ball_radius=0.05).tobytes()
         assert images[step].tobytes() != render(poses[step], 32, balls[step]).tobytes()
+
+
+def test_runs_after_the_first_reuse_the_kept_drawings_and_give_renders_bytes():
+    """A second run of the same inputs draws nothing new and gives render's bytes (render draws afresh); a run with
+    another blur or ball radius in between does not take the first run's drawings; kept drawings are read-only."""
+    rubber, rest = inverse(-0.45, 0.5), np.array(REST_POSE)
+    poses = [np.array([rubber, rest, rubber])] * 3
+    balls = [np.array([[-0.45, 0.7 - 0.05 * k], [-0.30, 0.6], [np.nan, np.nan]]) for k in range(3)]
+    expected = [render(poses[k], 32, balls[k]).tobytes() for k in range(3)]
+    run_camera(poses, balls)
+    drawn = camera.kept_ball_alpha.cache_info().misses, camera.kept_arm_layer.cache_info().misses
+    other = run_camera(poses, balls, blur=0.031, ball_radius=0.021)
+    again = run_camera(poses, balls)
+    assert [image.tobytes() for image in again] == expected
+    assert [image.tobytes() for image in other] == [render(poses[k], 32, balls[k], blur=0.031, ball_radius=0.021)
+                                                      .tobytes() for k in range(3)]
+    assert camera.kept_ball_alpha.cache_info().misses - drawn[0] == 5  # the other run: 3 + 1 ball places, a NaN
+    assert camera.kept_arm_layer.cache_info().misses - drawn[1] == 2   # the other run's two poses
+    layer = camera.kept_arm_layer(rest.tobytes(), 32, camera.BLUR_SIGMA)
+    with pytest.raises(ValueError):
+        layer[0, 0] = 1.0
 
 
 @pytest.mark.parametrize("name", ["blur", "ball_radius"])

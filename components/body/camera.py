@@ -17,9 +17,11 @@ displaced 15 cm still overlaps the arm the decoder predicts (the shoulder is sha
 forearms overlap near the elbow): at 64 x 64 the Left and Right rubber arms have a cosine
 overlap of 0.47 and 0.43 with the real arm.
 
-The camera component keeps the arm layer of each pose in use (the rubber arm is still within
-a trial, and trials of one condition share it), so a step redraws only the ball, in a window
-around it, and only once for trials whose pose and ball are the same.
+The camera component draws only once for trials whose pose and ball are the same, and the
+process keeps its drawings across steps and runs (:func:`kept_arm_layer`, :func:`kept_ball_alpha`):
+the rubber arm is still within a trial and shared by a condition's trials, and a fit's or a
+sweep's worker runs batch after batch of one protocol, whose balls are the same function of
+condition and time, so after the first batch a step draws nothing.
 
 Example::
 
@@ -27,6 +29,7 @@ Example::
 """
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -97,12 +100,40 @@ def _check_length(name: str, value) -> float:
     return float(value)
 
 
-def _blur(layer: np.ndarray, resolution: int, blur: float = BLUR_SIGMA) -> np.ndarray:
-    """Gaussian blur of ``blur`` metres (sd); zero outside the layer (black beyond the field of view)."""
-    sigma = blur / (FIELD_X[1] - FIELD_X[0]) * resolution
-    from scipy.ndimage import gaussian_filter  # here, not at the top: a refused command never pays for scipy
+def gaussian_weights(sigma: float, truncate: float = 3.0) -> np.ndarray:
+    """The 1-D Gaussian weights scipy.ndimage.gaussian_filter1d correlates with (order 0), the same numbers.
 
-    return gaussian_filter(layer, sigma, mode="constant", truncate=3.0).astype(np.float32)
+    Radius ``int(truncate * sigma + 0.5)`` taps, phi(x) = exp(-x^2 / (2 sigma^2)) normalised to sum 1, reversed
+    for correlation (scipy.ndimage._filters._gaussian_kernel1d, scipy 1.x); sigma in pixels.
+    """
+    radius = int(truncate * float(sigma) + 0.5)
+    x = np.arange(-radius, radius + 1)
+    phi = np.exp(-0.5 / (sigma * sigma) * x ** 2)
+    return (phi / phi.sum())[::-1]
+
+
+def _blur(layer: np.ndarray, resolution: int, blur: float = BLUR_SIGMA) -> np.ndarray:
+    """Gaussian blur of ``blur`` metres (sd); zero outside the layer (black beyond the field of view).
+
+    scipy's gaussian_filter(layer, sigma, mode="constant", truncate=3.0) as it computes it, rows then columns
+    into an output of the layer's dtype, with the weights made once (:func:`gaussian_weights`): the same bytes
+    without the wrapper's set-up on every call (the ball's small window is blurred every step).
+    """
+    sigma = blur / (FIELD_X[1] - FIELD_X[0]) * resolution
+    if sigma <= 1e-15:  # gaussian_filter leaves such an axis alone
+        return layer.astype(np.float32)
+    from scipy.ndimage import correlate1d  # here, not at the top: a refused command never pays for scipy
+
+    weights = _weights.get(sigma)
+    if weights is None:
+        weights = _weights[sigma] = gaussian_weights(sigma)
+    output = np.zeros_like(layer)  # gaussian_filter's output: the input's dtype (float32 here), then the cast
+    correlate1d(layer, weights, 0, output, "constant", 0.0, 0)
+    correlate1d(output, weights, 1, output, "constant", 0.0, 0)
+    return output.astype(np.float32)
+
+
+_weights: dict[float, np.ndarray] = {}  # sigma (px) -> its weights; a run uses one or two
 
 
 def arm_layer(pose_deg, resolution: int, blur: float = BLUR_SIGMA) -> np.ndarray:
@@ -166,6 +197,30 @@ def composite(arm: np.ndarray, alpha, out: np.ndarray | None = None) -> np.ndarr
     return image
 
 
+# Drawings the process keeps, least recently used dropped first: pure functions of their keys (the bytes of the
+# pose or ball, the resolution, blur and radius), so a kept drawing is the drawing, read-only. The protocol
+# draws 3 rubber-arm poses; its ball takes about 1500 steps x 3 conditions positions, each about 1 kB kept.
+KEPT_ARM_LAYERS = 64
+KEPT_BALLS = 16384
+
+
+@functools.lru_cache(maxsize=KEPT_ARM_LAYERS)
+def kept_arm_layer(pose: bytes, resolution: int, blur: float) -> np.ndarray:
+    """:func:`arm_layer` of the pose whose float64 bytes are ``pose`` (shoulder, elbow deg), kept, read-only."""
+    layer = arm_layer(np.frombuffer(pose, dtype=np.float64), resolution, blur)
+    layer.flags.writeable = False
+    return layer
+
+
+@functools.lru_cache(maxsize=KEPT_BALLS)
+def kept_ball_alpha(ball: bytes, resolution: int, blur: float, ball_radius: float):
+    """:func:`ball_alpha` of the ball whose float64 bytes are ``ball`` (x, y m), kept; its patch read-only."""
+    alpha = ball_alpha(np.frombuffer(ball, dtype=np.float64), resolution, blur, ball_radius)
+    if alpha is not None:
+        alpha[2].flags.writeable = False
+    return alpha
+
+
 def render(poses_deg, resolution: int = 64, balls=None, blur: float = BLUR_SIGMA,
            ball_radius: float = BALL_RADIUS) -> np.ndarray:
     """Images (N, res, res) float32 in [0, 1] of arms at ``poses_deg`` (N, 2) deg, with balls (N, 2) m or None.
@@ -183,7 +238,7 @@ def render(poses_deg, resolution: int = 64, balls=None, blur: float = BLUR_SIGMA
         if balls.shape != poses.shape:
             raise ComponentError(f"camera balls must have the shape of poses_deg {poses.shape}, got {balls.shape}")
     images = np.empty((len(poses), resolution, resolution), np.float32)
-    for index, pose in enumerate(poses):
+    for index, pose in enumerate(poses):  # drawn afresh: the decoders' training poses seldom repeat
         alpha = None if balls is None else ball_alpha(balls[index], resolution, blur, ball_radius)
         images[index] = composite(arm_layer(pose, resolution, blur), alpha)
     return images
@@ -192,12 +247,12 @@ def render(poses_deg, resolution: int = 64, balls=None, blur: float = BLUR_SIGMA
 class Camera(Component):
     """The camera as a component: arm pose and ball in, image out (direct feedthrough).
 
-    The arm layer of each pose in use is kept (the rubber arm does not move within a trial,
-    and trials of one condition share it), so a step redraws only the ball; trials whose
-    pose and ball are the same bytes share one drawing (the image is a function of them).
-    The kept layers are dropped at every initialization, so a run with another ``blur`` never
-    reuses them. ``blur`` and ``ball_radius`` are one value for the whole batch (the trials
-    share drawings); differing per-trial values are a ComponentError naming the variable.
+    Trials whose pose and ball are the same bytes share one drawing (the image is a function of
+    them), and the arm layers and ball windows come from the drawings the process keeps
+    (:func:`kept_arm_layer`, :func:`kept_ball_alpha`, keyed by the blur and radius too, so a run
+    with another ``blur`` never reuses them). ``blur`` and ``ball_radius`` are one value for the
+    whole batch (the trials share drawings); differing per-trial values are a ComponentError
+    naming the variable.
     """
 
     def __init__(self, name: str = "camera", resolution: int = 64):
@@ -217,7 +272,6 @@ class Camera(Component):
                      start=None, unit="1", min=0.0, max=1.0, depends_on=("arm_pose", "ball"),
                      description="overhead grayscale image s_v, black background"),
         ])
-        self._arm_layers: dict[bytes, np.ndarray] = {}  # pose bytes -> arm layer, at self._blur_sigma
         self._blur_sigma, self._ball_radius = BLUR_SIGMA, BALL_RADIUS
 
     def check_parameters(self):
@@ -226,9 +280,8 @@ class Camera(Component):
             self._shared(name)
 
     def initialize(self):
-        """Take this run's ``blur`` and ``ball_radius``, drop the kept arm layers, and draw the first ``image``."""
+        """Take this run's ``blur`` and ``ball_radius`` and draw the first ``image``."""
         self._blur_sigma, self._ball_radius = (self._shared(name) for name in ("blur", "ball_radius"))
-        self._arm_layers = {}  # drawn with this run's blur only
         self._draw()
 
     def _shared(self, name: str) -> float:
@@ -255,19 +308,15 @@ class Camera(Component):
         balls = np.asarray(self.values["ball"], dtype=np.float64)
         if not np.all(np.isfinite(poses)):
             raise StepFailure(f"{self.name}.arm_pose is not finite: {poses.tolist()}")
-        images = np.empty((self.batch_size, self.resolution, self.resolution), np.float32)
-        arm_layers, drawn = {}, {}  # pose bytes -> arm layer; (pose, ball) bytes -> first trial drawn
-        for trial in range(self.batch_size):
-            pose = poses[trial].tobytes()
-            first = drawn.setdefault(pose + balls[trial].tobytes(), trial)
-            if first != trial:
-                images[trial] = images[first]
-                continue
-            if pose not in arm_layers:
-                known = self._arm_layers.get(pose)
-                arm_layers[pose] = known if known is not None else arm_layer(poses[trial], self.resolution,
-                                                                              self._blur_sigma)
-            alpha = ball_alpha(balls[trial], self.resolution, self._blur_sigma, self._ball_radius)
-            composite(arm_layers[pose], alpha, out=images[trial])
-        self._arm_layers = arm_layers  # only the poses of this step: the rest are gone for good
+        # Trials whose (pose, ball) are the same bytes share one drawing: the distinct rows of the raw bytes, each
+        # drawn once in the order of its first trial, then gathered to every trial in one copy.
+        rows = np.ascontiguousarray(np.concatenate([poses, balls], axis=1)).view(np.dtype((np.void, 32))).ravel()
+        _, firsts, which = np.unique(rows, return_index=True, return_inverse=True)
+        drawn = np.empty((len(firsts), self.resolution, self.resolution), np.float32)
+        for position in np.argsort(firsts, kind="stable"):
+            trial = firsts[position]
+            composite(kept_arm_layer(poses[trial].tobytes(), self.resolution, self._blur_sigma),
+                      kept_ball_alpha(balls[trial].tobytes(), self.resolution, self._blur_sigma, self._ball_radius),
+                      out=drawn[position])
+        images = drawn[which.reshape(-1)]
         self.values["image"] = images

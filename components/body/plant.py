@@ -113,7 +113,9 @@ class ArmPlant(Component):
         self.space: pymunk.Space | None = None
         self._arms: list[tuple[pymunk.Body, pymunk.Body]] = []
         self._cells: list[tuple[pymunk.DampedSpring, pymunk.DampedSpring] | None] = []
-        self._body_slots: tuple[np.ndarray, np.ndarray] = (np.zeros(0, int), np.zeros(0, int))
+        self._pins: list[tuple[pymunk.PivotJoint, pymunk.PivotJoint]] = []  # (shoulder, elbow) per trial
+        self._held, self._springs = np.zeros(0, int), []  # see _held_springs
+        self._order, self._regular, self._bodies = np.zeros(0, int), True, 0  # the space's bodies (initialize)
 
     # -- set-up ------------------------------------------------------------------------------
     def publish_initial(self):
@@ -137,7 +139,7 @@ class ArmPlant(Component):
         v = self.values
         self.space = pymunk.Space()
         self.space.gravity = (0.0, 0.0)  # a horizontal table
-        self._arms, self._cells = [], []
+        self._arms, self._cells, self._pins = [], [], []
         for trial in range(self.batch_size):
             upper, forearm = self._build_arm(trial)
             cell = None
@@ -150,15 +152,21 @@ class ArmPlant(Component):
                 self.space.add(*cell)
             self._arms.append((upper, forearm))
             self._cells.append(cell)
-        self._body_slots = self._slots()
+        upper, forearm, self._bodies = self._slots()
+        # The space's body order as (upper arm, forearm) per trial; regular (0, 1, 2, 3, ...) as the arms are added,
+        # when the batch buffers are (B, 2) views.
+        self._order = np.stack([upper, forearm], axis=1).reshape(-1)
+        self._regular = bool(np.array_equal(self._order, np.arange(2 * self.batch_size)))
+        self._held_springs()
         self._publish(np.zeros((self.batch_size, 2)))
 
     def _slots(self):
-        """(upper arm's, forearm's) positions, per trial, in the space's body order (pymunk's batch calls)."""
+        """(upper arm's, forearm's) positions, per trial, in the space's body order (pymunk's batch calls), and the
+        number of bodies those calls walk (the arms and the space's static body)."""
         ids = pymunk.batch.Buffer()
         pymunk.batch.get_space_bodies(self.space, BodyFields.BODY_ID, ids)
         slot = {body_id: n for n, body_id in enumerate(memoryview(ids.int_buf()).cast("P"))}
-        return tuple(np.array([slot[arm[part].id] for arm in self._arms]) for part in (0, 1))
+        return *(np.array([slot[arm[part].id] for arm in self._arms], dtype=int) for part in (0, 1)), len(slot)
 
     def _build_arm(self, trial):
         v = self.values
@@ -177,6 +185,7 @@ class ArmPlant(Component):
         shoulder_pin = pymunk.PivotJoint(self.space.static_body, upper, SHOULDER)
         elbow_pin = pymunk.PivotJoint(upper, forearm, upper.local_to_world((UPPER_ARM / 2, 0.0)))
         self.space.add(upper, forearm, shoulder_pin, elbow_pin)
+        self._pins.append((shoulder_pin, elbow_pin))
         return upper, forearm
 
     # -- stepping ------------------------------------------------------------------------------
@@ -205,49 +214,88 @@ class ArmPlant(Component):
                               f"{dt:.3g} s exceeds the servo time constant {1 / rate.max():.3g} s; "
                               f"use substeps >= {math.ceil(h * rate.max())}")
         # The hot loop runs substeps times over the whole batch: the bodies' angular velocities read and their
-        # torques written by pymunk's batch calls, one C call each for all trials, the servo law in numpy
-        # (element-wise IEEE arithmetic: the same numbers bit for bit as a per-trial loop, without its Python calls).
-        want, gain, cap = command.T, v["servo_gain"], v["torque_limit"]
-        upper, forearm = self._body_slots
+        # torques written by pymunk's batch calls, one C call each for all trials, the servo law in numpy on
+        # (B, 2) views (element-wise IEEE arithmetic in the order of the per-trial formula: the same numbers bit
+        # for bit as a per-trial loop, without its Python calls), into arrays made once per step.
+        want, gain, cap = command, v["servo_gain"][:, None], v["torque_limit"][:, None]
+        floor, order, regular = -cap, self._order, self._regular
         speeds, torques = pymunk.batch.Buffer(), pymunk.batch.Buffer()
-        torque = np.zeros(2 * self.batch_size)
+        torque = np.zeros(self._bodies)  # every body the batch call walks (the space's static one too) gets one
         torques.set_float_buf(torque)
-        held = [trial for trial, cell in enumerate(self._cells) if cell is not None]
-        springs = [spring._constraint for trial in held for spring in self._cells[trial]]
+        arms = 2 * self.batch_size
+        joint = torque[:arms].reshape(-1, 2) if regular else np.zeros((self.batch_size, 2))  # (upper, forearm) each
+        relative, tau = np.empty((self.batch_size, 2)), np.empty((self.batch_size, 2))
+        held, springs = self._held, self._springs
         get_impulse = chipmunk.cpConstraintGetImpulse
-        impulses = np.zeros((len(held), 2))
+        impulses = np.zeros(len(springs))
+        get_bodies, set_bodies, angular, torque_field = (pymunk.batch.get_space_bodies, pymunk.batch.set_space_bodies,
+                                                         BodyFields.ANGULAR_VELOCITY, BodyFields.TORQUE)
+        space, count = self.space, len(springs)
         for _ in range(substeps):
             speeds.clear()
-            pymunk.batch.get_space_bodies(self.space, BodyFields.ANGULAR_VELOCITY, speeds)
+            get_bodies(space, angular, speeds)
             speed = np.frombuffer(speeds.float_buf())
-            tau_shoulder = np.minimum(np.maximum(gain * (want[0] - speed[upper]), -cap), cap)
-            tau_elbow = np.minimum(np.maximum(gain * (want[1] - (speed[forearm] - speed[upper])), -cap), cap)
-            torque[upper] = tau_shoulder - tau_elbow  # the elbow motor pushes back on the upper arm
-            torque[forearm] = tau_elbow
-            pymunk.batch.set_space_bodies(self.space, BodyFields.TORQUE, torques)
-            self.space.step(dt)
-            impulses += np.fromiter(map(get_impulse, springs), float, len(springs)).reshape(-1, 2)
+            speed = (speed[:arms] if regular else speed[order]).reshape(-1, 2)
+            # shoulder: want - w_upper; elbow: want - (w_forearm - w_upper); then clip(K e, +-limit)
+            relative[:, 0] = speed[:, 0]
+            np.subtract(speed[:, 1], speed[:, 0], out=relative[:, 1])
+            np.subtract(want, relative, out=tau)
+            np.multiply(gain, tau, out=tau)
+            np.maximum(tau, floor, out=tau)
+            np.minimum(tau, cap, out=tau)
+            np.subtract(tau[:, 0], tau[:, 1], out=joint[:, 0])  # the elbow motor pushes back on the upper arm
+            joint[:, 1] = tau[:, 1]
+            if not regular:
+                torque[order] = joint.reshape(-1)
+            set_bodies(space, torque_field, torques)
+            space.step(dt)
+            impulses += np.fromiter(map(get_impulse, springs), float, count)
         force = np.zeros((self.batch_size, 2))
-        force[held] = impulses
+        force[held] = impulses.reshape(-1, 2)
         # The springs' impulse is what the clamp does to the arm; the arm exerts the opposite.
         self._publish(-force / h)
 
     def _release(self, t):
-        """Remove the load cell of every held trial whose ``release_time`` has come (the arm is free from now)."""
-        for trial, cell in enumerate(self._cells):
-            if cell is not None and t >= self.values["release_time"][trial] - 1e-9:
-                self.space.remove(*cell)
-                self._cells[trial] = None
+        """Remove the load cell of every held trial whose ``release_time`` has come (the arm is free from now).
+
+        Chipmunk removes a constraint by moving the space's last one into its place, which would reorder the
+        OTHER trials' joints, and the solver's order changes its rounding. So the remaining constraints are put
+        back in the order they were added, trial by trial: each trial's joints are solved in the order they would
+        have in a space of its own, and its numbers do not depend on the other trials of the batch.
+        """
+        due = np.flatnonzero(np.isin(np.arange(self.batch_size), self._held)
+                             & (t >= self.values["release_time"] - 1e-9))
+        if not len(due):
+            return
+        for trial in due:
+            self._cells[trial] = None
+        self.space.remove(*self.space.constraints)
+        self.space.add(*(joint for pins, cell in zip(self._pins, self._cells) for joint in (*pins, *(cell or ()))))
+        self._held_springs()
+
+    def _held_springs(self):
+        """The held trials, and their load cells' springs (x, y per trial) as Chipmunk constraints, in that order."""
+        self._held = np.array([trial for trial, cell in enumerate(self._cells) if cell is not None], dtype=int)
+        self._springs = [spring._constraint for trial in self._held for spring in self._cells[trial]]
 
     def _publish(self, force):
-        """Replace every output array from the bodies' current state (never mutate in place)."""
-        angles = np.array([(upper.angle, forearm.angle - upper.angle) for upper, forearm in self._arms])
-        hands = np.array([tuple(forearm.local_to_world((FOREARM / 2, 0.0))) for _, forearm in self._arms])
-        self.values.update(q_shoulder=np.degrees(angles[:, 0]), q_elbow=np.degrees(angles[:, 1]),
+        """Replace every output array from the bodies' current state (never mutate in place).
+
+        The angles come from one batch read of the bodies' angles (pymunk's ``Body.angle``); each hand from
+        Chipmunk's own cpBodyLocalToWorld on the forearm (``Body.local_to_world`` without its Python wrapper), so
+        the numbers are the ones those calls give.
+        """
+        angles = pymunk.batch.Buffer()
+        pymunk.batch.get_space_bodies(self.space, BodyFields.ANGLE, angles)
+        angle = np.frombuffer(angles.float_buf())[self._order].reshape(-1, 2)  # (upper, forearm) per trial
+        to_world, tip = chipmunk.cpBodyLocalToWorld, (FOREARM / 2, 0.0)
+        hands = np.array([(hand.x, hand.y) for hand in (to_world(forearm._body, tip) for _, forearm in self._arms)]
+                         ).reshape(-1, 2)
+        self.values.update(q_shoulder=np.degrees(angle[:, 0]), q_elbow=np.degrees(angle[:, 1] - angle[:, 0]),
                            hand_x=hands[:, 0], hand_y=hands[:, 1], force_x=force[:, 0], force_y=force[:, 1])
 
     def terminate_hook(self):
         """Drop the pymunk space and its arms."""
-        self._arms, self._cells = [], []
+        self._arms, self._cells, self._pins = [], [], []
         self.space = None
 

@@ -168,6 +168,8 @@ def require_finite(name, value, allow_minus_inf=False):
         "<name> is not finite (<value>) in trial(s) ...".
     """
     value = np.asarray(value)
+    if np.isfinite(value).all():  # the usual case, checked every step: one pass
+        return
     bad = np.isnan(value) | (value == np.inf) if allow_minus_inf else ~np.isfinite(value)
     per_trial = bad.reshape(len(value), -1).any(axis=1)
     if per_trial.any():

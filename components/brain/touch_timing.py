@@ -194,9 +194,11 @@ def update_gamma(gamma, new_pair, visual_time, tactile_time, time, step, gamma0,
     ndarray, (B,)
         gamma, in [gamma0, 1].
     """
+    decay = decayed(gamma, time, tactile_time, step, decay_rate)
+    if not np.any(new_pair):  # most steps: no trial takes Bayes' branch, so skip scipy's density (same numbers)
+        return np.clip(decay, gamma0, 1.0)
     # Event times may be -inf where no pair is due; keep them out of the density (no inf - inf).
     visual = np.where(new_pair, visual_time, 0.0)
     tactile = np.where(new_pair, tactile_time, 0.0)
     bayes = posterior_common_cause(gamma, visual, tactile, sync_sd, async_density, spatial)
-    decay = decayed(gamma, time, tactile_time, step, decay_rate)
     return np.clip(np.where(new_pair, bayes, decay), gamma0, 1.0)

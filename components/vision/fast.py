@@ -179,12 +179,16 @@ class LinearisedDecoder(Decoder):
             for slot in np.unique(slots):  # one pass over each point in use and over each image
                 trials = np.flatnonzero(slots == slot)
                 residual = self._residual[:len(trials)]  # preallocated: a fresh 16 MB a step costs page faults
-                if trials[-1] - trials[0] == len(trials) - 1:  # a run of trials: no gather
-                    torch.sub(sensed[trials[0]:trials[-1] + 1], self._store[slot, 0], out=residual)
-                else:
-                    torch.index_select(sensed, 0, torch.from_numpy(trials), out=residual).sub_(self._store[slot, 0])
-                projected[trials] = F.linear(residual, self._store[slot, 1:])
-                squared[trials] = torch.linalg.vector_norm(residual, dim=1).square()
+                if trials[-1] - trials[0] == len(trials) - 1:  # a run of trials: no gather, results by slice
+                    rows = slice(trials[0], trials[-1] + 1)
+                    torch.sub(sensed[rows], self._store[slot, 0], out=residual)
+                    projected[rows] = F.linear(residual, self._store[slot, 1:])
+                    squared[rows] = torch.linalg.vector_norm(residual, dim=1).square()
+                else:  # the same numbers, copied by index (torch's numpy-index assignment costs more)
+                    rows = torch.from_numpy(trials)
+                    torch.index_select(sensed, 0, rows, out=residual).sub_(self._store[slot, 0])
+                    projected.index_copy_(0, rows, F.linear(residual, self._store[slot, 1:]))
+                    squared.index_copy_(0, rows, torch.linalg.vector_norm(residual, dim=1).square())
         step = mu - self._points[slots]  # d, float64
         gram = self._gram[torch.from_numpy(slots)]
         drive, error = linearised_terms(projected.double(), squared.double(), gram, torch.from_numpy(step))
