@@ -21,6 +21,7 @@ from components.body import kinematics
 from master.cosim import ConfigError, SimulationError
 from master.export.ssp_check import Package, read_ssp, trial_parameters
 from master.export.ssp_package import AGENT, BODY, MASTERS, MAX_STEPS, build_ssp
+from master.export.ssp_runner import refusal
 from master.outputs.files import atomic_write, check_output_file
 
 
@@ -51,7 +52,8 @@ def run_ssp(path, master: str, trial: str | None = None, steps: int | None = Non
     Raises
     ------
     ConfigError
-        A bad package, master, trial or step count.
+        A bad package, master, trial or step count, or a component that refused to start with the package's
+        values (its own reason: a goal outside the ranges the decoders know, a variance of 0).
     SimulationError
         The master failed (its one-line reason).
     """
@@ -96,6 +98,10 @@ def run_ssp(path, master: str, trial: str | None = None, steps: int | None = Non
         if done.returncode != 0 or not (Path(folder) / "result.npz").is_file():
             lines = [line for line in done.stderr.splitlines() if line.strip()]
             reason = lines[-1] if lines else f"the child process ended with status {done.returncode}"
+            refused = refusal(folder, done.stderr)
+            if refused:  # a component would not start with the package's values
+                raise ConfigError(f"{os.path.basename(package.path)}: {refused} (refused as the FMU started under "
+                                  f"{master})")
             raise SimulationError(master, 0.0, reason.removeprefix("rhi-ssp-runner: "), "error")
         with np.load(Path(folder) / "result.npz") as result:
             return {key: result[key] for key in result.files}
