@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
 from master.cosim import ConfigError
+from master.outputs.scratch import scratch_folder
 from master.export.ssp_package import AGENT, NS, SSD, TRIALS, declared_ranges, declared_variables, parse_value, qualified
 
 @dataclass
@@ -91,7 +91,7 @@ def read_ssp(path) -> Package:
     except ArchiveError as error:
         raise ConfigError(str(error)) from None
     package = Package(path)
-    with zipfile.ZipFile(path) as archive, tempfile.TemporaryDirectory(prefix="rhi_ssp_") as folder:
+    with zipfile.ZipFile(path) as archive, scratch_folder("rhi_ssp_check_") as folder:
         members = set(archive.namelist())
         if SSD not in members:
             raise ConfigError(f"{name} has no {SSD}")

@@ -12,7 +12,6 @@ import json
 import os
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +22,7 @@ from master.export.ssp_check import Package, read_ssp, trial_parameters
 from master.export.ssp_package import AGENT, BODY, MASTERS, MAX_STEPS, build_ssp
 from master.export.ssp_runner import refusal
 from master.outputs.files import atomic_write, check_output_file
+from master.outputs.scratch import scratch_folder
 
 
 def run_ssp(path, master: str, trial: str | None = None, steps: int | None = None, timeout: float | None = None) -> dict:
@@ -76,7 +76,7 @@ def run_ssp(path, master: str, trial: str | None = None, steps: int | None = Non
     if steps > MAX_STEPS:
         raise ConfigError(f"{os.path.basename(package.path)}: {steps} steps, over the limit of {MAX_STEPS} "
                           "(lower the stop time, or give --steps)")
-    with tempfile.TemporaryDirectory(prefix="rhi_ssp_run_") as folder:
+    with scratch_folder("rhi_ssp_run_") as folder:
         unpacked, fmus = unpack(package, Path(folder))
         request = Path(folder) / "request.json"
         request.write_text(json.dumps({
@@ -185,7 +185,7 @@ def export_system(out, config: dict, kind: str | None = None, variant: str = "na
                               + "; ".join(problems))
     elif variant not in VARIANT_NAMES:
         raise ConfigError(f"--body-variant {variant!r} is not one of {', '.join(VARIANT_NAMES)}")
-    with tempfile.TemporaryDirectory(prefix="rhi_system_") as folder:
+    with scratch_folder("rhi_system_") as folder:
         agent, _ = export_agent(Path(folder) / "Agent.fmu", config, kind, task)
         body = body or str(export_body(Path(folder) / "Body.fmu", variant))
         return build_ssp(out, str(agent), body, config, kind, bound, task)
