@@ -192,7 +192,15 @@ class AnswersAtOnce(socketserver.BaseRequestHandler):
         self.request.sendall(b"HTTP/1.0 200 OK\r\nContent-Type: text/html\r\n\r\n<html>hello</html>\r\n")
 
 
-@pytest.mark.parametrize("server", ["http.server", "answers_at_once"])
+class AnswersWhenSpokenTo(socketserver.BaseRequestHandler):
+    """Silent until it gets a byte, then HTTP, whatever was said (dask, speaking, would read a 3 EiB length)."""
+
+    def handle(self):
+        if self.request.recv(1):
+            self.request.sendall(b"HTTP/1.1 400 Bad Request\r\nContent-Length: 0\r\n\r\n")
+
+
+@pytest.mark.parametrize("server", ["http.server", "answers_at_once", "answers_when_spoken_to"])
 def test_an_http_listener_as_scheduler_is_refused_within_the_limit(tmp_path, server):
     import http.server
     import threading
@@ -201,7 +209,8 @@ def test_an_http_listener_as_scheduler_is_refused_within_the_limit(tmp_path, ser
     from master.sweeps.runner import CONNECT_TIMEOUT_S
     from tests.sweep_files import sweep_file
 
-    handler = http.server.SimpleHTTPRequestHandler if server == "http.server" else AnswersAtOnce
+    handler = {"http.server": http.server.SimpleHTTPRequestHandler, "answers_at_once": AnswersAtOnce,
+               "answers_when_spoken_to": AnswersWhenSpokenTo}[server]
     listener = socketserver.ThreadingTCPServer(("127.0.0.1", 0), handler)
     listener.daemon_threads = True
     threading.Thread(target=listener.serve_forever, daemon=True).start()
