@@ -11,8 +11,10 @@ from pathlib import Path
 from xml.etree import ElementTree as ET
 
 from master.cosim import ConfigError
+from master.export.ssp_package import (AGENT, NS, SSD, TRIALS, declared_ranges, declared_variables, parse_value,
+                                       qualified)
 from master.outputs.scratch import scratch_folder
-from master.export.ssp_package import AGENT, NS, SSD, TRIALS, declared_ranges, declared_variables, parse_value, qualified
+
 
 @dataclass
 class Package:

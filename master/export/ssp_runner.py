@@ -4,9 +4,9 @@
 package, the master, the steps and step size, each component's parameters (as the package binds
 them, or the trial asked for) and the connectors to record. The result, ``time`` and
 ``component.variable`` arrays of one row per step, goes to the request's ``out`` (.npz). A failure is
-one line on stderr and exit status 1; a component that refuses to start (its initialization or its first step
-fails) is named by its own logged reason, ``rhi-ssp-runner: refused: REASON``. The process ends with ``os._exit``: the masters' and
-pythonfmu's libraries are left to the operating system, not to exit-time destructors (pythonfmu 0.7's
+one line on stderr and exit status 1; a component that refuses to start (its initialization or its first
+step fails) is named in the words it logged (:func:`refusal`). The process ends with ``os._exit``: the
+masters' and pythonfmu's libraries are left to the operating system, not to exit-time destructors (pythonfmu 0.7's
 can abort the process, see components/fmu/library.py).
 """
 from __future__ import annotations
@@ -22,13 +22,12 @@ from master.outputs.processes import die_with_parent
 
 # libcosim's log line of a message an FMU logged with status error or fatal
 LOGGED = re.compile(r"\[FMI status=(?:error|fatal), category=[^\]]*\] (.*)")
-
-
 LOG, STEPPED = "libcosim.log", "stepped"  # beside the request's out: libcosim's log; a first step done
+REFUSED = "rhi-ssp-runner: refused: "  # the runner's last line for a component that refused to start
 
 
 class Refused(RuntimeError):
-    """A component refused to start (its initialization or first step failed): ``reason`` is its own words."""
+    """A component refused to start (its initialization or first step failed); the message is its own words."""
 
 
 def first_reason(messages) -> str | None:
@@ -42,8 +41,8 @@ def refusal(folder: str, stderr: str) -> str | None:
     request's folder ``folder``), or None: FMPy's reason from the runner's last line, libcosim's from its log
     when no step was done."""
     lines = [line for line in stderr.splitlines() if line.strip()]
-    if lines and lines[-1].startswith("rhi-ssp-runner: refused: "):
-        return lines[-1].removeprefix("rhi-ssp-runner: refused: ")
+    if lines and lines[-1].startswith(REFUSED):
+        return lines[-1].removeprefix(REFUSED)
     log = os.path.join(folder, LOG)
     if os.path.exists(os.path.join(folder, STEPPED)) or not os.path.isfile(log):
         return None
@@ -202,7 +201,7 @@ if __name__ == "__main__":
     try:
         status = main(sys.argv[1])
     except Refused as error:
-        print(f"rhi-ssp-runner: refused: {' '.join(str(error).split())}", file=sys.stderr)
+        print(f"{REFUSED}{' '.join(str(error).split())}", file=sys.stderr)
         status = 1
     except BaseException as error:  # noqa: BLE001: one line for the parent, whatever happened
         print(f"rhi-ssp-runner: {type(error).__name__}: {' '.join(str(error).split())}", file=sys.stderr)
