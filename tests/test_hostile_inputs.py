@@ -192,7 +192,15 @@ class AnswersAtOnce(socketserver.BaseRequestHandler):
         self.request.sendall(b"HTTP/1.0 200 OK\r\nContent-Type: text/html\r\n\r\n<html>hello</html>\r\n")
 
 
-@pytest.mark.parametrize("server", ["http.server", "answers_at_once"])
+class AnswersWhenSpokenTo(socketserver.BaseRequestHandler):
+    """Silent until it gets a byte, then HTTP, whatever was said (dask, speaking, would read a 3 EiB length)."""
+
+    def handle(self):
+        if self.request.recv(1):
+            self.request.sendall(b"HTTP/1.1 400 Bad Request\r\nContent-Length: 0\r\n\r\n")
+
+
+@pytest.mark.parametrize("server", ["http.server", "answers_at_once", "answers_when_spoken_to"])
 def test_an_http_listener_as_scheduler_is_refused_within_the_limit(tmp_path, server):
     import http.server
     import threading
@@ -201,7 +209,8 @@ def test_an_http_listener_as_scheduler_is_refused_within_the_limit(tmp_path, ser
     from master.sweeps.runner import CONNECT_TIMEOUT_S
     from tests.sweep_files import sweep_file
 
-    handler = http.server.SimpleHTTPRequestHandler if server == "http.server" else AnswersAtOnce
+    handler = {"http.server": http.server.SimpleHTTPRequestHandler, "answers_at_once": AnswersAtOnce,
+               "answers_when_spoken_to": AnswersWhenSpokenTo}[server]
     listener = socketserver.ThreadingTCPServer(("127.0.0.1", 0), handler)
     listener.daemon_threads = True
     threading.Thread(target=listener.serve_forever, daemon=True).start()
@@ -216,7 +225,8 @@ def test_an_http_listener_as_scheduler_is_refused_within_the_limit(tmp_path, ser
         listener.server_close()
     took = time.monotonic() - began
     refused(done, "cannot reach the Dask scheduler at tcp://127.0.0.1:")
-    assert ("it answers HTTP" in done.stderr) == (server == "answers_at_once")  # http.server waits to be asked
+    assert "it answers HTTP" in done.stderr  # http.server waits to be spoken to: the probe speaks when it is silent
+    assert "MemoryError" not in done.stderr  # dask reads its answer's "HTTP/1.0" as a length: 3.07 EiB
     assert took < CONNECT_TIMEOUT_S + 10  # the limit, plus the command's start-up
     assert sorted(os.listdir(tmp_path / "work")) == ["s.toml"]
 

@@ -112,9 +112,12 @@ def build_agent_fmu(out, kind: str, config: dict, checkpoint: str, task: str = "
     manifest = {"task": agent.task, "decoder": kind, "config": config, "ports": ports(agent), "rhi": version}
     with tempfile.TemporaryDirectory(prefix="rhi_agent_") as staging:
         staging = Path(staging)
-        script = staged_script(SLAVE, staging, "rhi_agent_slave")
-        (staging / MANIFEST).write_text(json.dumps(manifest, indent=1), encoding="utf-8")
-        shutil.copyfile(checkpoint, staging / CHECKPOINT)
+        try:
+            script = staged_script(SLAVE, staging, "rhi_agent_slave")
+            (staging / MANIFEST).write_text(json.dumps(manifest, indent=1), encoding="utf-8")
+            shutil.copyfile(checkpoint, staging / CHECKPOINT)
+        except OSError as error:  # a full TMPDIR: shutil's writes name no file
+            raise OSError(error.errno, error.strerror, error.filename or str(staging)) from error
         files = [staging / MANIFEST, staging / CHECKPOINT]
         build = lambda target: build_with_pythonfmu(script, target, files, "the agent FMU")
         return built_beside(out, build)

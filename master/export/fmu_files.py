@@ -20,7 +20,8 @@ def check_target(out) -> Path:
 
 def built_beside(out: Path, build) -> Path:
     """``build(target)`` writes a file at ``target`` (and returns its path), in a folder beside ``out``; the file
-    is then renamed into place: ``out`` is whole, the old one, or absent, whatever happens.
+    is then renamed into place: ``out`` is whole, the old one, or absent, whatever happens. An error of
+    writing that names no file (a full disk under a builder's zipfile) is raised naming ``out``.
 
     Parameters
     ----------
@@ -42,6 +43,10 @@ def built_beside(out: Path, build) -> Path:
         built = Path(build(beside / out.name))
         built.chmod(0o666 & ~umask())
         os.replace(built, out)
+    except OSError as error:
+        if error.filename is None and error.errno is not None:  # a builder's write (zipfile's) names no file
+            raise OSError(error.errno, error.strerror, str(out)) from error
+        raise
     finally:
         shutil.rmtree(beside, ignore_errors=True)
     return out

@@ -5,14 +5,16 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
 from master.cosim import ConfigError
-from master.export.ssp_package import AGENT, NS, SSD, TRIALS, parse_value, qualified, declared_variables
+from master.export.ssp_package import (AGENT, NS, SSD, TRIALS, declared_ranges, declared_variables, parse_value,
+                                       qualified)
+from master.outputs.scratch import scratch_folder
+
 
 @dataclass
 class Package:
@@ -26,6 +28,8 @@ class Package:
         ``name -> source`` (the FMU's path in the package), in the SSD's order.
     variables : dict
         ``name -> {variable: (causality, type)}`` of each component's FMU.
+    ranges : dict
+        ``name -> {variable: (min, max)}``: each Real and Integer variable's declared bounds (None: unbounded).
     connections : list
         ``(start element, start connector, end element, end connector)``.
     bindings : dict
@@ -39,6 +43,7 @@ class Package:
     path: str
     components: dict = field(default_factory=dict)
     variables: dict = field(default_factory=dict)
+    ranges: dict = field(default_factory=dict)
     connections: list = field(default_factory=list)
     bindings: dict = field(default_factory=dict)
     parameters: list = field(default_factory=list)
@@ -71,7 +76,9 @@ def read_ssp(path) -> Package:
     ConfigError
         One line naming the first problem: no such file, not a zip, no SystemStructure.ssd, an FMU
         missing from the package or unusable, a parameter file missing, a connection to an element or
-        variable that does not exist or of the wrong causality or type, a parameter its FMU lacks.
+        variable that does not exist or of the wrong causality or type, a parameter its FMU lacks, a
+        parameter value not of its type (not finite, an Integer beyond a C int, a Boolean not true or
+        false) or outside the range its FMU declares.
     """
     from components.archives import ArchiveError, check_archive
     from components.fmu import check_contract
@@ -86,7 +93,7 @@ def read_ssp(path) -> Package:
     except ArchiveError as error:
         raise ConfigError(str(error)) from None
     package = Package(path)
-    with zipfile.ZipFile(path) as archive, tempfile.TemporaryDirectory(prefix="rhi_ssp_") as folder:
+    with zipfile.ZipFile(path) as archive, scratch_folder("rhi_ssp_check_") as folder:
         members = set(archive.namelist())
         if SSD not in members:
             raise ConfigError(f"{name} has no {SSD}")
@@ -108,6 +115,7 @@ def read_ssp(path) -> Package:
                                   + "; ".join(p.replace(fmu, source) for p in problems))
             try:
                 package.variables[component] = declared_variables(fmu)
+                package.ranges[component] = declared_ranges(fmu)
             except Exception as error:  # fmpy's schema validation of the model description
                 raise ConfigError(f"{name}: component {component!r} ({source}) has an unreadable model description: "
                                   f"{' '.join(str(error).split())[:300]}") from None
@@ -138,7 +146,8 @@ def read_ssp(path) -> Package:
         package.parameters = sorted(m for m in members if m.endswith(".ssv"))
         for component, sources in package.bindings.items():
             for source in sources:
-                check_parameters(archive, name, source, package.variables[component], component)
+                check_parameters(archive, name, source, package.variables[component], component,
+                                 package.ranges[component])
         experiment = root.find("ssd:DefaultExperiment", NS)
         if experiment is not None:
             package.stop_time = _time(name, "stopTime", experiment.get("stopTime"))
@@ -161,8 +170,10 @@ def _time(name: str, attribute: str, text: str | None) -> float | None:
     return value
 
 
-def check_parameters(archive: zipfile.ZipFile, name: str, source: str, declared: dict, component: str) -> dict:
-    """The parameter file ``source`` of the package, checked against the component's FMU: ``{name: (type, value)}``."""
+def check_parameters(archive: zipfile.ZipFile, name: str, source: str, declared: dict, component: str,
+                     ranges: dict | None = None) -> dict:
+    """The parameter file ``source`` of the package, checked against the component's FMU (``declared``, its
+    variables' causality and type; ``ranges``, their declared bounds): ``{name: (type, value)}``."""
     if source not in archive.namelist():
         raise ConfigError(f"{name}: component {component!r} binds the parameter file {source!r}, which is not in "
                           "the package")
@@ -178,11 +189,17 @@ def check_parameters(archive: zipfile.ZipFile, name: str, source: str, declared:
         if kind != declared[variable][1]:
             raise ConfigError(f"{name}: {source} sets {component}.{variable} as a {kind}; the FMU declares a "
                               f"{declared[variable][1]}")
+        text = typed.get("value", "")
         try:
-            values[variable] = (kind, parse_value(kind, typed.get("value", "")))
-        except ValueError:
-            raise ConfigError(f"{name}: {source} sets {component}.{variable} to {typed.get('value')!r}, not a "
-                              f"{kind}") from None
+            values[variable] = (kind, parse_value(kind, text))
+        except ValueError as error:
+            raise ConfigError(f"{name}: {source} sets {component}.{variable} to {text[:40]!r}, {error}") from None
+        low, high = (ranges or {}).get(variable, (None, None))
+        value = values[variable][1]
+        if low is not None and value < low or high is not None and value > high:
+            raise ConfigError(f"{name}: {source} sets {component}.{variable} = {value:g}, outside the range "
+                              f"[{'-inf' if low is None else f'{low:g}'}, {'inf' if high is None else f'{high:g}'}] "
+                              "its FMU declares")
     return values
 
 
@@ -198,5 +215,6 @@ def trial_parameters(package: Package, trial: str | None) -> dict:
                 known = sorted(Path(p).stem for p in package.parameters if p.startswith(TRIALS + "/"))
                 raise ConfigError(f"{name} has no trial {trial!r} (have: {', '.join(known) or 'none'})")
             chosen[AGENT] = source
-        return {component: check_parameters(archive, name, source, package.variables[component], component)
+        return {component: check_parameters(archive, name, source, package.variables[component], component,
+                                            package.ranges[component])
                 if source else {} for component, source in chosen.items()}

@@ -18,6 +18,8 @@ protocol, or the one asked for) and the others lie beside it for a tool to bind 
 """
 from __future__ import annotations
 
+import math
+import re
 import zipfile
 from pathlib import Path
 from xml.etree import ElementTree as ET
@@ -66,11 +68,33 @@ def format_value(kind: str, value) -> str:
     return {float("inf"): "INF", float("-inf"): "-INF"}.get(value, "NaN" if value != value else repr(value))
 
 
+INTEGER_RANGE = (-2 ** 31, 2 ** 31 - 1)  # an FMI 2.0 Integer is a C int
+_INTEGER = re.compile(r"[+-]?[0-9]+")
+_REAL = re.compile(r"[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?")
+
+
 def parse_value(kind: str, text: str):
-    """An SSV value ``text`` of FMI type ``kind``: a bool (``true`` or ``1``), an int or a float."""
+    """An SSV value ``text`` of FMI type ``kind``: a bool (``true``, ``false``, ``1``, ``0``), an int within a C
+    int's range, or a finite float (libcosim reads none of ``NaN``, ``INF``, and C++ streams refuse
+    ``1e400``).
+
+    Raises
+    ------
+    ValueError
+        Why ``text`` is not such a value, in words (``not finite``, ``outside [...]``).
+    """
+    text = text.strip()
     if kind == "Boolean":
+        if text not in ("true", "false", "1", "0"):
+            raise ValueError("not a Boolean (true, false, 1 or 0)")
         return text in ("true", "1")
-    return int(text) if kind == "Integer" else float(text)
+    if kind == "Integer":
+        if not _INTEGER.fullmatch(text) or not INTEGER_RANGE[0] <= int(text) <= INTEGER_RANGE[1]:
+            raise ValueError(f"not an Integer within [{INTEGER_RANGE[0]}, {INTEGER_RANGE[1]}]")
+        return int(text)
+    if kind != "Real" or not _REAL.fullmatch(text) or not math.isfinite(float(text)):
+        raise ValueError(f"not a finite {kind}" if kind == "Real" else f"not a {kind}")
+    return float(text)
 
 
 def parameter_set(name: str, values: dict[str, tuple[str, object]], starts: dict | None = None) -> bytes:
@@ -107,6 +131,16 @@ def declared_variables(fmu: str) -> dict[str, tuple[str, str]]:
     """``{name: (causality, FMI type)}`` of an FMU's scalar variables."""
     from fmpy import read_model_description
     return {v.name: (v.causality, v.type) for v in read_model_description(fmu, validate=False).modelVariables}
+
+
+def declared_ranges(fmu: str) -> dict[str, tuple[float | None, float | None]]:
+    """``{name: (min, max)}`` of an FMU's Real and Integer variables (None where it declares no bound)."""
+    from fmpy import read_model_description
+
+    def bound(text):
+        return None if text is None else float(text)
+    return {v.name: (bound(v.min), bound(v.max)) for v in read_model_description(fmu, validate=False).modelVariables
+            if v.type in ("Real", "Integer")}
 
 
 def start_values(fmu: str) -> dict[str, float]:

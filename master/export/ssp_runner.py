@@ -4,19 +4,85 @@
 package, the master, the steps and step size, each component's parameters (as the package binds
 them, or the trial asked for) and the connectors to record. The result, ``time`` and
 ``component.variable`` arrays of one row per step, goes to the request's ``out`` (.npz). A failure is
-one line on stderr and exit status 1. The process ends with ``os._exit``: the masters' and
-pythonfmu's libraries are left to the operating system, not to exit-time destructors (pythonfmu 0.7's
+one line on stderr and exit status 1; a component that refuses to start (its initialization or its first
+step fails) is named in the words it logged (:func:`refusal`). The process ends with ``os._exit``: the
+masters' and pythonfmu's libraries are left to the operating system, not to exit-time destructors (pythonfmu 0.7's
 can abort the process, see components/fmu/library.py).
 """
 from __future__ import annotations
 
 import json
 import os
+import re
 import sys
 
 import numpy as np
 
 from master.outputs.processes import die_with_parent
+
+# libcosim's log line of a message an FMU logged with status error or fatal
+LOGGED = re.compile(r"\[FMI status=(?:error|fatal), category=[^\]]*\] (.*)")
+LOG, STEPPED = "libcosim.log", "stepped"  # beside the request's out: libcosim's log; a first step done
+REFUSED = "rhi-ssp-runner: refused: "  # the runner's last line for a component that refused to start
+
+
+class Refused(RuntimeError):
+    """A component refused to start (its initialization or first step failed); the message is its own words."""
+
+
+def first_reason(messages) -> str | None:
+    """The first error a component logged, skipping pythonfmu's generic line that follows an exception."""
+    reasons = [m.strip() for m in messages if m.strip() and not m.startswith("Fatal py exception")]
+    return reasons[0] if reasons else None
+
+
+def refusal(folder: str, stderr: str) -> str | None:
+    """Why a component refused to start, in its own words, after the child failed (its stderr ``stderr``, its
+    request's folder ``folder``), or None: FMPy's reason from the runner's last line, libcosim's from its log
+    when no step was done."""
+    lines = [line for line in stderr.splitlines() if line.strip()]
+    if lines and lines[-1].startswith(REFUSED):
+        return lines[-1].removeprefix(REFUSED)
+    log = os.path.join(folder, LOG)
+    if os.path.exists(os.path.join(folder, STEPPED)) or not os.path.isfile(log):
+        return None
+    with open(log, encoding="utf-8", errors="replace") as file:
+        return first_reason(match.group(1) for match in map(LOGGED.search, file) if match)
+
+
+def logging_slave(messages: list):
+    """FMPy's ``FMU2Slave``, instantiated with logging on and a logger that keeps the error and fatal
+    messages in ``messages`` (FMPy's own prints them, if at all, only with logging on)."""
+    from ctypes import byref
+
+    from fmpy import fmi2
+
+    def log(component, instance, status, category, message):
+        if status >= 3:  # fmi2Error, fmi2Fatal
+            messages.append((message or b"").decode("utf-8", "replace"))
+
+    callbacks = fmi2.fmi2CallbackFunctions()
+    callbacks.logger = fmi2.fmi2CallbackLoggerTYPE(log)
+    callbacks.allocateMemory = fmi2.defaultCallbacks.allocateMemory
+    callbacks.freeMemory = fmi2.defaultCallbacks.freeMemory
+    try:
+        from fmpy.logging import addLoggerProxy  # formats the FMU's variadic arguments
+        addLoggerProxy(byref(callbacks))
+    except Exception:  # noqa: BLE001: without it the message is the format string, still the FMU's
+        pass
+
+    class FMU2LoggingSlave(fmi2.FMU2Slave):  # FMPy loads the functions by the class name's "FMU2"
+        logging = callbacks  # kept alive as long as the class, for the FMUs' calls
+
+        def instantiate(self, visible=False, callbacks=None, loggingOn=False):
+            return super().instantiate(visible, FMU2LoggingSlave.logging, True)
+
+        def doStep(self, *args, **kwargs):
+            status = super().doStep(*args, **kwargs)
+            messages.append(None)  # a step done: a later failure is no refusal to start
+            return status
+
+    return FMU2LoggingSlave
 
 
 def fmpy_run(request: dict) -> dict:
@@ -52,6 +118,8 @@ def fmpy_run(request: dict) -> dict:
         return folder if filename == folder else fmus[os.path.relpath(filename, folder).replace(os.sep, "/")]
 
     simulation.read_ssd, simulation.extract = read_unpacked, unpacked
+    messages = []
+    simulation.FMU2Slave = logging_slave(messages)
 
     parameters = ParameterSet(name="rhi")
     for component, values in request["parameters"].items():
@@ -60,8 +128,14 @@ def fmpy_run(request: dict) -> dict:
             parameter.type, parameter.value = kind, value
             parameters.parameters.append(parameter)
     h, steps = request["step_size"], request["steps"]
-    rows = simulate_ssp(folder, start_time=0.0, stop_time=(steps - 0.5) * h, step_size=h,
-                        parameter_set=parameters)
+    try:
+        rows = simulate_ssp(folder, start_time=0.0, stop_time=(steps - 0.5) * h, step_size=h,
+                            parameter_set=parameters)
+    except Exception:
+        reason = None if None in messages else first_reason(messages)
+        if reason:
+            raise Refused(reason) from None
+        raise
     result = {"time": rows["time"] + h}
     for name in rows.dtype.names:
         if name != "time":
@@ -74,8 +148,16 @@ def libcosim_run(request: dict) -> dict:
     package (the request's ``ssp`` folder): it applies the parameter set the SSD binds to each component; a
     trial asked for in its place is set as initial values."""
     from libcosimpy.CosimExecution import CosimExecution
+    from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
     from libcosimpy.CosimObserver import CosimObserver
 
+    # libcosim writes its log (the FMUs' messages among it) to standard output: into a file, which the parent
+    # reads when the child fails (a component's failure can end it in C++'s std::terminate)
+    log = os.path.join(os.path.dirname(request["out"]), LOG)
+    sys.stdout.flush()
+    with open(log, "wb") as file:
+        os.dup2(file.fileno(), 1)
+    log_output_level(CosimLogLevel.ERROR)
     execution = CosimExecution.from_ssp_file(request["ssp"])
     slaves = {info.name.decode(): info.index for info in execution.slave_infos()}
     references = {}
@@ -90,9 +172,11 @@ def libcosim_run(request: dict) -> dict:
     execution.add_observer(observer)
     rows = {f"{c}.{n}": [] for c, names in references.items() for n in names}
     times = []
-    for _ in range(request["steps"]):
+    for step in range(request["steps"]):
         if not execution.step():
             raise RuntimeError(f"libcosim failed a step: {execution.status()}")
+        if step == 0:  # libcosim initializes the FMUs in its first step; a failure after it is no refusal
+            open(os.path.join(os.path.dirname(request["out"]), STEPPED), "wb").close()
         times.append(execution.status().current_time * 1e-9)
         for component, names in references.items():
             values = observer.last_real_values(slaves[component], list(names.values()))
@@ -116,6 +200,9 @@ def main(path: str) -> int:
 if __name__ == "__main__":
     try:
         status = main(sys.argv[1])
+    except Refused as error:
+        print(f"{REFUSED}{' '.join(str(error).split())}", file=sys.stderr)
+        status = 1
     except BaseException as error:  # noqa: BLE001: one line for the parent, whatever happened
         print(f"rhi-ssp-runner: {type(error).__name__}: {' '.join(str(error).split())}", file=sys.stderr)
         status = 1

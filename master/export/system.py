@@ -12,7 +12,6 @@ import json
 import os
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +20,9 @@ from components.body import kinematics
 from master.cosim import ConfigError, SimulationError
 from master.export.ssp_check import Package, read_ssp, trial_parameters
 from master.export.ssp_package import AGENT, BODY, MASTERS, MAX_STEPS, build_ssp
+from master.export.ssp_runner import refusal
 from master.outputs.files import atomic_write, check_output_file
+from master.outputs.scratch import scratch_folder
 
 
 def run_ssp(path, master: str, trial: str | None = None, steps: int | None = None, timeout: float | None = None) -> dict:
@@ -51,7 +52,8 @@ def run_ssp(path, master: str, trial: str | None = None, steps: int | None = Non
     Raises
     ------
     ConfigError
-        A bad package, master, trial or step count.
+        A bad package, master, trial or step count, or a component that refused to start with the package's
+        values (its own reason: a goal outside the ranges the decoders know, a variance of 0).
     SimulationError
         The master failed (its one-line reason).
     """
@@ -74,7 +76,7 @@ def run_ssp(path, master: str, trial: str | None = None, steps: int | None = Non
     if steps > MAX_STEPS:
         raise ConfigError(f"{os.path.basename(package.path)}: {steps} steps, over the limit of {MAX_STEPS} "
                           "(lower the stop time, or give --steps)")
-    with tempfile.TemporaryDirectory(prefix="rhi_ssp_run_") as folder:
+    with scratch_folder("rhi_ssp_run_") as folder:
         unpacked, fmus = unpack(package, Path(folder))
         request = Path(folder) / "request.json"
         request.write_text(json.dumps({
@@ -96,6 +98,10 @@ def run_ssp(path, master: str, trial: str | None = None, steps: int | None = Non
         if done.returncode != 0 or not (Path(folder) / "result.npz").is_file():
             lines = [line for line in done.stderr.splitlines() if line.strip()]
             reason = lines[-1] if lines else f"the child process ended with status {done.returncode}"
+            refused = refusal(folder, done.stderr)
+            if refused:  # a component would not start with the package's values
+                raise ConfigError(f"{os.path.basename(package.path)}: {refused} (refused as the FMU started under "
+                                  f"{master})")
             raise SimulationError(master, 0.0, reason.removeprefix("rhi-ssp-runner: "), "error")
         with np.load(Path(folder) / "result.npz") as result:
             return {key: result[key] for key in result.files}
@@ -179,7 +185,7 @@ def export_system(out, config: dict, kind: str | None = None, variant: str = "na
                               + "; ".join(problems))
     elif variant not in VARIANT_NAMES:
         raise ConfigError(f"--body-variant {variant!r} is not one of {', '.join(VARIANT_NAMES)}")
-    with tempfile.TemporaryDirectory(prefix="rhi_system_") as folder:
+    with scratch_folder("rhi_system_") as folder:
         agent, _ = export_agent(Path(folder) / "Agent.fmu", config, kind, task)
         body = body or str(export_body(Path(folder) / "Body.fmu", variant))
         return build_ssp(out, str(agent), body, config, kind, bound, task)

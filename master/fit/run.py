@@ -55,11 +55,11 @@ def prepare_folder(out: Path, identity: str, simulations: str | None = None) -> 
     """DIR new, empty, or an earlier run of this same fit; ConfigError otherwise (before anything is written).
     Its simulations/ and predictive/, when not empty, must be sweeps rhi wrote there, simulations/ the sweep of
     fingerprint ``simulations`` (this fit's): rhi fit has no --force, and never writes over another's."""
-    from master.sweeps.folder import check_folder, read_manifest
+    from master.sweeps.folder import check_folder, only_leftovers, read_manifest
 
     check_folder(out)
     manifest = out / "fit.json"
-    if out.is_dir() and any(out.iterdir()):
+    if out.is_dir() and any(out.iterdir()) and not only_leftovers(out, ("figures",)):
         try:
             old = json.loads(manifest.read_text(encoding="utf-8")) if not manifest.is_symlink() else None
         except (OSError, ValueError, RecursionError):  # unreadable, not JSON, nested too deep: not a fit's
@@ -74,7 +74,7 @@ def prepare_folder(out: Path, identity: str, simulations: str | None = None) -> 
                 raise ConfigError(f"output {out / name} is a symbolic link; a fit writes only into folders of its own")
         for name in ("simulations", "predictive"):
             folder = out / name
-            if not folder.is_dir() or not any(folder.iterdir()):
+            if not folder.is_dir() or not any(folder.iterdir()) or only_leftovers(folder):
                 continue
             sweep = read_manifest(folder / "sweep.json")
             if sweep is None:

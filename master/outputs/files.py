@@ -28,6 +28,16 @@ OUTPUT_COMMAND = "rhi experiment"  # run.json's and the manifest's "command": an
 OUTPUT_COMMANDS = (OUTPUT_COMMAND, "rhi reach", "rhi phenomenon moving-hand", "rhi phenomenon reach-after")
 STAGING_MARK = ".rhi-staging"  # inside a staging folder until it is published: ours, and safe to clean
 _ACTIVE: dict[Path, "OutputLock"] = {}  # staging folder -> its lock, while this process writes them
+# A write refused by the machine (a full disk or quota, an I/O error): exit status 1, not a refusal of the input
+MACHINE_ERRORS = (errno.ENOSPC, errno.EDQUOT, errno.EIO, errno.EFBIG)
+
+
+def cannot_write(where: Path, error: OSError) -> Exception:
+    """The error to raise when ``where`` cannot be written: the machine's (an OSError naming ``where``: a full
+    disk, exit status 1) or the input's (ConfigError: no permission, a read-only file system)."""
+    if error.errno in MACHINE_ERRORS:
+        return OSError(error.errno, error.strerror, str(where))
+    return ConfigError(f"cannot write into {where}: {error.strerror or error}")
 
 
 def foreign_entries(folder: Path) -> list[str]:
@@ -164,7 +174,7 @@ class OutputLock:
             try:
                 descriptor = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o666)
             except OSError as error:
-                raise ConfigError(f"cannot write into {self.path.parent}: {error.strerror}") from None
+                raise cannot_write(self.path.parent, error) from None
             try:
                 fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:
@@ -251,9 +261,13 @@ def _make_staging(out: Path) -> Path:
     parent = out.absolute() if out.is_dir() and os.path.ismount(out) else out.absolute().parent
     try:
         staging = Path(tempfile.mkdtemp(dir=parent, prefix=f".{out.name}.", suffix=".partial"))
-        (staging / STAGING_MARK).write_text(f"{os.getpid()}\n")
     except OSError as error:
-        raise ConfigError(f"cannot write into {parent}: {error.strerror}") from None
+        raise cannot_write(parent, error) from None
+    try:
+        (staging / STAGING_MARK).write_text(f"{os.getpid()}\n")
+    except OSError as error:  # a full disk makes the folder but not the file: the folder goes again
+        shutil.rmtree(staging, ignore_errors=True)
+        raise cannot_write(parent, error) from None
     staging.chmod(0o777 & ~umask())  # mkdtemp makes it private; the published folder is an ordinary one
     return staging
 

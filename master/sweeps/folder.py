@@ -39,7 +39,7 @@ def sweep_folder(out: Path, sweep: Sweep, force: bool):
     """
     check_folder(out)
     manifest = out / "sweep.json"
-    if out.is_dir() and not manifest.exists() and any(out.iterdir()):
+    if out.is_dir() and not manifest.exists() and any(out.iterdir()) and not only_leftovers(out):
         raise ConfigError(f"output folder {out} is not empty and holds no sweep (no sweep.json); --force only "
                           "replaces a sweep: choose another --out")
     if manifest.exists() or manifest.is_symlink():
@@ -56,7 +56,8 @@ def sweep_folder(out: Path, sweep: Sweep, force: bool):
     try:
         with lock:
             yield from _prepared(out, sweep, force, manifest, lock)
-    except ConfigError:  # refused before any trial ran: a DIR this sweep made goes again (all of it is ours)
+    except (ConfigError, OSError):  # refused, or a full disk, before any trial ran: a DIR this sweep made goes
+        # again (all of it is ours)
         if created and not any((out / "trials").glob("*.json")):
             shutil.rmtree(out, ignore_errors=True)
         raise
@@ -81,6 +82,20 @@ def _prepared(out: Path, sweep: Sweep, force: bool, manifest: Path, lock):
     for leftover in (out / "trials").glob(".*.tmp"):  # a write cut short by a kill; its trial reruns
         leftover.unlink()
     yield records, own
+
+
+def only_leftovers(folder: Path, folders=("trials",)) -> bool:
+    """Whether ``folder`` holds nothing but what a run cut short before its first file (a full disk) leaves: an
+    empty ``.lock`` and the empty ``folders`` it made; the same command then starts there as in an empty one."""
+    for entry in folder.iterdir():
+        if entry.is_symlink():
+            return False
+        if entry.name == ".lock" and stat.S_ISREG(entry.stat().st_mode) and entry.stat().st_size == 0:
+            continue
+        if entry.name in folders and entry.is_dir() and not any(entry.iterdir()):
+            continue
+        return False
+    return True
 
 
 def check_folder(out: Path) -> None:

@@ -79,11 +79,18 @@ PROBE_S = 3.0  # of CONNECT_TIMEOUT_S: how long the probe waits for a tcp:// sch
 MAX_HANDSHAKE_BYTES = 2**20
 
 
+# What the probe says to a listener that stays silent: a frame as Dask's TCP comm frames one (8 bytes, the
+# little-endian length of what follows, then 2 bytes), ending a line: an HTTP server answers it (400, bad request),
+# a Dask scheduler (which would have spoken first) reads a 2-byte message it cannot decode and drops it.
+POKE = (2).to_bytes(8, "little") + b"\r\n"
+
+
 def probe(scheduler: str, timeout: float) -> str | None:
-    """Why the tcp:// listener at ``scheduler`` is not a Dask scheduler, from the first bytes it sends: an
+    """Why the tcp:// listener at ``scheduler`` is not a Dask scheduler, from the first bytes it sends (within
+    half of ``timeout``), or, if it stays silent, those it answers to :data:`POKE` (within the other half): an
     HTTP server's answer, or a first message larger than MAX_HANDSHAKE_BYTES (which dask would try to
-    allocate). None when it looks like one, sends nothing within ``timeout``, or cannot be reached (dask's
-    own attempt then says why)."""
+    allocate). None when it looks like one, sends nothing, or cannot be reached (dask's own attempt then says
+    why)."""
     from distributed.comm.addressing import parse_address, parse_host_port
 
     try:
@@ -91,9 +98,13 @@ def probe(scheduler: str, timeout: float) -> str | None:
         if scheme != "tcp":
             return None
         host, port = parse_host_port(location)
-        with socket.create_connection((host, port), timeout=timeout) as peer:
-            peer.settimeout(timeout)
-            head = peer.recv(8, socket.MSG_WAITALL)
+        with socket.create_connection((host, port), timeout=timeout / 2) as peer:
+            peer.settimeout(timeout / 2)
+            try:
+                head = peer.recv(8, socket.MSG_WAITALL)
+            except TimeoutError:  # silent: a Dask scheduler speaks first; what does it answer when spoken to?
+                peer.sendall(POKE)
+                head = peer.recv(8, socket.MSG_WAITALL)
     except (OSError, ValueError, TypeError):
         return None
     if head.startswith(b"HTTP/") or head[:4].upper() in (b"<!DO", b"<HTM"):
