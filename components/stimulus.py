@@ -56,13 +56,6 @@ class Stimulus(Component):
                      description="how far forward of the target the ball starts each period"),
             Variable("stop_time", "parameter", start=np.inf, min=0.0, unit="s",
                      description="no touch after this time (inf: the stroking never stops)"),
-            Variable("stroke_duration", "parameter", start=np.inf, min=0.0, unit="s",
-                     description="the ball moves onto the target during this long before each touch (inf: the "
-                                 "whole period)"),
-            Variable("touch", "parameter", "Boolean", start=True, unit="1",
-                     description="tactile events follow the visual ones (false: vision only)"),
-            Variable("blocks", "parameter", "Array", shape=(MAX_BLOCKS, 2), start=ONE_BLOCK, unit="s",
-                     description="stroking blocks [start, end], in order, unused rows NaN (default: [0, inf])"),
             Variable("target", "input", "Array", shape=(2,), start=(-0.30, 0.50), unit="m",
                      description="where the ball touches: the rubber hand (x, y)"),
             Variable("visual_time", "output", start=-np.inf, unit="s", depends_on=(),
@@ -71,6 +64,13 @@ class Stimulus(Component):
                      description="time of the last observed tactile event (-inf before any)"),
             Variable("ball", "output", "Array", shape=(2,), start=None, unit="m", depends_on=("target",),
                      description="ball position (x, y)"),
+            Variable("stroke_duration", "parameter", start=np.inf, min=0.0, unit="s",
+                     description="the ball moves onto the target during this long before each touch (inf: the "
+                                 "whole period)"),
+            Variable("touch", "parameter", "Boolean", start=True, unit="1",
+                     description="tactile events follow the visual ones (false: vision only)"),
+            Variable("blocks", "parameter", "Array", shape=(MAX_BLOCKS, 2), start=ONE_BLOCK, unit="s",
+                     description="stroking blocks [start, end], in order, unused rows NaN (default: [0, inf])"),
         ])
 
     def check_parameters(self):
