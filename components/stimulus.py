@@ -9,13 +9,15 @@ asynchronous 0..1 s; delay_min == delay_max is a fixed delay), from a numpy Gene
 trial; with ``touch`` false (vision only) there is no tactile event, the delays are drawn all the
 same. An event is observed on the first communication step that ends at or after its time; the
 outputs hold the time of the last observed event of each kind (-inf before any). No visual event
-(and so no tactile one) happens after ``stop_time`` (inf: stroking never stops).
+(and so no tactile one) happens after ``stop_time`` (inf: stroking never stops); the ball then rests on
+the target.
 
 The ball strokes: during the last ``stroke_duration`` seconds before each visual event (inf: the
 whole period) it approaches the target (the rubber hand) in a straight line from ``ball_distance``
 metres forward of it (+y), linearly, and reaches it at the event; between strokes (a pause within
-the period, between blocks, after the stroking) it rests where the last touch left it, and before
-the first stroke it waits ``ball_distance`` forward of the target.
+the period, between blocks, after the last block) it rests where the last touch left it, and before
+the first stroke it waits ``ball_distance`` forward of the target. Until ``stop_time`` the ball heads
+for the blocks' next event even if ``stop_time`` cancels it (as the stimulus always did).
 """
 from __future__ import annotations
 
@@ -133,7 +135,9 @@ class Stimulus(Component):
         v["visual_time"] = visual
         v["tactile_time"] = np.where(observed, tactile, -np.inf).max(axis=1, initial=-np.inf)
         ball = np.array(v["target"], dtype=np.float64, copy=True)
-        ball[:, 1] += v["ball_distance"] * stroke_position(now, period, v["stroke_duration"], visual, next_event)
+        stopped = now + TOLERANCE > v["stop_time"]
+        ball[:, 1] += v["ball_distance"] * stroke_position(now, period, v["stroke_duration"], visual, next_event,
+                                                           stopped)
         v["ball"] = ball
 
 
@@ -155,22 +159,25 @@ def schedule(now: float, period, blocks, stop_time):
     sizes : (B, n) events of each block in all (inf for an endless one; 0 for an unused row).
     starts : (B, n) s, the blocks' starts (0 for an unused row).
     visual : (B,) s, the last observed event's time (-inf before any).
-    next_event : (B,) s, the next event's time (inf when none is left).
+    next_event : (B,) s, the next event's time by the blocks alone, not ``stop_time`` (inf when none is left): where
+        the ball is heading until ``stop_time`` (:func:`stroke_position`).
     """
     used = int((~np.isnan(blocks[:, :, 0])).sum(axis=1).max())
     rows = blocks[:, :used]
     valid = ~np.isnan(rows[:, :, 0])
     starts = np.where(valid, rows[:, :, 0], 0.0)
-    ends = np.where(valid, np.minimum(rows[:, :, 1], stop_time[:, None]), -np.inf)
     step = period[:, None]
-    sizes = np.where(valid & (ends >= starts), np.floor((ends - starts + TOLERANCE) / step), 0.0)
+
+    def size(ends):  # events of each block up to ``ends``
+        return np.where(valid & (ends >= starts), np.floor((ends - starts + TOLERANCE) / step), 0.0)
+    sizes = size(np.where(valid, np.minimum(rows[:, :, 1], stop_time[:, None]), -np.inf))
     counts = np.clip(np.floor((now - starts + TOLERANCE) / step), 0.0, sizes).astype(np.int64)
     column = np.arange(used)
     last = np.where(counts > 0, column, -1).max(axis=1)  # the last block with an event so far
     take = np.maximum(last, 0)[:, None]
     visual = np.where(last >= 0, np.take_along_axis(starts, take, 1)[:, 0]
                       + np.take_along_axis(counts, take, 1)[:, 0] * period, -np.inf)
-    left = counts < sizes
+    left = counts < size(np.where(valid, rows[:, :, 1], -np.inf))
     first = np.where(left, column, used).min(axis=1)  # the first block with an event to come
     take = np.minimum(first, used - 1)[:, None]
     next_event = np.where(first < used, np.take_along_axis(starts, take, 1)[:, 0]
@@ -190,10 +197,11 @@ def event_times(count: int, period, starts, sizes) -> np.ndarray:
     return np.take_along_axis(starts, block, 1) + within * period[:, None]
 
 
-def stroke_position(now: float, period, stroke_duration, visual, next_event) -> np.ndarray:
+def stroke_position(now: float, period, stroke_duration, visual, next_event, stopped) -> np.ndarray:
     """How far along its path the ball is at ``now``, (B,), 1 = ``ball_distance`` forward of the target, 0 = on it:
     linearly from 1 to 0 over the ``stroke_duration`` (at most the period) before each visual event, 0 at an
-    event and until the next stroke begins, 1 before the first stroke (the ball's stroke of the module docstring).
+    event and until the next stroke begins, 1 before the first stroke, and 0 once ``stopped`` (past ``stop_time``,
+    (B,) bool: the ball rests on the target; the ball's stroke of the module docstring).
     """
     duration = np.minimum(stroke_duration, period)
     remaining = next_event - now
@@ -202,4 +210,4 @@ def stroke_position(now: float, period, stroke_duration, visual, next_event) -> 
     with np.errstate(invalid="ignore"):
         moving = np.clip(remaining / duration, 0.0, 1.0)
     waiting = np.where(np.isfinite(visual), 0.0, 1.0)
-    return np.where(at_event, 0.0, np.where(begun, moving, waiting))
+    return np.where(at_event | stopped, 0.0, np.where(begun, moving, waiting))

@@ -164,3 +164,12 @@ def test_probes_are_the_per_step_drift_of_trials_csv(tmp_path, quick_cache):
     vision = [row for row in rows if row["stimulation"] == "vision"]
     assert {row["tactile_time_s"] for row in vision} == {"-inf"}
     assert sorted({float(row["visual_time_s"]) for row in vision}) == [-np.inf, 2.5]  # the block's one touch
+
+
+def test_the_ball_rests_between_blocks_and_waits_before_a_late_first_block():
+    out = run_stimulus(8.0, 1, period=1.0, ball_distance=0.2, target=[[-0.3, 0.5]], blocks=block_rows([[0, 2], [5, 7]]))
+    away = out["ball"][:, 0, 1] - 0.5
+    assert away[round(3.0 / STEP)] == 0.0 and away[round(4.9 / STEP)] == 0.0  # the pause: on the hand
+    assert away[round(5.5 / STEP)] == pytest.approx(0.1, abs=1e-12)  # the second block's first stroke, to t = 6
+    late = run_stimulus(4.0, 1, period=1.0, ball_distance=0.2, target=[[-0.3, 0.5]], blocks=block_rows([[2.5, 4]]))
+    assert late["ball"][round(2.5 / STEP), 0, 1] - 0.5 == pytest.approx(0.2, abs=1e-12)  # no touch yet: it waits
