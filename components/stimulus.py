@@ -1,16 +1,23 @@
 """The stimulus generator: visual touches of the rubber hand and tactile touches of the real hand.
 
-A visual event (the ball touches the rubber hand) happens every ``period`` seconds, at
-t = period, 2 period, ...; visual event k is followed by a tactile event on the real hand
-after a delay drawn from U[delay_min, delay_max) (synchronous 0..0.1 s, asynchronous
-0..1 s; delay_min == delay_max is a fixed delay), from a numpy Generator seeded per trial.
-An event is observed on the first communication step that ends at or after its time; the
-outputs hold the time of the last observed event of each kind (-inf before any). No visual
-event (and so no tactile one) happens after ``stop_time`` (inf: stroking never stops); the
-ball then rests where the last touch left it.
+The stroking happens in blocks [start, end] s (``blocks``, one row each; by default one block
+[0, inf]): within a block a visual event (the ball touches the rubber hand) happens every
+``period`` seconds, at t = start + period, start + 2 period, ... up to ``end``; so by default at
+t = period, 2 period, ... Visual event k (counted over the whole trial) is followed by a tactile
+event on the real hand after a delay drawn from U[delay_min, delay_max) (synchronous 0..0.1 s,
+asynchronous 0..1 s; delay_min == delay_max is a fixed delay), from a numpy Generator seeded per
+trial; with ``touch`` false (vision only) there is no tactile event, the delays are drawn all the
+same. An event is observed on the first communication step that ends at or after its time; the
+outputs hold the time of the last observed event of each kind (-inf before any). No visual event
+(and so no tactile one) happens after ``stop_time`` (inf: stroking never stops); the ball then rests on
+the target.
 
-The ball approaches the target (the rubber hand) in a straight line from ``ball_distance``
-metres forward of it (+y), linearly over each period, and reaches it at the visual event.
+The ball strokes: during the last ``stroke_duration`` seconds before each visual event (inf: the
+whole period) it approaches the target (the rubber hand) in a straight line from ``ball_distance``
+metres forward of it (+y), linearly, and reaches it at the event; between strokes (a pause within
+the period, between blocks, after the last block) it rests where the last touch left it, and before
+the first stroke it waits ``ball_distance`` forward of the target. Until ``stop_time`` the ball heads
+for the blocks' next event even if ``stop_time`` cancels it (as the stimulus always did).
 """
 from __future__ import annotations
 
@@ -21,6 +28,19 @@ from components.variables import Variable
 
 TOLERANCE = 1e-9  # s: an event at 2.0 is observed at a step ending at 2.0 - 1e-12 (float ticks)
 CHUNK = 64        # delays drawn per trial at a time
+MAX_BLOCKS = 16   # stroking blocks per trial; unused rows of ``blocks`` are NaN
+ONE_BLOCK = np.vstack([[0.0, np.inf], np.full((MAX_BLOCKS - 1, 2), np.nan)])  # the default: stroking throughout
+
+
+def block_rows(blocks) -> np.ndarray:
+    """``blocks`` ([[start_s, end_s], ...], at most MAX_BLOCKS; empty: one block [0, inf]) as the ``blocks``
+    parameter's value, (MAX_BLOCKS, 2) s, unused rows NaN."""
+    rows = np.asarray(blocks, dtype=np.float64).reshape(-1, 2)
+    if len(rows) == 0:
+        return ONE_BLOCK.copy()
+    if len(rows) > MAX_BLOCKS:
+        raise ComponentError(f"stimulus.blocks: {len(rows)} blocks, more than {MAX_BLOCKS}")
+    return np.vstack([rows, np.full((MAX_BLOCKS - len(rows), 2), np.nan)])
 
 
 class Stimulus(Component):
@@ -46,14 +66,34 @@ class Stimulus(Component):
                      description="time of the last observed tactile event (-inf before any)"),
             Variable("ball", "output", "Array", shape=(2,), start=None, unit="m", depends_on=("target",),
                      description="ball position (x, y)"),
+            Variable("stroke_duration", "parameter", start=np.inf, min=0.0, unit="s",
+                     description="the ball moves onto the target during this long before each touch (inf: the "
+                                 "whole period)"),
+            Variable("touch", "parameter", "Boolean", start=True, unit="1",
+                     description="tactile events follow the visual ones (false: vision only)"),
+            Variable("blocks", "parameter", "Array", shape=(MAX_BLOCKS, 2), start=ONE_BLOCK, unit="s",
+                     description="stroking blocks [start, end], in order, unused rows NaN (default: [0, inf])"),
         ])
 
     def check_parameters(self):
-        """ComponentError if ``delay_max`` is below ``delay_min`` in any trial."""
+        """ComponentError if ``delay_max`` is below ``delay_min`` in any trial, a ``stroke_duration`` is 0, or a
+        trial's ``blocks`` are not in order (each start >= 0 and below its end, at or after the previous end,
+        the used rows first)."""
         v = self.values
         if np.any(v["delay_max"] < v["delay_min"]):
             raise ComponentError(f"{self.name}.delay_max = {v['delay_max'].tolist()} is below delay_min = "
                                  f"{v['delay_min'].tolist()}")
+        if np.any(v["stroke_duration"] <= 0):
+            raise ComponentError(f"{self.name}.stroke_duration = {v['stroke_duration'].tolist()} must be positive")
+        for trial, rows in enumerate(v["blocks"]):
+            used = ~np.isnan(rows[:, 0])
+            count = int(used.sum())
+            starts, ends = rows[:count, 0], rows[:count, 1]
+            if (not used[:count].all() or np.isnan(rows[count:]).sum() != 2 * (MAX_BLOCKS - count) or count == 0
+                    or np.isnan(ends).any() or np.any(starts < 0) or np.any(~(starts < ends))
+                    or np.any(starts[1:] < ends[:-1])):
+                raise ComponentError(f"{self.name}.blocks of trial {trial} = {rows[:max(count, 1)].tolist()} must "
+                                     "be [start, end] rows with 0 <= start < end, each at or after the previous end")
 
     def initialize(self):
         """Seed each trial's delay generator with its ``seed`` and publish the outputs at the start time."""
@@ -83,22 +123,91 @@ class Stimulus(Component):
         return self._delays[:, :count]
 
     def _publish(self, now: float):
-        period = self.values["period"]
-        visual_count = np.floor((now + TOLERANCE) / period).astype(np.int64)  # events at period * k, k >= 1
-        stop = self.values["stop_time"]
-        stopped = np.isfinite(stop) & (now + TOLERANCE > stop)
-        if stopped.any():  # the last touch at or before stop_time (the paper's stop_time = inf never enters)
-            last = np.floor((np.where(np.isfinite(stop), stop, 0.0) + TOLERANCE) / period).astype(np.int64)
-            visual_count = np.where(stopped, np.minimum(visual_count, last), visual_count)
-        latest = int(visual_count.max())
-        k = np.arange(1, latest + 1)
-        tactile = k[None, :] * period[:, None] + self.delays(latest)
-        observed = (tactile <= now + TOLERANCE) & (k[None, :] <= visual_count[:, None])
-        self.values["visual_time"] = np.where(visual_count > 0, visual_count * period, -np.inf)
-        self.values["tactile_time"] = np.where(observed, tactile, -np.inf).max(axis=1, initial=-np.inf)
-        remaining = (visual_count + 1) * period - now  # until the next visual event
-        at_event = (visual_count > 0) & (np.abs(visual_count * period - now) <= TOLERANCE)
-        remaining = np.where(at_event | (stopped & (visual_count * period <= now)), 0.0, remaining)
-        ball = np.array(self.values["target"], dtype=np.float64, copy=True)
-        ball[:, 1] += self.values["ball_distance"] * np.clip(remaining / period, 0.0, 1.0)
-        self.values["ball"] = ball
+        """Set the outputs for time ``now`` (s) from the schedule (:func:`schedule`) and the ball's stroke."""
+        v = self.values
+        period = v["period"]
+        counts, sizes, starts, visual, next_event = schedule(now, period, v["blocks"], v["stop_time"])
+        total = counts.sum(axis=1)
+        latest = int(total.max())
+        tactile = event_times(latest, period, starts, sizes) + self.delays(latest)
+        index = np.arange(1, latest + 1)
+        observed = (tactile <= now + TOLERANCE) & (index[None, :] <= total[:, None]) & v["touch"][:, None]
+        v["visual_time"] = visual
+        v["tactile_time"] = np.where(observed, tactile, -np.inf).max(axis=1, initial=-np.inf)
+        ball = np.array(v["target"], dtype=np.float64, copy=True)
+        stopped = now + TOLERANCE > v["stop_time"]
+        ball[:, 1] += v["ball_distance"] * stroke_position(now, period, v["stroke_duration"], visual, next_event,
+                                                           stopped)
+        v["ball"] = ball
+
+
+def schedule(now: float, period, blocks, stop_time):
+    """The visual events of a block schedule up to ``now``: events at start + k period, k >= 1, within each block
+    [start, end] and at or before ``stop_time`` (docs/configuration.md, "Stimulation schedules").
+
+    Parameters
+    ----------
+    now : float
+        The time, s.
+    period : (B,) s
+    blocks : (B, MAX_BLOCKS, 2) s, unused rows NaN
+    stop_time : (B,) s
+
+    Returns
+    -------
+    counts : (B, n) events observed by ``now`` in each of the batch's n used block columns.
+    sizes : (B, n) events of each block in all (inf for an endless one; 0 for an unused row).
+    starts : (B, n) s, the blocks' starts (0 for an unused row).
+    visual : (B,) s, the last observed event's time (-inf before any).
+    next_event : (B,) s, the next event's time by the blocks alone, not ``stop_time`` (inf when none is left): where
+        the ball is heading until ``stop_time`` (:func:`stroke_position`).
+    """
+    used = int((~np.isnan(blocks[:, :, 0])).sum(axis=1).max())
+    rows = blocks[:, :used]
+    valid = ~np.isnan(rows[:, :, 0])
+    starts = np.where(valid, rows[:, :, 0], 0.0)
+    step = period[:, None]
+
+    def size(ends):  # events of each block up to ``ends``
+        return np.where(valid & (ends >= starts), np.floor((ends - starts + TOLERANCE) / step), 0.0)
+    sizes = size(np.where(valid, np.minimum(rows[:, :, 1], stop_time[:, None]), -np.inf))
+    counts = np.clip(np.floor((now - starts + TOLERANCE) / step), 0.0, sizes).astype(np.int64)
+    column = np.arange(used)
+    last = np.where(counts > 0, column, -1).max(axis=1)  # the last block with an event so far
+    take = np.maximum(last, 0)[:, None]
+    visual = np.where(last >= 0, np.take_along_axis(starts, take, 1)[:, 0]
+                      + np.take_along_axis(counts, take, 1)[:, 0] * period, -np.inf)
+    left = counts < size(np.where(valid, rows[:, :, 1], -np.inf))
+    first = np.where(left, column, used).min(axis=1)  # the first block with an event to come
+    take = np.minimum(first, used - 1)[:, None]
+    next_event = np.where(first < used, np.take_along_axis(starts, take, 1)[:, 0]
+                          + (np.take_along_axis(counts, take, 1)[:, 0] + 1) * period, np.inf)
+    return counts, sizes, starts, visual, next_event
+
+
+def event_times(count: int, period, starts, sizes) -> np.ndarray:
+    """The times (B, count) s of the first ``count`` visual events of each trial's schedule, in order (events
+    beyond a trial's schedule get times past its last block's end; the caller masks them)."""
+    if count == 0:
+        return np.empty((len(period), 0))
+    index = np.arange(count, dtype=np.float64)[None, :, None]  # 0-based event number over the whole trial
+    before = np.concatenate([np.zeros((len(sizes), 1)), np.cumsum(sizes, axis=1)[:, :-1]], axis=1)  # earlier blocks'
+    block = np.maximum((before[:, None, :] <= index).sum(axis=2) - 1, 0)  # (B, count): the block of each event
+    within = index[:, :, 0] - np.take_along_axis(before, block, 1) + 1  # 1-based number within its block
+    return np.take_along_axis(starts, block, 1) + within * period[:, None]
+
+
+def stroke_position(now: float, period, stroke_duration, visual, next_event, stopped) -> np.ndarray:
+    """How far along its path the ball is at ``now``, (B,), 1 = ``ball_distance`` forward of the target, 0 = on it:
+    linearly from 1 to 0 over the ``stroke_duration`` (at most the period) before each visual event, 0 at an
+    event and until the next stroke begins, 1 before the first stroke, and 0 once ``stopped`` (past ``stop_time``,
+    (B,) bool: the ball rests on the target; the ball's stroke of the module docstring).
+    """
+    duration = np.minimum(stroke_duration, period)
+    remaining = next_event - now
+    at_event = np.isfinite(visual) & (np.abs(visual - now) <= TOLERANCE)
+    begun = remaining <= duration + TOLERANCE
+    with np.errstate(invalid="ignore"):
+        moving = np.clip(remaining / duration, 0.0, 1.0)
+    waiting = np.where(np.isfinite(visual), 0.0, 1.0)
+    return np.where(at_event | stopped, 0.0, np.where(begun, moving, waiting))

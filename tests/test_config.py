@@ -11,7 +11,7 @@ def test_defaults_are_the_paper_protocol():
     assert (experiment["trials"], experiment["steps"], experiment["step_size"]) == (5, 1500, 0.02)
     assert loaded["brain"]["gamma0"] == 0.01 and loaded["brain"]["decay_rate"] == 1 / 80
     assert loaded["conditions"] == {"left": -0.15, "center": 0.0, "right": 0.15}
-    assert loaded["stimulations"]["async"] == {"delay_min": 0.0, "delay_max": 1.0}
+    assert loaded["stimulations"]["async"] == {"delay_min": 0.0, "delay_max": 1.0, "touch": True, "blocks": []}
 
 
 def test_file_and_overrides_apply_in_order(tmp_path):
@@ -85,7 +85,8 @@ def test_typos_inside_open_tables_are_named(tmp_path):
     with pytest.raises(ConfigError, match=r"unknown config key stimulations\.slow\.delay_mx"):
         config.load(path)
     path.write_text("[experiment]\nstimulations = ['slow']\n[stimulations.slow]\ndelay_min = 0.5\ndelay_max = 0.6\n")
-    assert config.load(path)["stimulations"]["slow"] == {"delay_min": 0.5, "delay_max": 0.6}
+    assert config.load(path)["stimulations"]["slow"] == {"delay_min": 0.5, "delay_max": 0.6, "touch": True,
+                                                         "blocks": []}
 
 
 def test_shipped_train_defaults_are_the_training_code_defaults():

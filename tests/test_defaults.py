@@ -15,6 +15,7 @@ import pytest
 
 from components.body import camera, kinematics
 from components.body.camera import Camera
+from components.stimulus import block_rows
 from components.vision.component import Decoder, GenerativeModel
 from components.vision.fast import DEFAULT_TOLERANCE, LinearisedDecoder
 from components.vision.networks import build
@@ -133,6 +134,11 @@ def test_per_trial_sources_take_the_trial_s_entry():
                         "<stimulation>", trial.stimulation).split("."):
                     cursor = cursor[part]
                 expected = cursor
+            if path == "stimulus.blocks":  # laid out for the component: one block over the trial when []
+                assert np.array_equal(given[path][index], block_rows(expected), equal_nan=True)
+                continue
+            if path == "camera.arm_visible":  # the arm is in view unless the trial's condition is hidden
+                expected = trial.condition not in expected
             assert given[path][index] == expected, f"{path} of trial {trial}: {given[path][index]!r} != {key} " \
                                                    f"= {expected!r}"
     assert given["stimulus.seed"].dtype == np.int64

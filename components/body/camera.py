@@ -264,6 +264,8 @@ class Camera(Component):
                      description="sd of the Gaussian blur of the image (one value for every trial)"),
             Variable("ball_radius", "parameter", start=BALL_RADIUS, unit="m", min=0.0,
                      description="radius of the ball's disc (one value for every trial)"),
+            Variable("arm_visible", "parameter", "Boolean", start=True, unit="1",
+                     description="the arm is drawn (false: only the ball, over the black background)"),
             Variable("arm_pose", "input", "Array", shape=(2,), start=REST_POSE, unit="deg",
                      description="pose of the arm in view: shoulder (from +x), elbow (relative)"),
             Variable("ball", "input", "Array", shape=(2,), start=np.nan, unit="m",
@@ -319,4 +321,11 @@ class Camera(Component):
                       kept_ball_alpha(balls[trial].tobytes(), self.resolution, self._blur_sigma, self._ball_radius),
                       out=drawn[position])
         images = drawn[which.reshape(-1)]
+        self._hide_arms(images, balls)
         self.values["image"] = images
+
+    def _hide_arms(self, images: np.ndarray, balls: np.ndarray) -> None:
+        """Redraw the trials whose ``arm_visible`` is false with the ball alone over the black background."""
+        for trial in np.flatnonzero(~self.values["arm_visible"]):
+            alpha = ball_alpha(balls[trial], self.resolution, self._blur_sigma, self._ball_radius)
+            composite(np.zeros((self.resolution, self.resolution), np.float32), alpha, out=images[trial])

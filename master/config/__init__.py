@@ -18,6 +18,7 @@ from importlib import resources
 from pathlib import Path
 
 from master import models
+from master.config import schedules
 from master.cosim import ConfigError
 
 OPEN_TABLES = ("conditions", "stimulations")  # users may add entries here (a new condition, say)
@@ -74,7 +75,8 @@ def file_problem(path, what: str = "checkpoint file") -> str | None:
     return None
 
 
-INFINITE_KEYS = ("brain.spatial_sd", "brain.action_time_constant", "body.release_time")  # inf: the paper's model
+INFINITE_KEYS = ("brain.spatial_sd", "brain.action_time_constant", "body.release_time",  # inf: the paper's model
+                 "stimulus.stroke_duration")  # inf: the whole period
 
 
 def depth(value) -> int:
@@ -276,6 +278,7 @@ def validate(config: dict) -> None:
         low, high = stimulation.get("delay_min"), stimulation.get("delay_max")
         if not isinstance(low, (int, float)) or not isinstance(high, (int, float)) or not 0 <= low <= high:
             raise ConfigError(f"stimulations.{name}: need 0 <= delay_min <= delay_max, got {low!r}, {high!r}")
+    schedules.check(config)  # blocks, touch, stroke duration, hidden rubber arms, probe times
     brain = config["brain"]
     if brain["proprioceptive_variance"] <= 0:
         raise ConfigError(f"brain.proprioceptive_variance must be positive, got {brain['proprioceptive_variance']}")

@@ -30,6 +30,9 @@ class Trial:
     # ((key, value), ...): this trial's own values of parameter keys (sources.batchable_keys), in a lockstep
     # batch that runs several configurations at once (a sweep's chunk of several points); () = the config's
     overrides: tuple = ()
+    touch: bool = True         # the stimulation's touch: tactile events follow the visual ones (false: vision only)
+    blocks: tuple = ()         # the stimulation's stroking blocks ((start_s, end_s), ...); () = one over the trial
+    arm_visible: bool = True   # the rubber arm is in view (false: the condition is in rubber_arm.hidden_conditions)
 
 
 def trial_seed(master_seed: int, condition: str, stimulation: str, index: int) -> int:
@@ -40,7 +43,8 @@ def trial_seed(master_seed: int, condition: str, stimulation: str, index: int) -
 
 def make_trial(config: dict, decoder: str, condition: str, stimulation: str, index: int,
                overrides: tuple = ()) -> Trial:
-    """The trial of this cell and repetition under ``config``: its seed, rubber-hand offset and delay law.
+    """The trial of this cell and repetition under ``config``: its seed, rubber-hand offset and whether it is in
+    view, and its stimulation's delay law, touch and blocks.
 
     overrides: ``((key, value), ...)``, the trial's own values of parameter keys in a batch of several
     configurations (:func:`master.config.sources.parameters` gives them to the components per trial).
@@ -49,7 +53,9 @@ def make_trial(config: dict, decoder: str, condition: str, stimulation: str, ind
     return Trial(decoder, condition, stimulation, index,
                  trial_seed(config["experiment"]["seed"], condition, stimulation, index),
                  float(config["conditions"][condition]), float(delays["delay_min"]), float(delays["delay_max"]),
-                 tuple(overrides))
+                 tuple(overrides), bool(delays.get("touch", True)),
+                 tuple((float(start), float(end)) for start, end in delays.get("blocks", [])),
+                 condition not in config["rubber_arm"].get("hidden_conditions", []))
 
 
 def plan(config: dict) -> list[Trial]:

@@ -15,7 +15,7 @@ from components.body.camera import Camera
 from components.body.plant import ArmPlant
 from components.body.rubber_arm import RubberArm
 from components.component import ComponentError
-from components.stimulus import Stimulus
+from components.stimulus import Stimulus, block_rows
 from master import models
 from master.config.protocol import HALF_RANGES, Trial, per_trial, plan
 from master.cosim import ConfigError, System
@@ -38,6 +38,11 @@ TASK_SOURCES = {
                      "index)",
     "stimulus.ball_distance": "stimulus.ball_distance",
     "stimulus.stop_time": "stimulus.stop_time",
+    "stimulus.stroke_duration": "stimulus.stroke_duration",
+    "stimulus.touch": "stimulations.<stimulation>.touch (per trial: the trial's stimulation)",
+    "stimulus.blocks": "stimulations.<stimulation>.blocks (per trial: the trial's stimulation, as "
+                       "components.stimulus.block_rows lays them out)",
+    "camera.arm_visible": "rubber_arm.hidden_conditions (per trial: false where the trial's condition is listed)",
     "camera.resolution": "experiment.resolution (structural: build_system gives it to Camera(resolution=...))",
     "camera.blur": "camera.blur",
     "camera.ball_radius": "camera.ball_radius",
@@ -74,7 +79,11 @@ DERIVED = {
     "body.q0_elbow": lambda: kinematics.REST_POSE[1],
 }
 PER_TRIAL = {"rubber_arm.offset_x": "offset_x", "stimulus.delay_min": "delay_min",
-             "stimulus.delay_max": "delay_max", "stimulus.seed": "seed"}
+             "stimulus.delay_max": "delay_max", "stimulus.seed": "seed", "stimulus.touch": "touch",
+             "stimulus.blocks": "blocks", "camera.arm_visible": "arm_visible"}
+# How a per-trial field becomes its parameter's value, where it is not the field as it is.
+PER_TRIAL_VALUE = {"stimulus.seed": lambda values: np.array(values).astype(np.int64),
+                   "stimulus.blocks": lambda values: np.stack([block_rows(blocks) for blocks in values])}
 CONSTRUCTED = ("camera.resolution", "decoder.relinearise_tolerance")  # given to the constructors instead
 
 
@@ -86,8 +95,8 @@ def parameters(trials: list[Trial], config: dict) -> dict:
         if path in CONSTRUCTED:
             continue
         if path in PER_TRIAL:
-            values = np.array([getattr(t, PER_TRIAL[path]) for t in trials])
-            given[path] = values.astype(np.int64) if path == "stimulus.seed" else values
+            values = [getattr(t, PER_TRIAL[path]) for t in trials]
+            given[path] = PER_TRIAL_VALUE.get(path, np.array)(values)
         elif path in DERIVED:
             given[path] = DERIVED[path]()
         else:

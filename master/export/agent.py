@@ -41,7 +41,10 @@ BODY = "body"  # the experiment's name for the body component
 SEED = "stimulus.seed"
 SEED_LOW, SEED_HIGH = "seed", "seed_high"  # its two FMI Integers: the low 32 bits (signed), the high 31
 # Structural, or fixed by the decoder bundled with the agent: given when the agent is built, not ports.
-FIXED_AT_BUILD = ("camera.blur",)  # the decoder was trained on images of this blur (its checkpoint is checked)
+FIXED_AT_BUILD = ("camera.blur",  # the decoder was trained on images of this blur (its checkpoint is checked)
+                  # the schedule (docs/configuration.md, "Stimulation schedules"): the configuration's, its first
+                  # condition's and stimulation's, so that the agent's ports stay those of earlier builds
+                  "stimulus.stroke_duration", "stimulus.touch", "camera.arm_visible")
 # FMI name, inner path, element of an Array (None: a scalar): outputs beyond the action.
 OBSERVED = (
     ("mu_shoulder", "brain.mu", 0),

@@ -19,6 +19,19 @@ SUMMARY_MEASURES = ("drift_cm", "force_x_n", "gamma", "action_accel_mean_x_m_s2"
 TRIAL_KEYS = ["decoder", "condition", "stimulation", "trial", "seed"]
 
 
+def probe_measures(probe_times) -> list[str]:
+    """The per-trial values of the drift read at ``probe_times`` (s): ``drift_at_60s_cm``, ... in order."""
+    from master.tasks.illusion.measures import probe_name
+
+    return [probe_name(time) for time in probe_times]
+
+
+def summary_columns(probe_times=()) -> list[str]:
+    """summary.csv's columns: :data:`SUMMARY_COLUMNS`, then a mean and sd of the drift at each probe time (s,
+    ``experiment.probe_times``): ``drift_at_60s_cm_mean``, ``drift_at_60s_cm_sd``, ..."""
+    return SUMMARY_COLUMNS + [f"{name}_{stat}" for name in probe_measures(probe_times) for stat in ("mean", "sd")]
+
+
 def csv_text(header: list[str], rows) -> str:
     """``header`` and ``rows`` as CSV text, one line each, every line ending in a newline."""
     buffer = io.StringIO()
@@ -55,7 +68,7 @@ def mean_sd(values, axis: int = 0):
     return values.mean(axis=axis), sd
 
 
-def summary(trials, final: dict[str, np.ndarray], planned=None) -> list[list]:
+def summary(trials, final: dict[str, np.ndarray], planned=None, probe_times=()) -> list[list]:
     """One row per decoder x condition x stimulation, from per-trial values (``final[key][trial]``).
 
     ``final`` holds the end-of-trial values and the trial means of master.tasks.illusion.measures.end_of_trial:
@@ -63,19 +76,22 @@ def summary(trials, final: dict[str, np.ndarray], planned=None) -> list[list]:
     trial and its final value, each as mean and sample sd over the cell's trials.
     planned: every cell the protocol planned, in order (default: those of ``trials``); a planned cell with no
     trial left (every one failed) has a row with n_trials 0 and empty statistics.
+    probe_times: ``experiment.probe_times`` (s): the drift at each, mean and sd, after those (:func:`summary_columns`).
     """
     found = cells(trials)
     rows = []
+    probed = probe_measures(probe_times)
     for cell in (planned if planned is not None else found):
         members = found.get(cell, [])
         if not members:
-            rows.append([*cell, 0] + [""] * (len(SUMMARY_COLUMNS) - 4))
+            rows.append([*cell, 0] + [""] * (len(summary_columns(probe_times)) - 4))
             continue
         stats = [mean_sd(final[key][members]) for key in SUMMARY_MEASURES]
         (drift, drift_sd), (force, force_sd), (gamma, _), (accel_mean, accel_mean_sd), (accel, accel_sd) = stats
         rows.append([*cell, len(members), number(drift), number(drift_sd),
                      number(force), number(force_sd), number(gamma), number(accel_mean), number(accel_mean_sd),
-                     number(accel), number(accel_sd)])
+                     number(accel), number(accel_sd)]
+                    + [number(value) for key in probed for value in mean_sd(final[key][members])])
     return rows
 
 

@@ -79,16 +79,35 @@ def half_decay(times: np.ndarray, drift: np.ndarray, tactile_time: np.ndarray) -
     return result
 
 
-def end_of_trial(times: np.ndarray, per_step: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+PROBE_TOLERANCE = 1e-9  # s: a probe at 60.0 is read at the step ending at 60.0 - 1e-12 (float ticks), as an event is
+
+
+def probe_name(time_s: float) -> str:
+    """The measure of the drift read at ``time_s`` (s): ``drift_at_60s_cm``, ``drift_at_0.5s_cm``."""
+    return f"drift_at_{float(time_s):.10g}s_cm"
+
+
+def probes(times: np.ndarray, drift: np.ndarray, probe_times) -> dict[str, np.ndarray]:
+    """Per trial (B,): the drift (cm) read at each of ``probe_times`` (s), as a participant's pointing would read
+    the felt hand then: the row of the first communication step that ends at or after the time (the rule by
+    which an event is observed, components/stimulus.py), under :func:`probe_name`."""
+    times = np.asarray(times)
+    rows = np.minimum(np.searchsorted(times, np.asarray(probe_times, dtype=float) - PROBE_TOLERANCE), len(times) - 1)
+    return {probe_name(time): drift[row] for time, row in zip(probe_times, rows)}
+
+
+def end_of_trial(times: np.ndarray, per_step: dict[str, np.ndarray], probe_times=()) -> dict[str, np.ndarray]:
     """Per trial (B,): every measure's value after the last step, and the measures of a whole trial.
 
     ``action_accel_mean_x_m_s2``: the action measure's mean over the steps (rows 1..steps, the
     values the brain computed; row 0 is the initial 0), the paper's Fig. 3 d. ``drift_half_time_s``:
     when the drift first reaches half its final value (:func:`half_time`), the illusion's time course.
+    ``drift_at_<t>s_cm``: the drift at each of ``probe_times`` (s, ``experiment.probe_times``; :func:`probes`).
     """
     final = {key: values[-1] for key, values in per_step.items()}
     final["action_accel_mean_x_m_s2"] = per_step["action_accel_x_m_s2"][1:].mean(axis=0)
     final["drift_half_time_s"] = half_time(times, per_step["drift_cm"])
     final["drift_half_decay_s"] = half_decay(times, per_step["drift_cm"], per_step["tactile_time_s"])
+    final.update(probes(times, per_step["drift_cm"], probe_times))
     return final
 

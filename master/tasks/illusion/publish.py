@@ -44,7 +44,7 @@ class ExperimentResult:
     final : dict of str to numpy.ndarray
         Each measure at the end of the trial, (len(trials),).
     summary : list of list
-        The rows of summary.csv (columns ``master.outputs.tables.SUMMARY_COLUMNS``).
+        The rows of summary.csv (columns ``master.outputs.tables.summary_columns``).
     failures : dict
         Each failed trial and its error.
     provenance : dict
@@ -72,7 +72,8 @@ class ExperimentResult:
     def write_files(self, staging, workers: Workers) -> None:
         """summary.csv, trials.csv, figures/ and run.json into the folder ``staging``, the files on ``workers``."""
         trials, per_step, config = self.trials, self.per_step, self.config
-        atomic_write(staging / "summary.csv", tables.csv_text(tables.SUMMARY_COLUMNS, self.summary))
+        columns = tables.summary_columns(config["experiment"]["probe_times"])
+        atomic_write(staging / "summary.csv", tables.csv_text(columns, self.summary))
         (staging / "figures").mkdir()
         shown = next((i for i, t in enumerate(trials) if (t.condition, t.stimulation) == ("left", "sync")), 0)
         name = f"trial_{trials[shown].decoder}_{trials[shown].condition}_{trials[shown].stimulation}.gif"
@@ -150,8 +151,9 @@ def simulate_protocol(config: dict, body: str | None, context: RunContext, worke
     check_seconds = time.perf_counter() - checked
     trials, times, per_step, run_seconds, failures = experiment.run(
         config, checkpoints, body, context, fast={kind: mode["fast"] for kind, mode in modes.items()}, workers=workers)
-    final = end_of_trial(times, per_step)
-    summary = tables.summary(trials, final, planned=tables.cells(plan(config)))
+    probe_times = config["experiment"]["probe_times"]
+    final = end_of_trial(times, per_step, probe_times)
+    summary = tables.summary(trials, final, planned=tables.cells(plan(config)), probe_times=probe_times)
     provenance = {
         "schema_version": tables.SCHEMA_VERSION,
         "command": "rhi experiment", "model": models.of(config).name,

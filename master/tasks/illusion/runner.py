@@ -203,7 +203,7 @@ def batch_outcomes(config: dict, decoder: str, trials: list[Trial], checkpoint: 
         path = checkpoint or checkpoint_path(decoder, config, must_exist=True)
         # one torch thread, as in the experiment's batches: the same numbers, and sweep workers are one core each
         result = run_batch(decoder_component(decoder, path, config, threads=JOB_THREADS), batch, config)
-        final = end_of_trial(result.times, measures(result))
+        final = end_of_trial(result.times, measures(result), config["experiment"]["probe_times"])
         renamed = {"drift_cm": "drift_cm", "force_x_n": "force_n", "gamma": "gamma_final"}
         return [{"status": "ok", "outcome": {
             **{name: float(final[key][column]) for key, name in renamed.items()}, "seed": trial.seed,
