@@ -355,7 +355,7 @@ def test_per_trial_parameters_of_a_batch_of_configurations():
     from master.tasks.illusion import make_trial
     from master import config as configuration
     from master.models import causal
-    from master.tasks.illusion.wiring import batchable_keys, parameters
+    from master.config.sources import batchable_keys, parameters
 
     base = configuration.load(quick=True, model_name="causal")
     assert {"decoder.visual_variance", "brain.sync_sd", "causal.peripersonal_sd",

@@ -263,7 +263,7 @@ def test_a_swapped_body_gets_the_body_keys_it_declares_and_the_rest_are_named(fm
     it with the keys it declares (held, servo gain, torque limit: its held force is the statics of those)."""
     from master.tasks import illusion as experiment
     from master import config as configuration
-    from master.tasks.illusion.wiring import undeclared
+    from master.config.sources import undeclared
     from tests.test_batching import tiny_config, tiny_model
 
     config = configuration.merge(tiny_config(steps=20), {"body": {"servo_gain": 10.0}})
