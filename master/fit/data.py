@@ -139,8 +139,8 @@ def read_data(path: str | Path) -> Data:
                     raise ConfigError(f"{name} line {line}: column {column} = {text} must be "
                                       f"{'>= 0' if column == 'delay_s' else 'positive'}")
                 if column in NOISE and not 0 <= number <= MAX_NOISE_SD:
-                raise ConfigError(f"{name} line {line}: column {column} = {text} must be a standard error >= 0 and "
-                                  f"at most {MAX_NOISE_SD:g} (in the measure's unit)")
+                    raise ConfigError(f"{name} line {line}: column {column} = {text} must be a standard error >= 0 "
+                                      f"and at most {MAX_NOISE_SD:g} (in the measure's unit)")
                 record[column] = number
             elif not text.isprintable():  # a line break, a tab, a control character: a name is one line of text
                 raise ConfigError(f"{name} line {line}: column {column} = {text[:40]!r} holds a character that is not "
