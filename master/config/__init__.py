@@ -76,7 +76,7 @@ def file_problem(path, what: str = "checkpoint file") -> str | None:
 
 
 INFINITE_KEYS = ("brain.spatial_sd", "brain.action_time_constant", "body.release_time",  # inf: the paper's model
-                 "stimulus.stroke_duration")  # inf: the whole period
+                 "stimulus.stroke_duration", "stimulus.stop_time")  # inf: the whole period; the stroking never stops
 
 
 def depth(value) -> int:

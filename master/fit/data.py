@@ -7,7 +7,10 @@ Columns (docs/fit.md):
   ``offset_m`` (the rubber hand's lateral offset from the real hand, m); ``stimulation`` (a name of
   ``[stimulations]``) or ``delay_s`` (one fixed visuo-tactile delay after every touch, s); optionally
   ``time_s``, the trial's length (s), the same on every row;
-- the observed measures: ``drift_cm`` and optionally ``force_n`` (a trial outcome's final values).
+- the observed measures: ``drift_cm`` and optionally ``force_n`` (a trial outcome's final values);
+- optionally, beside a measure, its noise column ``drift_cm_sem`` (``force_n_sem``): the standard error of the
+  cell's value, in the measure's unit, the sd of the observation noise a fit adds to that cell's simulated mean
+  in place of ``fit.noise.MEASURE`` (a group mean's reported SEM); one value per design cell, >= 0.
 
 A line whose first cell starts with ``#`` is a comment (a source, a note), as is a blank line.
 
@@ -23,7 +26,7 @@ import io
 import math
 import os
 import stat
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -31,9 +34,11 @@ import numpy as np
 from master.cosim import ConfigError
 
 MEASURES = ("drift_cm", "force_n")  # observed measures a fit can explain: trial outcomes of the same name
+NOISE = tuple(f"{measure}_sem" for measure in MEASURES)  # each measure's per-cell noise sd (its standard error)
 DESIGN = ("condition", "offset_m", "stimulation", "delay_s", "time_s")
-COLUMNS = ("participant", *DESIGN, *MEASURES)
-NUMERIC = ("offset_m", "delay_s", "time_s", *MEASURES)
+COLUMNS = ("participant", *DESIGN, *MEASURES, *NOISE)
+NUMERIC = ("offset_m", "delay_s", "time_s", *MEASURES, *NOISE)
+MAX_NOISE_SD = 1000.0  # a noise sd, fit.noise.MEASURE or a MEASURE_sem value, in the measure's unit: docs/safety.md
 MAX_DATA_BYTES = 64 * 2**20  # a data file; a study's table is a few KiB
 
 
@@ -50,6 +55,26 @@ class Data:
     observed: np.ndarray                        # (participants, cells x measures): cell means, cell-major
     counts: np.ndarray                          # (participants, cells): rows averaged per cell
     time_s: float | None                        # the trials' length, when the file gives it
+    noise: dict[str, np.ndarray] = field(default_factory=dict)  # measure -> (cells,) sd of its MEASURE_sem column
+
+    def noise_sd(self, measures: list[str], default: dict[str, float]) -> np.ndarray:
+        """The observation noise's sd of each statistic of ``measures``, cell-major as the statistics.
+
+        Parameters
+        ----------
+        measures : list of str
+            The fitted measures, in the statistics' order.
+        default : dict of str to float
+            Measure -> sd (``fit.noise.MEASURE``), for a measure without a noise column (0 if absent).
+
+        Returns
+        -------
+        numpy.ndarray
+            (cells x measures,): the row's ``MEASURE_sem`` where the data give it, else the default, in the
+            measure's unit.
+        """
+        return np.array([self.noise[m][n] if m in self.noise else default.get(m, 0.0)
+                         for n in range(len(self.cells)) for m in measures], dtype=float)
 
     def statistic_names(self) -> list[str]:
         """One name per column of ``observed``: ``drift_cm[left/sync]``."""
@@ -86,6 +111,10 @@ def read_data(path: str | Path) -> Data:
             raise ConfigError(f"{name}: give exactly one of the columns {pair[0]} and {pair[1]}, got "
                               f"{', '.join(given) or 'neither'}")
     measures = [m for m in MEASURES if m in header]
+    for column in NOISE:
+        if column in header and column.removesuffix("_sem") not in header:
+            raise ConfigError(f"{name}: column {column} without its measure {column.removesuffix('_sem')} (a noise "
+                              "column gives the sd of that measure's observation noise)")
     if "drift_cm" not in measures:
         raise ConfigError(f"{name}: no drift_cm column (the observed drift, cm)")
     if not rows:
@@ -109,6 +138,9 @@ def read_data(path: str | Path) -> Data:
                 if column in ("delay_s", "time_s") and not (number >= 0 if column == "delay_s" else number > 0):
                     raise ConfigError(f"{name} line {line}: column {column} = {text} must be "
                                       f"{'>= 0' if column == 'delay_s' else 'positive'}")
+                if column in NOISE and not 0 <= number <= MAX_NOISE_SD:
+                    raise ConfigError(f"{name} line {line}: column {column} = {text} must be a standard error >= 0 "
+                                      f"and at most {MAX_NOISE_SD:g} (in the measure's unit)")
                 record[column] = number
             elif not text.isprintable():  # a line break, a tab, a control character: a name is one line of text
                 raise ConfigError(f"{name} line {line}: column {column} = {text[:40]!r} holds a character that is not "
@@ -193,7 +225,24 @@ def summarise(path: str, values: list[tuple[int, dict]], measures: list[str]) ->
                               "needs every cell")
     observed = (sums / counts[:, :, None]).reshape(len(participants), -1)
     return Data(path, participants, cells, conditions, stimulations, measures, observed, counts,
-                lengths[0] if lengths else None)
+                lengths[0] if lengths else None, cell_noise(name, values, cell_of, cells, measures))
+
+
+def cell_noise(name: str, values: list[tuple[int, dict]], cell_of: list, cells: list, measures: list[str]) -> dict:
+    """Measure -> (cells,) the sd its ``MEASURE_sem`` column gives each design cell; a ConfigError where two rows of
+    one cell (of any participants) give two values: a fit adds one noise per cell to every simulated participant."""
+    noise = {}
+    for measure in measures:
+        column, given = f"{measure}_sem", {}
+        if column not in values[0][1]:
+            continue
+        for (line, record), cell in zip(values, cell_of):
+            if given.setdefault(cell, (record[column], line))[0] != record[column]:
+                raise ConfigError(f"{name} line {line}: column {column} = {record[column]:g} differs from line "
+                                  f"{given[cell][1]}'s {given[cell][0]:g} for the design cell {cell[0]}/{cell[1]}; "
+                                  "a fit adds one noise sd per cell")
+        noise[measure] = np.array([given[cell][0] for cell in cells])
+    return noise
 
 
 def check_against(data: Data, config: dict) -> None:

@@ -30,7 +30,7 @@ from master import config as configuration
 from master.config.sources import TASK_SOURCES, batchable_keys
 from master.models.base import config_key
 from master.config.sources import declared_range
-from master.fit.data import MEASURES, Data, check_against
+from master.fit.data import MAX_NOISE_SD, MEASURES, Data, check_against
 
 PRIORS = ("uniform", "log-uniform", "normal")
 FIT_KEYS = ("model", "quick", "simulations", "calibration", "calibration_design", "seed", "trials_per_cell",
@@ -45,7 +45,6 @@ CHOICES = {"density": ("maf", "nsf", "mdn"), "space": ("bounded", "unconstrained
 WHOLE = {"simulations": 1000, "calibration": 100, "seed": 0, "trials_per_cell": 1, "participants_per_batch": 10,
          "posterior_samples": 1000, "calibration_samples": 99, "predictive_draws": 10, "predictive_participants": 8}
 MAX_SIMULATIONS = 100_000
-MAX_NOISE_SD = 1000.0  # fit.noise.MEASURE, in the measure's unit (cm, N): docs/safety.md
 # The largest value of each whole-number estimator key (docs/safety.md): a flow twenty times sbi's width (50) and
 # about thirteen times its depth (5) is far beyond what MAX_SIMULATIONS participants can train; an ensemble of 32;
 # a batch of every simulation; 100 000 epochs (early stopping ends sbi's training long before); torch's threads
@@ -285,6 +284,8 @@ def read_plan(path: str, data: Data, model: str | None = None) -> FitPlan:
     for key, value in noise.items():
         if key not in MEASURES:
             raise configuration.unknown_key(f"fit.noise.{key}", MEASURES, "fit")
+        if key in data.noise:
+            raise ConfigError(f"fit.noise.{key}: the data's column {key}_sem gives each cell's noise sd; give one of them")
         if not isinstance(value, (int, float)) or isinstance(value, bool) or not (math.isfinite(value) and value >= 0):
             raise ConfigError(f"fit.noise.{key} = {value!r} must be a number >= 0")
         if value > MAX_NOISE_SD:

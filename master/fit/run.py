@@ -40,15 +40,26 @@ OUTPUTS = ("fit.json", "simulations", "estimator.pt", "posterior.csv", "estimate
            "recovery.csv", "held_out.csv", "predictive", "predictive.csv", "figures", "run.json", ".lock")
 
 
-def fingerprint(plan: FitPlan, sweep_fingerprint: str) -> str:
-    """What decides the simulations and the estimator: the design, the priors, the settings (not the data's
-    observed values, so that new participants of the same design reuse them)."""
+def fingerprint(plan: FitPlan, sweep_fingerprint: str, data: Data | None = None) -> str:
+    """What decides the simulations and the estimator: the design, the priors, the settings, the data's per-cell
+    noise sds where it gives them (not the data's observed values, so that new participants of the same design
+    reuse them)."""
     def named(table: dict) -> dict:
         return {k: v for k, v in table.items() if k not in AFTER_TRAINING and (k, v) not in BEFORE_THEIR_KEYS}
 
-    return canonical_hash({"simulations": sweep_fingerprint, "parameters": [p.describe() for p in plan.parameters],
-                           "settings": named(plan.settings), "measures": plan.measures, "noise": plan.noise,
-                           "estimator": named(plan.estimator)})
+    identity = {"simulations": sweep_fingerprint, "parameters": [p.describe() for p in plan.parameters],
+                "settings": named(plan.settings), "measures": plan.measures, "noise": plan.noise,
+                "estimator": named(plan.estimator)}
+    if data is not None and cell_noise(data, plan):  # a fit without noise columns keeps the fingerprint it had
+        identity["cell_noise"] = cell_noise(data, plan)
+    return canonical_hash(identity)
+
+
+def cell_noise(data: Data, plan: FitPlan) -> dict[str, float]:
+    """The data's per-cell noise sds of the fitted measures, by statistic name (run.json's ``cell_noise``)."""
+    sd, measures = data.noise_sd(plan.measures, {}), [m for _ in data.cells for m in plan.measures]
+    return {name: float(value) for name, value, measure in zip(data_statistic_names(data, plan), sd, measures)
+            if measure in data.noise}
 
 
 def prepare_folder(out: Path, identity: str, simulations: str | None = None) -> None:
@@ -102,7 +113,7 @@ def fit(data_path: str, config_path: str, out: Path, model: str | None = None, c
     settings = plan.settings
     drawn = draw_participants(plan.parameters, settings)
     sweep = participants_sweep(plan, drawn, "prior")
-    identity = fingerprint(plan, sweep.fingerprint)
+    identity = fingerprint(plan, sweep.fingerprint, data)
     created = not out.exists()
     prepare_folder(out, identity, sweep.fingerprint)
     try:
@@ -211,13 +222,16 @@ def held_out_csv(data: Data, plan: FitPlan, x: np.ndarray, rows) -> str:
 
     condition = "offset_m" if data.conditions else "condition"
     stimulation = "delay_s" if data.stimulations else "stimulation"
-    header = ["participant", condition, stimulation, *(["time_s"] if data.time_s is not None else []), *plan.measures]
+    noisy = [m for m in plan.measures if m in data.noise]  # its noise columns too: a refit adds the same noise
+    header = ["participant", condition, stimulation, *(["time_s"] if data.time_s is not None else []), *plan.measures,
+              *(f"{m}_sem" for m in noisy)]
     lines = []
     for values, row in zip(x.reshape(len(x), len(data.cells), len(plan.measures)), rows):
-        for (c, s), cell in zip(data.cells, values):
+        for n, ((c, s), cell) in enumerate(zip(data.cells, values)):
             lines.append([f"sim{int(row)}", number(data.conditions[c]) if data.conditions else c,
                           number(data.stimulations[s]) if data.stimulations else s,
-                          *([number(data.time_s)] if data.time_s is not None else []), *(number(v) for v in cell)])
+                          *([number(data.time_s)] if data.time_s is not None else []), *(number(v) for v in cell),
+                          *(number(data.noise[m][n]) for m in noisy)])
     return csv_text(header, lines)
 
 
@@ -270,7 +284,8 @@ def run_record(data, plan, sweep, records, training, timing, calibration, predic
         "command": COMMAND, "data": data.path, "participants": data.participants, "design_cells": data.cells,
         "statistics": data_statistic_names(data, plan), "model": plan.settings["model"],
         "parameters": [p.describe() for p in plan.parameters], "settings": plan.settings, "measures": plan.measures,
-        "noise": plan.noise, "estimator": {**plan.estimator, "torch_threads": torch.get_num_threads(), **training},
+        "noise": plan.noise, **({"cell_noise": cell_noise(data, plan)} if cell_noise(data, plan) else {}),
+        "estimator": {**plan.estimator, "torch_threads": torch.get_num_threads(), **training},
         "seeds": {"fit": plan.settings["seed"], "simulated_participants": [p["experiment.seed"] for p in sweep.points]},
         "simulations": {"participants": len(sweep.points), "trials": len(sweep.trials),
                         "failed_participants": int((~valid).sum()), "trials_run_now": ran_now,

@@ -92,9 +92,10 @@ def statistics(sweep: sweeps.Sweep, records: dict[str, dict], data: Data, measur
 
 def with_noise(values: np.ndarray, data: Data, measures: list[str], noise: dict[str, float], seed: int,
                stream: str) -> np.ndarray:
-    """``values`` plus the observation noise: a normal of sd ``noise[measure]`` on each cell mean, drawn from
-    the fit's seed and the stream's name (the same seed, the same noise)."""
-    sd = np.array([noise.get(m, 0.0) for _ in data.cells for m in measures])
+    """``values`` plus the observation noise: a normal on each cell mean of sd the data's ``MEASURE_sem`` for that
+    cell where the data give it, else ``noise[measure]`` (:meth:`master.fit.data.Data.noise_sd`), drawn from the
+    fit's seed and the stream's name (the same seed, the same noise)."""
+    sd = data.noise_sd(measures, noise)
     if not sd.any():
         return values
     rng = np.random.default_rng([seed, 1, sum(map(ord, stream))])

@@ -1,0 +1,155 @@
+"""rhi fit on group data: a data row's own observation noise (MEASURE_sem) read, refused and added with that sd, and
+the ownership model's fit of Rohde et al. 2011 (docs/fit/human/ownership_rohde2011.toml) checked against its
+sources and run end to end at a tiny size.
+
+Truth: numpy's normal draws from the fit's documented seed, the chi-square distribution of a normal sample's
+variance, FREE_RATES (master/models/ownership.py), and the protocol file docs/fit/human/rohde2011.toml.
+"""
+import json
+import re
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from master.cosim import ConfigError
+from master.fit.data import read_data
+from master.fit.plan import read_plan
+from master.fit.simulate import with_noise
+from master.models.ownership import FREE_RATES
+
+ROOT = Path(__file__).resolve().parents[1]
+HUMAN = ROOT / "docs" / "fit" / "human"
+SEM = {"async": 0.69, "sync": 1.59, "vision": 1.10}  # cm, Rohde et al. 2011 Exp. 2 (docs/fit/human/rohde2011.csv)
+HEADER = "participant,condition,stimulation,drift_cm,drift_cm_sem,force_n\n"
+
+
+def write(path, text):
+    path.write_text(text)
+    return path
+
+
+def test_a_noise_column_gives_each_cell_its_sd_and_bad_values_are_one_line(tmp_path):
+    data = read_data(write(tmp_path / "d.csv", HEADER + "a,left,sync,-2,1.5,0\na,left,async,0,0.25,0\n"
+                                                         "b,left,sync,-1,1.5,0\nb,left,async,1,0.25,0\n"))
+    assert data.cells == [("left", "async"), ("left", "sync")] and data.noise["drift_cm"].tolist() == [0.25, 1.5]
+    # drift from its column, force from fit.noise.force_n (absent: 0), cell-major as the statistics
+    assert data.noise_sd(["drift_cm", "force_n"], {"force_n": 0.1}).tolist() == [0.25, 0.1, 1.5, 0.1]
+    assert read_data(write(tmp_path / "plain.csv", "participant,condition,stimulation,drift_cm\na,left,sync,1\n")
+                     ).noise == {}
+    bad = {HEADER + "a,left,sync,-2,-0.5,0\n": "line 2: column drift_cm_sem = -0.5 must be a standard error >= 0",
+           HEADER + "a,left,sync,-2,inf,0\n": "line 2: column drift_cm_sem = 'inf' is not a finite number",
+           HEADER + "a,left,sync,-2,1001,0\n": "drift_cm_sem = 1001 must be a standard error >= 0 and at most 1000",
+           "participant,condition,stimulation,drift_cm,force_n_sem\na,left,sync,-2,0.1\n":
+               "column force_n_sem without its measure force_n",
+           HEADER + "a,left,sync,-2,1.5,0\nb,left,sync,-1,1.4,0\n":
+               "line 3: column drift_cm_sem = 1.4 differs from line 2's 1.5 for the design cell left/sync"}
+    for text, message in bad.items():
+        with pytest.raises(ConfigError, match=re.escape(message)):
+            read_data(write(tmp_path / "bad.csv", text))
+    fit = write(tmp_path / "fit.toml", '[fit]\n[fit.noise]\ndrift_cm = 0.5\n[fit.parameters."decoder.visual_variance"]\n'
+                                       'prior = "uniform"\nlow = 5.0\nhigh = 80.0\n')
+    with pytest.raises(ConfigError, match="fit.noise.drift_cm: the data's column drift_cm_sem gives each cell's"):
+        read_plan(str(fit), data)
+
+
+def test_the_noise_added_to_each_cell_has_the_row_s_sd():
+    """With the fit's seed, the noise is numpy's standard normal draw from default_rng([seed, 1, sum of the stream's
+    character codes]) times each cell's SEM (to 1e-12); over n = 20000 draws each cell's sample sd s satisfies
+    (n - 1) s^2 / sd^2 ~ chi-square(n - 1), so s / sd lies in the central 99.9 % interval of that law's
+    sqrt(q / (n - 1)), about 1 +- 0.023."""
+    data = read_data(HUMAN / "rohde2011.csv")
+    sd = np.array([SEM[s] for _, s in data.cells])
+    n = 20000
+    noisy = with_noise(np.zeros((n, 3)), data, ["drift_cm"], {}, 7, "prior")
+    expected = np.random.default_rng([7, 1, sum(map(ord, "prior"))]).standard_normal((n, 3)) * sd
+    assert np.allclose(noisy, expected, rtol=0, atol=1e-12)
+    low, high = (np.sqrt(stats.chi2.ppf(q, n - 1) / (n - 1)) for q in (0.0005, 0.9995))
+    ratio = noisy.std(axis=0, ddof=1) / sd
+    assert np.all((ratio > low) & (ratio < high)), (ratio, low, high)
+    # a NaN (a failed simulated participant) stays NaN; no noise column and no fit.noise: the values unchanged
+    assert np.isnan(with_noise(np.full((1, 3), np.nan), data, ["drift_cm"], {}, 7, "prior")).all()
+    plain = read_data(HUMAN / "kocur2022.csv")
+    assert with_noise(np.ones((2, 1)), plain, ["drift_cm"], {}, 7, "prior").tolist() == [[1.0], [1.0]]
+
+
+def protocol(path):
+    tables = tomllib.loads(Path(path).read_text())
+    tables.pop("fit", None)
+    return tables
+
+
+def test_the_ownership_fit_file_fits_the_free_rates_on_their_priors_over_rohde_s_protocol():
+    assert protocol(HUMAN / "ownership_rohde2011.toml") == protocol(HUMAN / "rohde2011.toml")
+    data = read_data(HUMAN / "rohde2011.csv")
+    plan = read_plan(str(HUMAN / "ownership_rohde2011.toml"), data)
+    assert plan.settings["model"] == "ownership"
+    assert {p.key: (p.prior, p.low, p.high) for p in plan.parameters} == {
+        key: ("log-uniform", low, high) for key, (low, high) in FREE_RATES.items()}
+    assert plan.base["experiment"]["steps"] == 6000 and plan.base["conditions"]["rohde"] == -0.17  # 120 s, 17 cm
+    assert plan.base["stimulations"]["vision"]["touch"] is False
+    assert data.noise_sd(plan.measures, plan.noise).tolist() == [SEM[s] for _, s in data.cells]
+    assert data.observed.tolist() == [[-0.98, -5.90, -6.47]]  # async, sync, vision: the group means, cm
+
+
+@pytest.mark.parametrize("model", ["paper", "causal", "ownership"])
+def test_every_default_given_again_as_a_value_is_accepted(model):
+    """A batch's per-trial values are merged over its configuration (a fit's draws, a stimulation's own keys): each
+    default, the infinite ones included (stimulus.stop_time = inf: the stroking never stops), is a valid value."""
+    from master import config as configuration
+
+    defaults = configuration.load(model_name=model)
+    assert configuration.merge(defaults, defaults) == defaults
+
+
+def tiny_fit(tmp_path, pose_encoder):
+    """The shipped fit file at a tiny size: 10 + 3 participants, 8 steps (time_s 0.16 s), 32 px, a flow of a few
+    weights; the ownership model's pose encoder an untrained tiny one."""
+    text = (HUMAN / "ownership_rohde2011.toml").read_text()
+    sizes = {"simulations": 10, "calibration": 3, "participants_per_batch": 13, "posterior_samples": 20,
+             "calibration_samples": 9, "predictive_draws": 2}
+    for key, value in sizes.items():
+        text, count = re.subn(rf"(?m)^{key} = \d+", f"{key} = {value}", text)
+        assert count == 1, key
+    text = text.replace("[fit]\n", "[fit]\nquick = true\nworkers = 1\n").replace(
+        "[fit.estimator]\n", "[fit.estimator]\nhidden_features = 8\ntransforms = 1\nmax_epochs = 8\nbatch_size = 10\n")
+    text = text.replace("threads = 2", "threads = 1")
+    text += f'\n[ownership]\nconv_pose_encoder = "{pose_encoder}"\n'
+    data = (HUMAN / "rohde2011.csv").read_text().replace(",120,", ",0.16,")
+    return write(tmp_path / "fit.toml", text), write(tmp_path / "data.csv", data)
+
+
+def test_a_tiny_ownership_fit_runs_and_adds_each_cell_s_sem(quick_cache, tmp_path, monkeypatch):
+    """The whole pipeline on the shipped files, shrunk: the posterior inside the priors; run.json and held_out.csv
+    carry each cell's SEM, and the held-out statistics are the simulations' cell means plus numpy's draw of the
+    fit's seed times that SEM (to the CSV's 6 significant digits: rtol 1e-5)."""
+    from components.vision import pose_encoder as pe
+    from components.vision.networks import Encoder, preset
+    from master.commands.cli import main
+    from master.fit.plan import draw_participants
+    from master.fit.simulate import participants_sweep, statistics
+    from master.sweeps.folder import read_records
+
+    monkeypatch.setenv("RHI_CACHE", str(quick_cache))
+    encoder = tmp_path / "pose.pt"
+    pe.save_encoder(encoder, pe.PoseModel(Encoder(preset("tiny"), 32), (147.7, -91.2), (40.0, 50.0), (1.0, 1.0)),
+                    preset("tiny"), 32)
+    fit, data_path = tiny_fit(tmp_path, encoder)
+    out = tmp_path / "out"
+    assert main(["fit", "--data", str(data_path), "--config", str(fit), "--out", str(out)]) == 0
+    run = json.loads((out / "run.json").read_text())
+    assert run["model"] == "ownership" and run["simulations"]["trials"] == 13 * 3
+    assert run["cell_noise"] == {f"drift_cm[rohde/{s}]": sd for s, sd in SEM.items()}
+    values = np.loadtxt(out / "posterior.csv", delimiter=",", skiprows=1, usecols=(2, 3))
+    assert values.shape == (20, 2) and np.all((values >= 1 / 600) & (values <= 1.0))
+    data = read_data(data_path)
+    plan = read_plan(str(fit), data)
+    sweep = participants_sweep(plan, draw_participants(plan.parameters, plan.settings), "prior")
+    clean = statistics(sweep, read_records(out / "simulations", sweep), data, plan.measures)
+    sd = np.array([SEM[s] for _, s in data.cells])
+    draw = np.random.default_rng([0, 1, sum(map(ord, "prior"))]).standard_normal(clean.shape) * sd
+    held = np.genfromtxt(out / "held_out.csv", delimiter=",", names=True, dtype=None, encoding="utf-8")
+    assert held["drift_cm_sem"].tolist() == [SEM[s] for s in held["stimulation"]]
+    assert np.allclose(held["drift_cm"].reshape(3, 3), (clean + draw)[10:], rtol=1e-5, atol=1e-12)
