@@ -12,6 +12,7 @@ from components.brain.causal_brain import CausalBrain
 from components.stimulus import Stimulus
 from components.vision import pose_encoder as pe
 from components.vision.networks import Encoder, preset
+from tests.toys import assert_reads_no_simulator_position
 from master.cosim import ConfigError
 from master import models
 from master import config as configuration
@@ -107,19 +108,7 @@ def test_the_causal_brain_never_reads_a_simulator_position(tiny_causal):
     from components.vision.networks import build
 
     model = GenerativeModel(build("conv", "tiny", 16).decoder, kinematics.REST_POSE, (40.0, 50.0), {"kind": "conv"})
-    system = wiring.build_system(Decoder(model, threads=1), tiny_causal)
-    links = [(c.source, c.target) for c in system.connections]
-    graph = {}
-    for source, target in links:
-        graph.setdefault(source.split(".")[0], set()).add(target.split(".")[0])
-    into_brain = {s for s, t in links if t.startswith("brain.")}
-    assert not (into_brain & {"rubber_arm.hand", "body.hand_x", "body.hand_y", "stimulus.ball"})
-    # body -> brain carries only the sensed joint angles (proprioception), nothing else from the body
-    assert {s for s in into_brain if s.startswith("body.")} == {"body.q_shoulder", "body.q_elbow"}
-    assert "pose_encoder.pose" in into_brain
-    # rubber_arm reaches the brain only via the camera (the stimulus' event times carry no position)
-    assert "brain" not in {t for s in ("rubber_arm",) for t in graph.get(s, ())}
-    assert not any(v.unit == "m" for v in CausalBrain().variables.values() if v.causality == "input")
+    assert_reads_no_simulator_position(wiring.build_system(Decoder(model, threads=1), tiny_causal), CausalBrain())
 
 
 def test_a_tiny_causal_run_and_its_gamma(tiny_causal):

@@ -13,6 +13,7 @@ from components.brain import ownership_inference as oi
 from components.brain.ownership_brain import NOISE_STREAM, OwnershipBrain
 from components.vision import pose_encoder as pe
 from components.vision.networks import Encoder, preset
+from tests.toys import assert_reads_no_simulator_position
 from master import config as configuration
 from master import models
 from master.cosim import ConfigError
@@ -194,17 +195,7 @@ def test_the_ownership_brain_never_reads_a_simulator_position(tiny_ownership):
     from components.vision.networks import build
 
     model = GenerativeModel(build("conv", "tiny", 16).decoder, kinematics.REST_POSE, (40.0, 50.0), {"kind": "conv"})
-    system = wiring.build_system(Decoder(model, threads=1), tiny_ownership)
-    links = [(c.source, c.target) for c in system.connections]
-    graph = {}
-    for source, target in links:
-        graph.setdefault(source.split(".")[0], set()).add(target.split(".")[0])
-    into_brain = {s for s, t in links if t.startswith("brain.")}
-    assert not (into_brain & {"rubber_arm.hand", "body.hand_x", "body.hand_y", "stimulus.ball"})
-    assert {s for s in into_brain if s.startswith("body.")} == {"body.q_shoulder", "body.q_elbow"}
-    assert "pose_encoder.pose" in into_brain
-    assert "brain" not in graph.get("rubber_arm", ())  # the rubber arm reaches the brain only via the camera
-    assert not any(v.unit == "m" for v in OwnershipBrain().variables.values() if v.causality == "input")
+    assert_reads_no_simulator_position(wiring.build_system(Decoder(model, threads=1), tiny_ownership), OwnershipBrain())
 
 
 def test_the_free_rates_hold_the_centre_of_their_prior_until_fitted():

@@ -109,3 +109,16 @@ class ImageSink(Component):
 
     def step(self, t, h):
         self.values["mean"] = self.values["image"].reshape(self.batch_size, -1).mean(axis=1)
+
+
+def assert_reads_no_simulator_position(system, brain) -> None:
+    """A brain that sees the arm through a pose encoder: nothing carries a position from the simulator into it.
+    The body gives only the sensed joint angles (proprioception); the rubber arm reaches it only through the camera
+    (the stimulus' event times carry no position); no input of the brain is in metres."""
+    links = [(c.source, c.target) for c in system.connections]
+    into_brain = {source for source, target in links if target.startswith("brain.")}
+    assert not (into_brain & {"rubber_arm.hand", "body.hand_x", "body.hand_y", "stimulus.ball"})
+    assert {source for source in into_brain if source.startswith("body.")} == {"body.q_shoulder", "body.q_elbow"}
+    assert "pose_encoder.pose" in into_brain
+    assert not any(source.startswith("rubber_arm.") and target.startswith("brain.") for source, target in links)
+    assert not any(v.unit == "m" for v in brain.variables.values() if v.causality == "input")

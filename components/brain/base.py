@@ -351,3 +351,33 @@ class BeliefBrain(Component, abc.ABC):
         :attr:`BeliefRate.state`) into the output of that name; a model with more state extends this."""
         for name, value in state.items():
             self.values[name] = value
+
+
+class PerceptualNoise:
+    """A brain whose trials each draw perceptual timing noise from a generator of their own (``self._generators``,
+    one numpy Generator per trial, made at initialization): a failed step leaves the generators as they were, so
+    a trial retried or dropped does not consume its participant's draws; :meth:`commit` moves them on.
+
+    Mixed in before :class:`BeliefBrain` (``class MyBrain(PerceptualNoise, BeliefBrain)``); the state a step
+    returns carries the generators' new states under ``"streams"``.
+    """
+
+    _generators: list
+
+    def _timing_noise(self, pair):
+        """A standard normal from each trial's generator where ``pair`` (0 elsewhere), (B,), and the generators'
+        states after the draw by trial; the generators are put back as they were."""
+        noise, after = np.zeros(len(pair)), {}
+        for i in np.flatnonzero(pair):
+            stream = self._generators[i].bit_generator
+            before = stream.state
+            noise[i] = self._generators[i].standard_normal()
+            after[i], stream.state = stream.state, before
+        return noise, after
+
+    def commit(self, state):
+        """The step's state, and the generators moved past this step's timing noise."""
+        state = dict(state)
+        for i, after in state.pop("streams").items():
+            self._generators[i].bit_generator.state = after
+        super().commit(state)

@@ -26,7 +26,7 @@ import numpy as np
 
 from components.brain.body_inference import hazard_predict, participants, posterior, spatial_likelihood_ratio, \
     timing_likelihood_ratio
-from components.brain.base import BeliefBrain, BeliefRate, add_goal_drive, require_finite
+from components.brain.base import BeliefBrain, PerceptualNoise, BeliefRate, add_goal_drive, require_finite
 from components.brain.goal import goal_inputs
 from components.component import ComponentError, StepFailure
 from components.variables import Variable
@@ -104,7 +104,7 @@ def stability_number(step, proprioceptive_variance, gamma, seen_variance, pixel_
                    + pixel_weight * gamma * visual_stiffness + goal_stiffness)
 
 
-class CausalBrain(BeliefBrain):
+class CausalBrain(PerceptualNoise, BeliefBrain):
     """The causal model's integrator: belief mu, action a, gamma (and its timing part), free energy.
 
     Parameters
@@ -237,25 +237,6 @@ class CausalBrain(BeliefBrain):
         energy = free_energy(s_p, mu, gamma, v["seen_pose"], v["seen_pose_variance"], variance, v["pixel_weight"],
                              error)
         return BeliefRate(gamma, mu_dot, number, energy, {"gamma_timing": timing, "streams": streams})
-
-    def _timing_noise(self, pair):
-        """A standard normal from each participant's generator where ``pair`` (0 elsewhere), (B,), and the
-        generators' states after the draw by trial; the generators are put back as they were, so a failed
-        step leaves them so (:meth:`commit` moves them on)."""
-        noise, after = np.zeros(len(pair)), {}
-        for i in np.flatnonzero(pair):
-            stream = self._generators[i].bit_generator
-            before = stream.state
-            noise[i] = self._generators[i].standard_normal()
-            after[i], stream.state = stream.state, before
-        return noise, after
-
-    def commit(self, state):
-        """gamma_timing, and the participants' generators moved past this step's timing noise."""
-        state = dict(state)
-        for i, after in state.pop("streams").items():
-            self._generators[i].bit_generator.state = after
-        super().commit(state)
 
     def stiffness_terms(self, i, rate):
         """The stability number's formula and values in trial ``i``, for the guard's message."""

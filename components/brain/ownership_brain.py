@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from components.brain.base import BeliefBrain, BeliefRate, add_goal_drive
+from components.brain.base import BeliefBrain, PerceptualNoise, BeliefRate, add_goal_drive
 from components.brain.body_inference import hazard_predict, posterior
 from components.brain.goal import goal_inputs
 from components.brain.ownership_inference import asynchrony_log_likelihood_ratio, belief_rate, free_energy, \
@@ -37,7 +37,7 @@ from components.variables import Variable
 NOISE_STREAM = 2  # the trial's generator is numpy's default_rng([participant_seed, NOISE_STREAM])
 
 
-class OwnershipBrain(BeliefBrain):
+class OwnershipBrain(PerceptualNoise, BeliefBrain):
     """Belief mu, action a, ownership gamma, coupling rho, realignment b and the ownership onset.
 
     Parameters
@@ -147,25 +147,6 @@ class OwnershipBrain(BeliefBrain):
         energy = free_energy(s_p, v["realignment"], mu, variance)
         return BeliefRate(gamma, mu_dot, number, energy, {"coupling": coupling, "realignment": realignment,
                                                           "ownership_onset": onset, "streams": streams})
-
-    def _timing_noise(self, pair):
-        """A standard normal from each trial's generator where ``pair`` (0 elsewhere), (B,), and the generators'
-        states after the draw by trial; the generators are put back as they were, so a failed step leaves them
-        so (:meth:`commit` moves them on)."""
-        noise, after = np.zeros(len(pair)), {}
-        for i in np.flatnonzero(pair):
-            stream = self._generators[i].bit_generator
-            before = stream.state
-            noise[i] = self._generators[i].standard_normal()
-            after[i], stream.state = stream.state, before
-        return noise, after
-
-    def commit(self, state):
-        """The beliefs, b and the onset, and the generators moved past this step's timing noise."""
-        state = dict(state)
-        for i, after in state.pop("streams").items():
-            self._generators[i].bit_generator.state = after
-        super().commit(state)
 
     def stiffness_terms(self, i, rate):
         """The stability number's formula and values in trial ``i``, for the guard's message."""

@@ -13,7 +13,7 @@ import numpy as np
 
 from components.body import kinematics
 from master.models.base import Model, TrialValues
-from master.models.paper import BRAIN_SOURCES, rest_belief
+from master.models.paper import rest_belief, with_paper_sources
 
 OWN_SOURCES = {
     "brain.pixel_weight": "causal.pixel_weight",
@@ -64,8 +64,7 @@ class CausalModel(Model):
     @property
     def parameter_sources(self) -> dict:
         """The paper's brain's sources of the parameters the causal brain also declares, and its own."""
-        declared = _brain_class()().variables
-        return {**{p: s for p, s in BRAIN_SOURCES.items() if p.partition(".")[2] in declared}, **OWN_SOURCES}
+        return with_paper_sources(_brain_class()(), OWN_SOURCES)
 
     def parameters(self, trials: TrialValues) -> dict:
         """The plain sources' values, and the derived ones: coupling_sd per trial, the workspace, the seeds."""

@@ -20,6 +20,12 @@ BRAIN_SOURCES = {
 }
 
 
+def with_paper_sources(brain, own: dict) -> dict:
+    """The parameter sources of a model whose ``brain`` shares parameters with the paper's: the paper's brain's
+    sources (:data:`BRAIN_SOURCES`) of the parameters ``brain`` also declares, then the model's ``own``."""
+    return {**{p: s for p, s in BRAIN_SOURCES.items() if p.partition(".")[2] in brain.variables}, **own}
+
+
 def rest_belief(trials: TrialValues) -> np.ndarray:
     """(2,) deg: the belief's start, the rest pose (``brain.mu0``'s derived source)."""
     return np.array(trials.rest_pose, dtype=float)
