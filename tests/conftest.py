@@ -16,8 +16,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 # The modules that take longest run first (the longest first: a greedy schedule), so that under pytest-xdist (`make test`: two
 # workers, a module to a worker) neither worker is left with a long module at the end.
-FIRST = ("test_cli_catalogue.py", "test_experiment.py", "test_paper.py", "test_models.py", "test_phenomena.py", "test_sweep_resume.py",
-         "test_sweep.py", "test_bench.py", "test_c_body.py", "test_agent.py")
+FIRST = ("test_experiment.py", "test_paper.py", "test_cli_catalogue.py", "test_models.py", "test_phenomena.py", "test_tutorial.py",
+         "test_hostile_files.py", "test_sweep_resume.py", "test_sweep.py", "test_bench.py", "test_c_body.py", "test_agent.py")
 
 
 def pytest_collection_modifyitems(items):
