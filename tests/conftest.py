@@ -20,6 +20,13 @@ FIRST = ("test_experiment.py", "test_paper.py", "test_cli_catalogue.py", "test_m
          "test_hostile_files.py", "test_sweep_resume.py", "test_sweep.py", "test_bench.py", "test_c_body.py", "test_agent.py")
 
 
+def pytest_configure(config):
+    # pytest-xdist (3.x) otherwise hands out the modules by their number of tests, most first, whatever the order
+    # above: a module of one long test (the tutorial's) then starts last and one worker waits on it alone.
+    if hasattr(config.option, "loadscopereorder"):
+        config.option.loadscopereorder = False
+
+
 def pytest_collection_modifyitems(items):
     rank = {name: position for position, name in enumerate(FIRST)}
     items.sort(key=lambda item: rank.get(item.path.name, len(FIRST)))  # stable: file order kept otherwise
