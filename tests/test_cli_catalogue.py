@@ -5,8 +5,8 @@ line on stderr for a refusal (or the partial results of a run that failed in par
 and the file system unchanged outside the output (a snapshot of the case's folder before and after). A case
 that needs a process of its own (a signal, a kill, a fault injected, a stdout that is not a pipe, an FMU
 whose faults count the instances of a process) runs in a subprocess; the rest, refusals, call the command
-line's main() in this process (tests/in_process.py), without seconds of start-up and imports each. No case trains the default
-decoders: tiny checkpoints are trained once for the run.
+line's main() in this process (tests/in_process.py), without seconds of start-up and imports each. No case
+trains the default decoders: tiny checkpoints are trained once for the run.
 """
 from __future__ import annotations
 
