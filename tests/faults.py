@@ -69,30 +69,36 @@ class Resources:
     fmus: dict         # name -> path: native, NanThirdArmPlant, HangingArmPlant, DeafArmPlant, unloadable
 
 
+def resources_at(folder: Path) -> Resources:
+    """The paths :func:`make_resources` writes in ``folder``."""
+    names = ("native", "NanThirdArmPlant", "HangingArmPlant", "DeafArmPlant", "HangingArmPlant-b")
+    fmus = {name: str(folder / f"{name}.fmu") for name in names}
+    fmus["unloadable"] = str(folder / "Unloadable.fmu")
+    return Resources(folder, str(folder / "tiny-conv.pt"), str(folder / "tiny-vae.pt"), fmus)
+
+
 def make_resources(folder: Path) -> Resources:
     """Tiny conv and VAE checkpoints at 32 px and the FMUs above, made in ``folder``."""
     from components.vision.training import TrainSettings
     from master.decoders.training import train_decoder
     from master.export.body import build_fmu
 
+    made = resources_at(folder)
     settings = TrainSettings(preset="tiny", samples=40, epochs=1, batch_size=20, resolution=32, quality_poses=0,
                              threads=1)
-    checkpoints = {}
     for kind in ("conv", "vae"):
-        checkpoints[kind] = str(folder / f"tiny-{kind}.pt")
-        train_decoder(kind, checkpoints[kind], settings, progress=False)
+        train_decoder(kind, getattr(made, kind), settings, progress=False)
     plants = folder / "rhi_test_faulty_plants.py"
     plants.write_text(FAULTY_PLANTS)
-    fmus = {"native": str(build_fmu(folder / "native.fmu", "native"))}
+    fmus = made.fmus
+    build_fmu(fmus["native"], "native")
     for name in ("NanThirdArmPlant", "HangingArmPlant", "DeafArmPlant"):
-        fmus[name] = str(build_fmu(folder / f"{name}.fmu", component=f"rhi_test_faulty_plants:{name}",
-                                   model_name=name, extra_files=[plants]))
-    fmus["HangingArmPlant-b"] = str(shutil.copy(fmus["HangingArmPlant"], folder / "HangingArmPlant-b.fmu"))
-    fmus["unloadable"] = str(folder / "Unloadable.fmu")
+        build_fmu(fmus[name], component=f"rhi_test_faulty_plants:{name}", model_name=name, extra_files=[plants])
+    shutil.copy(fmus["HangingArmPlant"], fmus["HangingArmPlant-b"])
     with zipfile.ZipFile(fmus["native"]) as old, zipfile.ZipFile(fmus["unloadable"], "w") as new:
         for item in old.infolist():
             new.writestr(item, b"not a shared library\n" * 400 if item.filename.endswith(".so") else old.read(item))
-    return Resources(folder, checkpoints["conv"], checkpoints["vae"], fmus)
+    return made
 
 
 def snapshot(folder: Path) -> dict:

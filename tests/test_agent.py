@@ -28,6 +28,7 @@ from master.config.protocol import make_trial, plan
 from master.export.agent import (OBSERVED, SEED, Agent, agent_connections, exposed, join_seed, parameter_paths,
                                  split_seed)
 from master.export.agent_fmu import MANIFEST, agent_from_resources, build_agent_fmu
+from tests.in_process import rhi_in_process
 
 STEPS = 30
 LINKS = ("q_shoulder", "q_elbow", "hand_x", "hand_y")  # what the body feeds the agent
@@ -241,10 +242,10 @@ def test_rhi_export_agent_writes_a_valid_fmu_and_refuses_in_one_line(quick, tmp_
         ("--decoder", "conv", "--checkpoint", checkpoint, "--out", str(tmp_path / "D.txt")): "must be a file name ending in .fmu",
         ("--decoder", "mlp", "--out", str(tmp_path / "E.fmu")): "not one of conv, vae",
     }
-    for args, message in refusals.items():
-        done = rhi("export-agent", "--quick", *args)
+    for args, message in refusals.items():  # main() in this process (tests/in_process.py), as a fresh one runs it
+        done = rhi_in_process(["export-agent", "--quick", *args], Path.cwd(), {})
         lines = done.stderr.strip().splitlines()
-        assert done.returncode == 2 and len(lines) == 1 and message in lines[0], (args, done.stderr)
+        assert done.status == 2 and len(lines) == 1 and message in lines[0], (args, done.stderr)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["A.fmu", "folder.fmu"]  # nothing half-written
 
 

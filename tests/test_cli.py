@@ -6,6 +6,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.in_process import rhi_in_process
+
 COMMANDS = ("train", "experiment", "export-body", "export-agent", "export-system", "run-system", "sweep", "fit", "bench",
             "reach")
 
@@ -63,12 +65,11 @@ def test_bad_input_is_one_line_on_stderr_and_exit_status_2(command, tmp_path):
     assert set(BAD_INPUT) == set(COMMANDS)
     (tmp_path / "bad.toml").write_text("[brain]\nsigma_p = 2.0\n")
     arguments, expected = BAD_INPUT[command]
-    # Run from the empty folder (so a stray write would show), importing this checkout (not an installed copy).
-    root = str(Path(__file__).resolve().parents[1])
-    environment = {**os.environ, "RHI_CACHE": str(tmp_path / "cache"),
-                   "PYTHONPATH": os.pathsep.join([root, os.environ.get("PYTHONPATH", "")])}
-    result = rhi(command, *(a.format(tmp=tmp_path) for a in arguments), cwd=tmp_path, env=environment)
-    assert result.returncode == 2, (result.returncode, result.stderr[-2000:])
+    # Run from the empty folder (so a stray write would show); main() in this process, as a fresh one would run
+    # it (tests/in_process.py: the console script itself is the two tests above).
+    result = rhi_in_process([command, *(a.format(tmp=tmp_path) for a in arguments)], tmp_path,
+                            {"RHI_CACHE": str(tmp_path / "cache")})
+    assert result.status == 2, (result.status, result.stderr[-2000:])
     lines = result.stderr.splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"rhi {command}: error: ") and expected in lines[0], result.stderr
     assert "Traceback" not in result.stderr

@@ -1,9 +1,12 @@
 """The catalogue: bad inputs and faults run through the real command line.
 
-Each case runs in a subprocess (cwd a fresh folder, RHI_CACHE a fresh folder) and asserts its exit status,
-one line on stderr for a refusal (or the partial results of a run that failed in part), no "Traceback"
-anywhere, and the file system unchanged outside the output (a snapshot of the case's folder before and
-after). No case trains the default decoders: tiny checkpoints are trained once for the module.
+Each case runs as ``rhi`` (cwd a fresh folder, RHI_CACHE a fresh folder) and asserts its exit status, one
+line on stderr for a refusal (or the partial results of a run that failed in part), no "Traceback" anywhere,
+and the file system unchanged outside the output (a snapshot of the case's folder before and after). A case
+that needs a process of its own (a signal, a kill, a fault injected, a stdout that is not a pipe, an FMU
+whose faults count the instances of a process) runs in a subprocess; the rest, refusals, call the command
+line's main() in this process (tests/in_process.py), without seconds of start-up and imports each. No case
+trains the default decoders: tiny checkpoints are trained once for the run.
 """
 from __future__ import annotations
 
@@ -20,12 +23,13 @@ from typing import Callable
 
 import pytest
 
-from tests.faults import CONV_ONLY, ENV, Resources, expand, experiment, make_resources, snapshot
+from tests.faults import CONV_ONLY, ENV, Resources, expand, experiment, snapshot
+from tests.in_process import rhi_in_process
 
 
 @pytest.fixture(scope="module")
-def resources(tmp_path_factory) -> Resources:
-    return make_resources(tmp_path_factory.mktemp("resources"))
+def resources(fault_resources) -> Resources:
+    return fault_resources  # made once per test run (tests/conftest.py)
 
 
 TIMEOUT_1S = CONV_ONLY + "[fmu]\nstep_timeout_s = 1.0\n"
@@ -88,6 +92,13 @@ class Case:
     python: str | None = None   # run ``python -c`` this (a fault injected) instead of ``python -m master``
     cache_is_file: bool = False
     check: Callable | None = None  # more: check(work, result)
+
+    @property
+    def own_process(self) -> bool:
+        """Signals, a fault injected, a stdout that is not a pipe, and the faulty FMUs (they count instances made
+        in a process, hang, or end it) need a process of their own."""
+        return (self.interrupt is not None or self.python is not None or self.stdout != "pipe"
+                or any(argument.startswith("{fmu:") and argument != "{fmu:unloadable}" for argument in self.args))
 
 
 def toml(text):
@@ -291,6 +302,13 @@ def run_case(case: Case, resources: Resources, root: Path) -> Result:
     if case.cache_is_file:
         cache.write_text("a file where the cache should be")
     before = snapshot(folder)
+    if not case.own_process:
+        began = time.monotonic()
+        done = rhi_in_process([expand(argument, resources) for argument in case.args], cwd=work,
+                              environment={"RHI_CACHE": str(cache), "RHI_TEST_HANG_MARKER": str(marker)})
+        cached = sorted(p.name for p in cache.iterdir()) if cache.is_dir() else []
+        return Result(done.status, done.stdout, done.stderr, before, snapshot(folder), cached, work,
+                      time.monotonic() - began)
     env = {**ENV, "RHI_CACHE": str(cache), "RHI_TEST_HANG_MARKER": str(marker)}
     command = [sys.executable] + (["-c", case.python] if case.python else ["-m", "master"])
     command += [expand(argument, resources) for argument in case.args]
@@ -325,11 +343,13 @@ def run_case(case: Case, resources: Resources, root: Path) -> Result:
 
 @pytest.fixture(scope="module")
 def catalogue(resources, tmp_path_factory) -> dict[str, Result]:
-    """Every case of CASES, two at a time (one per core)."""
+    """Every case of CASES: those that need a process of their own two at a time (one per core), while the rest
+    run one after the other in this process (in its main thread, as rhi's signal handling expects)."""
     root = tmp_path_factory.mktemp("catalogue")
     with ThreadPoolExecutor(max_workers=2) as pool:
-        futures = {case.name: pool.submit(run_case, case, resources, root) for case in CASES}
-    return {name: future.result() for name, future in futures.items()}
+        futures = {case.name: pool.submit(run_case, case, resources, root) for case in CASES if case.own_process}
+        here = {case.name: run_case(case, resources, root) for case in CASES if not case.own_process}
+    return {case.name: here[case.name] if case.name in here else futures[case.name].result() for case in CASES}
 
 
 def last_line(text: str) -> str:

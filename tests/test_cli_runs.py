@@ -11,12 +11,12 @@ from pathlib import Path
 
 import pytest
 
-from tests.faults import CONV_ONLY, ENV, Resources, expand, experiment, make_resources
+from tests.faults import CONV_ONLY, ENV, Resources, expand, experiment
 
 
 @pytest.fixture(scope="module")
-def resources(tmp_path_factory) -> Resources:
-    return make_resources(tmp_path_factory.mktemp("resources"))
+def resources(fault_resources) -> Resources:
+    return fault_resources  # made once per test run (tests/conftest.py)
 
 
 def start(resources, work, *args, marker=None):

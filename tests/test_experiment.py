@@ -12,6 +12,7 @@ import pytest
 from docs_tables import names
 
 from master.outputs.tables import SCHEMA_VERSION, SUMMARY_COLUMNS
+from tests.in_process import rhi_in_process
 
 
 def rhi(*args, cache, one_core=False, **environment):
@@ -21,6 +22,13 @@ def rhi(*args, cache, one_core=False, **environment):
     pin = (lambda: os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})) if one_core else None
     return subprocess.run([sys.executable, "-m", "master", *args], capture_output=True, text=True,
                           env=environment, timeout=600, preexec_fn=pin)
+
+
+def refusal(*args, cache):
+    """`rhi ARGS` for a run refused before any work: main() in this process (tests/in_process.py), as a
+    subprocess would give it, without a second of interpreter start-up each."""
+    done = rhi_in_process(list(args), os.getcwd(), {"RHI_CACHE": str(cache)})
+    return subprocess.CompletedProcess(["rhi", *args], done.status, done.stdout, done.stderr)
 
 
 @pytest.fixture(scope="module")
@@ -89,30 +97,30 @@ def one_line_error(result, *fragments):
 def test_unknown_config_key_is_named_with_a_suggestion(tmp_path, cache):
     config = tmp_path / "bad.toml"
     config.write_text("[brain]\nsigma_p = 2.0\n[experiment]\ntrails = 2\n")
-    result = rhi("experiment", "--quick", "--config", str(config), "--out", str(tmp_path / "out"), cache=cache)
+    result = refusal("experiment", "--quick", "--config", str(config), "--out", str(tmp_path / "out"), cache=cache)
     one_line_error(result, "unknown config key brain.sigma_p")
     assert not (tmp_path / "out").exists()
 
 
 def test_out_of_range_and_foreign_output(tmp_path, cache):
-    one_line_error(rhi("experiment", "--quick", "--trials", "0", "--out", str(tmp_path / "o"), cache=cache),
+    one_line_error(refusal("experiment", "--quick", "--trials", "0", "--out", str(tmp_path / "o"), cache=cache),
                    "experiment.trials must be at least 1")
     occupied = tmp_path / "occupied"
     occupied.mkdir()
     (occupied / "thesis.tex").write_text("precious")
-    one_line_error(rhi("experiment", "--quick", "--out", str(occupied), cache=cache), "--force")
+    one_line_error(refusal("experiment", "--quick", "--out", str(occupied), cache=cache), "--force")
     assert [p.name for p in occupied.iterdir()] == ["thesis.tex"]
 
 
 def test_unwritable_folder(cache):
     """/proc refuses new folders even to root, so this runs as root too (CI is root)."""
-    one_line_error(rhi("experiment", "--quick", "--out", "/proc/rhi-run", cache=cache), "cannot write into /proc")
+    one_line_error(refusal("experiment", "--quick", "--out", "/proc/rhi-run", cache=cache), "cannot write into /proc")
 
 
 def test_unwritable_parent_is_refused_without_traces(tmp_path, cache):
     blocker = tmp_path / "file"
     blocker.write_text("")
-    one_line_error(rhi("experiment", "--quick", "--out", str(blocker / "run"), cache=cache), "does not exist")
+    one_line_error(refusal("experiment", "--quick", "--out", str(blocker / "run"), cache=cache), "does not exist")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
 
 
@@ -130,7 +138,7 @@ def test_body_fmu_reproduces_the_native_summary(quick_run, cache, tmp_path):
 def test_a_broken_body_fmu_is_refused_before_any_work(tmp_path, cache):
     fake = tmp_path / "Body.fmu"
     fake.write_text("not a zip")
-    one_line_error(rhi("experiment", "--quick", "--body", str(fake), "--out", str(tmp_path / "o"), cache=cache),
+    one_line_error(refusal("experiment", "--quick", "--body", str(fake), "--out", str(tmp_path / "o"), cache=cache),
                    "Body.fmu cannot be used")
     assert not (tmp_path / "o").exists()
 

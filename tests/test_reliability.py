@@ -20,12 +20,12 @@ import pytest
 from master.cosim import ConfigError
 from master.runtime.context import RunContext
 
-from tests.faults import Resources, make_resources
+from tests.faults import Resources
 
 
 @pytest.fixture(scope="module")
-def resources(tmp_path_factory) -> Resources:
-    return make_resources(tmp_path_factory.mktemp("resources"))
+def resources(fault_resources) -> Resources:
+    return fault_resources  # made once per test run (tests/conftest.py)
 
 
 # -- data loss: --out . / "" / .. / a foreign folder with --force ----------------------------------

@@ -1,14 +1,13 @@
 """The experiment as an SSP 1.0 package (master/export/system.py, ssp_package.py, ssp_check.py), run unchanged by FMPy's and libcosim's masters.
 
 Truth: the native master's run of the same trial (``wiring.run_batch``, same seed, decoder and body); the
-SSP 1.0 schema FMPy ships; the protocol's trials and seeds. Bad packages through the real CLI.
+SSP 1.0 schema FMPy ships; the protocol's trials and seeds. Bad packages through the command line's main().
 """
 import concurrent.futures
 import importlib.util
 import os
 import re
 import subprocess
-import sys
 import zipfile
 
 import pytest
@@ -24,6 +23,7 @@ from master.export.ssp_check import read_ssp, trial_parameters
 from master.export.ssp_package import BODY_PARAMETERS, SSD, TRIALS, build_ssp
 from master.export.system import final_drift_cm, run_ssp
 from master.export.tasks import TASKS
+from tests.in_process import rhi_in_process
 from tests.test_agent import agent_fmu, quick  # noqa: F401 (fixtures)
 
 trial_name = TASKS["illusion"].trial_name  # conv_left_sync_0: a trial's parameter file
@@ -98,8 +98,10 @@ def test_the_left_sync_trial_under_libcosim_and_fmpy_ends_within_2_percent_of_th
     assert abs(results["libcosim"]["agent.mu_shoulder"][0] - native.values["brain.mu"][1, 0, 0]) < 1e-9
 
 
-def rhi(*args, timeout=600):
-    return subprocess.run([sys.executable, "-m", "master", *args], capture_output=True, text=True, timeout=timeout)
+def rhi(*args):
+    """`rhi ARGS` refused before any work: the command line's main() in this process (tests/in_process.py)."""
+    done = rhi_in_process(list(args), os.getcwd(), {})
+    return subprocess.CompletedProcess(["rhi", *args], done.status, done.stdout, done.stderr)
 
 
 def edited(package, target, replace=None, drop=()):
