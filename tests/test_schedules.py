@@ -15,7 +15,8 @@ from master import config as configuration
 from master.config import protocol
 from master.cosim import ConfigError
 from master.tasks.illusion import wiring
-from master.tasks.illusion.measures import probe_name, probes
+from master.outputs.tables import probe_name
+from master.tasks.illusion.measures import probes
 
 STEP = 0.02
 

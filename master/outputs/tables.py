@@ -19,10 +19,13 @@ SUMMARY_MEASURES = ("drift_cm", "force_x_n", "gamma", "action_accel_mean_x_m_s2"
 TRIAL_KEYS = ["decoder", "condition", "stimulation", "trial", "seed"]
 
 
+def probe_name(time_s: float) -> str:
+    """The measure of the drift read at ``time_s`` (s): ``drift_at_60s_cm``, ``drift_at_0.5s_cm``."""
+    return f"drift_at_{float(time_s):.10g}s_cm"
+
+
 def probe_measures(probe_times) -> list[str]:
     """The per-trial values of the drift read at ``probe_times`` (s): ``drift_at_60s_cm``, ... in order."""
-    from master.tasks.illusion.measures import probe_name
-
     return [probe_name(time) for time in probe_times]
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from components.body import kinematics
+from master.outputs.tables import probe_name
 
 def measures(result) -> dict[str, np.ndarray]:
     """Per step and trial (shape steps+1 x B): drift (cm), force (N), the action measure, and the rest.
@@ -82,15 +83,10 @@ def half_decay(times: np.ndarray, drift: np.ndarray, tactile_time: np.ndarray) -
 PROBE_TOLERANCE = 1e-9  # s: a probe at 60.0 is read at the step ending at 60.0 - 1e-12 (float ticks), as an event is
 
 
-def probe_name(time_s: float) -> str:
-    """The measure of the drift read at ``time_s`` (s): ``drift_at_60s_cm``, ``drift_at_0.5s_cm``."""
-    return f"drift_at_{float(time_s):.10g}s_cm"
-
-
 def probes(times: np.ndarray, drift: np.ndarray, probe_times) -> dict[str, np.ndarray]:
     """Per trial (B,): the drift (cm) read at each of ``probe_times`` (s), as a participant's pointing would read
     the felt hand then: the row of the first communication step that ends at or after the time (the rule by
-    which an event is observed, components/stimulus.py), under :func:`probe_name`."""
+    which an event is observed, components/stimulus.py), under :func:`master.outputs.tables.probe_name`."""
     times = np.asarray(times)
     rows = np.minimum(np.searchsorted(times, np.asarray(probe_times, dtype=float) - PROBE_TOLERANCE), len(times) - 1)
     return {probe_name(time): drift[row] for time, row in zip(probe_times, rows)}
