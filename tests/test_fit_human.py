@@ -3,7 +3,7 @@ the ownership model's fit of Rohde et al. 2011 (docs/fit/human/ownership_rohde20
 sources and run end to end at a tiny size.
 
 Truth: numpy's normal draws from the fit's documented seed, the chi-square distribution of a normal sample's
-variance, FREE_RATES (master/models/ownership.py), and the protocol file docs/fit/human/rohde2011.toml.
+variance, FREE_PARAMETERS (master/models/ownership.py), and the protocol file docs/fit/human/rohde2011.toml.
 """
 import json
 import re
@@ -18,7 +18,7 @@ from master.cosim import ConfigError
 from master.fit.data import read_data
 from master.fit.plan import read_plan
 from master.fit.simulate import with_noise
-from master.models.ownership import FREE_RATES
+from master.models.ownership import FREE_PARAMETERS
 
 ROOT = Path(__file__).resolve().parents[1]
 HUMAN = ROOT / "docs" / "fit" / "human"
@@ -81,13 +81,13 @@ def protocol(path):
     return tables
 
 
-def test_the_ownership_fit_file_fits_the_free_rates_on_their_priors_over_rohde_s_protocol():
+def test_the_ownership_fit_file_fits_the_free_parameters_on_their_priors_over_rohde_s_protocol():
     assert protocol(HUMAN / "ownership_rohde2011.toml") == protocol(HUMAN / "rohde2011.toml")
     data = read_data(HUMAN / "rohde2011.csv")
     plan = read_plan(str(HUMAN / "ownership_rohde2011.toml"), data)
     assert plan.settings["model"] == "ownership"
     assert {p.key: (p.prior, p.low, p.high) for p in plan.parameters} == {
-        key: ("log-uniform", low, high) for key, (low, high) in FREE_RATES.items()}
+        key: (prior, low, high) for key, (prior, low, high) in FREE_PARAMETERS.items()}
     assert plan.base["experiment"]["steps"] == 6000 and plan.base["conditions"]["rohde"] == -0.17  # 120 s, 17 cm
     assert plan.base["stimulations"]["vision"]["touch"] is False
     assert data.noise_sd(plan.measures, plan.noise).tolist() == [SEM[s] for _, s in data.cells]

@@ -17,7 +17,7 @@ from tests.toys import assert_reads_no_simulator_position
 from master import config as configuration
 from master import models
 from master.cosim import ConfigError
-from master.models.ownership import FREE_RATES
+from master.models.ownership import FREE_PARAMETERS, prior_centre
 from master.tasks.illusion import wiring
 
 STEP = 0.02
@@ -198,11 +198,13 @@ def test_the_ownership_brain_never_reads_a_simulator_position(tiny_ownership):
     assert_reads_no_simulator_position(wiring.build_system(Decoder(model, threads=1), tiny_ownership), OwnershipBrain())
 
 
-def test_the_free_rates_hold_the_centre_of_their_prior_until_fitted():
+def test_the_free_parameters_hold_the_centre_of_their_prior_until_fitted():
     config = configuration.load(model_name="ownership")
-    for key, (low, high) in FREE_RATES.items():
+    assert prior_centre("log-uniform", 1 / 600, 1.0) == pytest.approx(math.sqrt(1 / 600))  # the geometric centre
+    assert prior_centre("uniform", 0.01, 0.99) == 0.5
+    for key, (prior, low, high) in FREE_PARAMETERS.items():
         table, _, name = key.partition(".")
-        assert config[table][name] == pytest.approx(math.sqrt(low * high), abs=5e-5)  # written to 4 digits
+        assert config[table][name] == pytest.approx(prior_centre(prior, low, high), abs=5e-5)  # written to 4 digits
 
 
 def test_the_model_takes_its_prior_and_period_from_one_source_each():
@@ -223,3 +225,30 @@ def test_bad_settings_are_one_line_before_any_work(key, value, message):
     with pytest.raises(ConfigError, match=message) as caught:
         check_parameters(configuration.load(overrides={key: value}, model_name="ownership"))
     assert "\n" not in str(caught.value)
+
+
+def test_trials_record_the_onset_as_the_first_time_gamma_reaches_one_half(tiny_ownership):
+    """The model's own measures (Model.measures) reach the per-step table: ``ownership_onset_s`` is NaN until the
+    step at which the recorded gamma first reaches 1/2, and that step's time from then on (truth: the gamma column
+    read here); ``coupling`` is the brain's output as recorded."""
+    from components.body import kinematics
+    from components.vision.component import Decoder, GenerativeModel
+    from components.vision.networks import build
+    from master.config.protocol import make_trial
+    from master.tasks.illusion.measures import measures
+
+    config = configuration.merge(tiny_ownership, {"experiment": {"steps": 400},
+                                                  "stimulations": {"sync": {"delay_min": 0.0, "delay_max": 0.0}}})
+    decoder = Decoder(GenerativeModel(build("conv", "tiny", 16).decoder, kinematics.REST_POSE, (40.0, 50.0),
+                                      {"kind": "conv"}), threads=1)
+    trials = [make_trial(config, "conv", "left", "sync", index, ()) for index in range(2)]
+    result = wiring.run_batch(decoder, trials, config)
+    table = measures(result, models.of(config))
+    assert set(models.of(config).measures) <= set(table)
+    for trial in range(2):
+        crossed = np.flatnonzero(table["gamma"][:, trial] >= 0.5)
+        assert crossed.size  # 4 simultaneous touches in 8 s, about 1.7 nats each (docs/model.md); 4.6 needed
+        first = crossed[0]
+        assert np.isnan(table["ownership_onset_s"][:first, trial]).all()
+        assert (table["ownership_onset_s"][first:, trial] == result.times[first]).all()
+    assert np.array_equal(table["coupling"], result.values["brain.coupling"])

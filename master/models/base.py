@@ -107,6 +107,9 @@ class Model:
         link whose ends are not in a task's system is left out.
     record : tuple of str
         Paths recorded besides the task's.
+    measures : dict
+        Columns of trials.csv (and a sweep's or a fit's trial outcomes) the model adds: ``"name_unit"`` ->
+        a recorded path (one of ``record``) of one value per trial and step.
     sees_pose : bool
         Whether the brain reads the seen arm's pose through a pose encoder of the camera's image (it then
         needs the camera to see the arm, and a pose encoder at the run's resolution).
@@ -125,6 +128,7 @@ class Model:
     batchable: tuple = ()
     links: tuple = ()
     record: tuple = ()
+    measures: dict = {}
     sees_pose: bool = False
     pose_encoder_key: str = ""
     source: str = ""

@@ -32,8 +32,17 @@ SHARED_KEYS = {"brain.gamma0": "the paper's initial gamma (Rood et al. 2020: \"T
                "stimulus.period": "s, the protocol's stroke period: the asynchrony under two causes is uniform over "
                                   "one period, density 1/T"}
 DERIVED_FROM = "ownership.timing_jnd"  # the key brain.timing_sd is derived from
-# The free rates: a prior range each (1/s), stated before any fit (docs/model.md, "The ownership model").
-FREE_RATES = {"ownership.switching_rate": (1.0 / 600.0, 1.0), "ownership.realignment_rate": (1.0 / 600.0, 1.0)}
+# The free parameters, fitted on the training set: (prior, low, high) each, stated before the fit that uses it
+# (docs/model.md, "The ownership model": why these ranges, and why the coupling prior joined the rates).
+FREE_PARAMETERS = {"ownership.switching_rate": ("log-uniform", 1.0 / 600.0, 1.0),
+                   "ownership.realignment_rate": ("log-uniform", 1.0 / 600.0, 1.0),
+                   "ownership.coupling_prior": ("uniform", 0.01, 0.99)}
+
+
+def prior_centre(prior: str, low: float, high: float) -> float:
+    """The centre of a prior range, the value a free parameter holds until it is fitted: the geometric centre
+    of a log-uniform range, the midpoint of a uniform one."""
+    return (low * high) ** 0.5 if prior == "log-uniform" else (low + high) / 2
 
 
 def _brain_class():
@@ -52,6 +61,7 @@ class OwnershipModel(Model):
     batchable = (DERIVED_FROM,)
     links = (("camera.image", "pose_encoder.image"), ("pose_encoder.pose", "brain.seen_pose"))
     record = ("brain.coupling", "brain.realignment", "brain.ownership_onset")
+    measures = {"ownership_onset_s": "brain.ownership_onset", "coupling": "brain.coupling"}
 
     def brain(self):
         """A new :class:`~components.brain.ownership_brain.OwnershipBrain`."""

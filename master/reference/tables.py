@@ -235,10 +235,10 @@ def worker_command() -> str:
 def ownership_constants() -> str:
     """The ownership model's constants: each brain parameter, the key it comes from, its value (a derived one
     computed by the code that derives it) and its source, from master/models/ownership.toml's comments; the free
-    rates with their prior ranges (master.models.ownership.FREE_RATES)."""
+    parameters with their prior ranges (master.models.ownership.FREE_PARAMETERS)."""
     from components.brain.ownership_inference import QUARTILE_Z, timing_sd_from_jnd
     from master import config as configuration
-    from master.models.ownership import DERIVED_FROM, FREE_RATES, OWN_SOURCES, SHARED_KEYS
+    from master.models.ownership import DERIVED_FROM, FREE_PARAMETERS, OWN_SOURCES, SHARED_KEYS
 
     config = configuration.load(model_name="ownership")
     comments = {key: comment for key, _, comment in commented_keys("models/ownership")}
@@ -256,10 +256,11 @@ def ownership_constants() -> str:
             jnd = value(DERIVED_FROM)
             rows.append([name, f"`{DERIVED_FROM}` / {QUARTILE_Z:.4f}", f"{float(timing_sd_from_jnd(jnd)):.4f}",
                          f"derived: {comments[DERIVED_FROM]}"])
-        elif source in FREE_RATES:
-            low, high = FREE_RATES[source]
+        elif source in FREE_PARAMETERS:
+            prior, low, high = FREE_PARAMETERS[source]
+            shown_low = f"1/{1 / low:g}" if prior == "log-uniform" else f"{low:g}"
             rows.append([name, f"`{source}`", f"fitted (pending); now {value(source):g}",
-                         f"prior log-uniform on [1/{1 / low:g}, {high:g}] 1/s; {comments[source]}"])
+                         f"prior {prior} on [{shown_low}, {high:g}]; {comments[source]}"])
         else:
             rows.append([name, f"`{source}`", f"{value(source):g}", comments.get(source) or SHARED_KEYS[source]])
     return markdown(["parameter", "from", "value", "source or derivation"], rows)

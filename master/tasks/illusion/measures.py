@@ -6,8 +6,9 @@ import numpy as np
 from components.body import kinematics
 from master.outputs.tables import probe_name
 
-def measures(result) -> dict[str, np.ndarray]:
-    """Per step and trial (shape steps+1 x B): drift (cm), force (N), the action measure, and the rest.
+def measures(result, model=None) -> dict[str, np.ndarray]:
+    """Per step and trial (shape steps+1 x B): drift (cm), force (N), the action measure, and the rest, and
+    ``model``'s own measures (:attr:`master.models.base.Model.measures`: a column per recorded output).
 
     Drift = x of the perceived hand (forward kinematics of mu) minus x of the real hand, in cm;
     negative is to the left (docs/design.md, Measures). The action measure of the paper's Fig. 3 d-f,
@@ -42,6 +43,7 @@ def measures(result) -> dict[str, np.ndarray]:
         "ball_x_m": values["stimulus.ball"][..., 0],
         "ball_y_m": values["stimulus.ball"][..., 1],
         "action_accel_x_m_s2": attempted[..., 0],
+        **{column: values[path] for column, path in (model.measures if model else {}).items()},
     }
 
 

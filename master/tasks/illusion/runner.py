@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from master import models
 from master.cosim import SimulationError
 from master.tasks.illusion.measures import end_of_trial, measures
 from master.runtime.context import RunContext
@@ -149,7 +150,7 @@ def decoder_batch(job: BatchJob):
         failed = dict(error.failures)
         failed.update({t: str(error) for t in trials if t not in failed})
         result, kept = None, []
-    outcome = None if result is None else {"times": result.times, "measures": measures(result)}
+    outcome = None if result is None else {"times": result.times, "measures": measures(result, models.of(config))}
     return kept, outcome, time.perf_counter() - began, failed
 
 
@@ -203,7 +204,7 @@ def batch_outcomes(config: dict, decoder: str, trials: list[Trial], checkpoint: 
         path = checkpoint or checkpoint_path(decoder, config, must_exist=True)
         # one torch thread, as in the experiment's batches: the same numbers, and sweep workers are one core each
         result = run_batch(decoder_component(decoder, path, config, threads=JOB_THREADS), batch, config)
-        final = end_of_trial(result.times, measures(result), config["experiment"]["probe_times"])
+        final = end_of_trial(result.times, measures(result, models.of(config)), config["experiment"]["probe_times"])
         renamed = {"drift_cm": "drift_cm", "force_x_n": "force_n", "gamma": "gamma_final"}
         return [{"status": "ok", "outcome": {
             **{name: float(final[key][column]) for key, name in renamed.items()}, "seed": trial.seed,
