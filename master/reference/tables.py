@@ -232,6 +232,21 @@ def worker_command() -> str:
                       ".venv/bin/dask worker tcp://SCHEDULER-HOST:8786 --nworkers $(nproc) --nthreads 1", "```"])
 
 
+def model_columns() -> str:
+    """The columns each built-in model adds to trials.csv (:attr:`master.models.base.Model.measures`), with the
+    description of the brain output each records."""
+    from master import models
+
+    rows = []
+    for name in models.BUILT_IN:
+        model = models.get(name)
+        described = model.brain().variables if model.measures else {}
+        for column, path in model.measures.items():
+            variable = described[path.partition(".")[2]]
+            rows.append([f"`{name}`", f"`{column}`", f"{variable.description} ({variable.unit})"])
+    return markdown(["model", "column", "meaning (unit)"], rows)
+
+
 def ownership_constants() -> str:
     """The ownership model's constants: each brain parameter, the key it comes from, its value (a derived one
     computed by the code that derives it) and its source, from master/models/ownership.toml's comments; the free
@@ -266,7 +281,7 @@ def ownership_constants() -> str:
     return markdown(["parameter", "from", "value", "source or derivation"], rows)
 
 
-TABLES = {"ownership-constants": ownership_constants, "configuration-keys": configuration_keys, "paper-preset": paper_preset, "summary-columns": summary_columns,
+TABLES = {"model-columns": model_columns, "ownership-constants": ownership_constants, "configuration-keys": configuration_keys, "paper-preset": paper_preset, "summary-columns": summary_columns,
           "trials-columns": trials_columns, "sweep-columns": sweep_columns, "phenomenon-columns": phenomenon_columns,
           "agent-ports": agent_ports, "reach-agent-ports": lambda: agent_ports("reach"), "body-ports": body_ports,
           "c-body-fmi3-ports": c_body_fmi3_ports, "worker-command": worker_command}
