@@ -33,16 +33,12 @@ SHARED_KEYS = {"brain.gamma0": "the paper's initial gamma (Rood et al. 2020: \"T
                                   "one period, density 1/T"}
 DERIVED_FROM = "ownership.timing_jnd"  # the key brain.timing_sd is derived from
 # The free parameters, fitted on the training set: (prior, low, high) each, stated before the fit that uses it
-# (docs/model.md, "The ownership model": why these ranges, and why the coupling prior joined the rates).
+# (docs/model.md, "The ownership model": why these ranges, and why the coupling prior joined the rates). Their
+# values in ownership.toml are the posterior medians of the fit shipped in FIT_FOLDER (relative to the project).
 FREE_PARAMETERS = {"ownership.switching_rate": ("log-uniform", 1.0 / 600.0, 1.0),
                    "ownership.realignment_rate": ("log-uniform", 1.0 / 600.0, 1.0),
                    "ownership.coupling_prior": ("uniform", 0.01, 0.99)}
-
-
-def prior_centre(prior: str, low: float, high: float) -> float:
-    """The centre of a prior range, the value a free parameter holds until it is fitted: the geometric centre
-    of a log-uniform range, the midpoint of a uniform one."""
-    return (low * high) ** 0.5 if prior == "log-uniform" else (low + high) / 2
+FIT_FOLDER = "docs/fit/human/ownership_rohde2011"
 
 
 def _brain_class():

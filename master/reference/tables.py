@@ -5,9 +5,11 @@ without reaching docs/configuration.md too.
 """
 from __future__ import annotations
 
+import csv
 import math
 import re
 from importlib import resources
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -253,10 +255,12 @@ def ownership_constants() -> str:
     parameters with their prior ranges (master.models.ownership.FREE_PARAMETERS)."""
     from components.brain.ownership_inference import QUARTILE_Z, timing_sd_from_jnd
     from master import config as configuration
-    from master.models.ownership import DERIVED_FROM, FREE_PARAMETERS, OWN_SOURCES, SHARED_KEYS
+    from master.models.ownership import DERIVED_FROM, FIT_FOLDER, FREE_PARAMETERS, OWN_SOURCES, SHARED_KEYS
 
     config = configuration.load(model_name="ownership")
     comments = {key: comment for key, _, comment in commented_keys("models/ownership")}
+    with open(Path(__file__).resolve().parents[2] / FIT_FOLDER / "estimates.csv") as file:
+        estimates = {row["parameter"]: {q: float(row[q]) for q in ("q05", "q95")} for row in csv.DictReader(file)}
 
     def value(key):
         table, _, name = key.partition(".")
@@ -274,8 +278,10 @@ def ownership_constants() -> str:
         elif source in FREE_PARAMETERS:
             prior, low, high = FREE_PARAMETERS[source]
             shown_low = f"1/{1 / low:g}" if prior == "log-uniform" else f"{low:g}"
-            rows.append([name, f"`{source}`", f"fitted (pending); now {value(source):g}",
-                         f"prior {prior} on [{shown_low}, {high:g}]; {comments[source]}"])
+            fitted = estimates[source]
+            rows.append([name, f"`{source}`", f"{value(source):g}",
+                         f"fitted: the posterior median ({fitted['q05']:.2g}-{fitted['q95']:.2g}, 90 %) of "
+                         f"`{FIT_FOLDER}/`, prior {prior} on [{shown_low}, {high:g}]"])
         else:
             rows.append([name, f"`{source}`", f"{value(source):g}", comments.get(source) or SHARED_KEYS[source]])
     return markdown(["parameter", "from", "value", "source or derivation"], rows)
