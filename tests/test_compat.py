@@ -10,12 +10,12 @@ import json
 
 import pytest
 
-from master.export import compat
+from master.export import compat, ssp_ecos
 from master.export.fmi_checks import CHECKS
 from tests.docs_tables import block
 from tests.test_agent import agent_fmu, quick  # noqa: F401 (fixtures)
 
-MASTERS_HERE = importlib.util.find_spec("libcosimpy") is not None and importlib.util.find_spec("ecospy") is not None
+MASTERS_HERE = importlib.util.find_spec("libcosimpy") is not None and ssp_ecos.missing() is None
 
 
 @pytest.fixture(scope="module")

@@ -22,14 +22,15 @@ import pytest
 
 from components.body import kinematics
 from master.cosim import ConfigError
+from master.export import ssp_ecos
 from master.export.body import export_body
 from master.export.ssp_package import build_ssp
 from master.export.system import run_ssp
 from tests.in_process import rhi_in_process
 from tests.test_agent import agent_fmu, quick  # noqa: F401 (fixtures)
 
-ECOS = importlib.util.find_spec("ecospy") is not None
-needs_ecos = pytest.mark.skipif(not ECOS, reason="ecospy is not installed (the test extra: pip install ecospy==0.7.2)")
+ECOS = ssp_ecos.missing() is None  # ecospy, and on Linux the TBB library it links to (make setup installs both)
+needs_ecos = pytest.mark.skipif(not ECOS, reason=str(ssp_ecos.missing()))
 LIBCOSIM = importlib.util.find_spec("libcosimpy") is not None
 STEP, STEPS = 2.0 ** -6, 8  # a step binary holds exactly (see above); 8 steps: a touch and the ball's return
 OTHER = "conv_right_async_0"  # a trial the package holds but does not bind (it binds conv_left_sync_0)
