@@ -8,6 +8,10 @@ $(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(VENV)/bin/pip install --quiet torch==2.13.0
 	$(VENV)/bin/pip install --quiet -c constraints.txt -e '.[test]'
+	@# Ecos's library (ecospy) links to Intel TBB: Debian's libtbb12, installed where this user may; else named once
+	@ldconfig -p 2>/dev/null | grep -q 'libtbb\.so\.12 ' || { [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null && \
+		{ apt-get install -y -qq libtbb12 || { apt-get update -qq && apt-get install -y -qq libtbb12; }; } >/dev/null 2>&1; } || \
+		echo "make setup: libtbb.so.12 is missing (Debian: apt-get install libtbb12): rhi run-system --master ecos refuses without it"
 	touch $(STAMP)
 
 .PHONY: setup test test-kernels experiment docs

@@ -105,14 +105,21 @@ class ComponentSlaveBase(Fmi2Slave):
 
     def to_xml(self, model_options=None):
         """pythonfmu's description plus what it leaves out: units, ranges, start values (:meth:`start_text`),
-        output dependencies and initial unknowns (so masters see the outputs are state), written by the
-        functions that write a component's own model description."""
+        ``initial`` (FMI 2.0's defaults said out, as a component's own description says them: ``calculated`` on an
+        output, which has no start, ``exact`` on a parameter), output dependencies and initial unknowns (so
+        masters see the outputs are state), written by the functions that write a component's own model
+        description."""
         root = super().to_xml(model_options or {})
         for element, variable in zip(root.iterfind("ModelVariables/ScalarVariable"), self.scalars):
             typed = element[0]
             start = self.start_text(variable, typed.get("start"))
             if start is not None:
                 typed.set("start", start)
+            if variable.causality in ("output", "local"):
+                element.set("initial", "calculated")
+                typed.attrib.pop("start", None)
+            elif variable.causality == "parameter" and typed.get("start") is not None:
+                element.set("initial", "exact")
             for key, value in typed_attributes(variable).items():
                 typed.set(key, value)
         definitions = unit_definitions(v.unit for v in self.scalars if v.type == "Real" and v.unit)

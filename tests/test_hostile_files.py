@@ -7,6 +7,7 @@ folder, TMPDIR and RHI_CACHE inside the case's own tree), in-process where a fun
 """
 from __future__ import annotations
 
+import importlib.util
 import os
 import re
 import stat
@@ -150,8 +151,11 @@ def hostile_runs(body_fmu, tmp_path_factory):
     return [(case, args, before, result, snapshot(case)) for (case, args, before), result in zip(cases, done)]
 
 
-@pytest.mark.parametrize("master", ["libcosim", "fmpy"])
-def test_a_fair_package_runs_from_its_checked_folder_under_both_masters(body_fmu, tmp_path, master):
+@pytest.mark.parametrize("master", ["libcosim", "fmpy", "ecos"])
+def test_a_fair_package_runs_from_its_checked_folder_under_every_master(body_fmu, tmp_path, master):
+    from master.export import ssp_ecos
+    if master == "ecos" and ssp_ecos.missing():
+        pytest.skip(ssp_ecos.missing())
     (tmp_path / "work").mkdir()
     one_body_package(body_fmu, tmp_path / "work" / "Y.ssp")
     done = rhi(tmp_path, "run-system", "Y.ssp", "--master", master, "--out", "y.csv")

@@ -1,5 +1,6 @@
 """An SSP package's parameter values, checked before any master runs (master/export/ssp_check.py), and a
-component that refuses its values as it starts, in its own words under both masters (ssp_runner.py).
+component that refuses its values as it starts, in its own words under FMPy and libcosim (ssp_runner.py), named
+as refused under Ecos.
 
 Truth: FMI 2.0's types (an Integer is a C int; libcosim reads no NaN or INF), the ranges the FMUs declare,
 and the brain's own rule (Sigma_p positive and finite, components/brain/base.py).
@@ -13,7 +14,9 @@ import zipfile
 import pytest
 
 from master.cosim import ConfigError
+from master.export import ssp_ecos
 from master.export.ssp_check import read_ssp
+from master.export.ssp_ecos import ECOS_FAILED as ssp_ecos_failed
 from tests.test_agent import agent_fmu, quick  # noqa: F401 (fixtures)
 from tests.test_ssp_export import package  # noqa: F401 (fixture)
 
@@ -86,14 +89,19 @@ def test_a_bad_value_is_refused_in_one_line_before_any_master_starts(package, tm
         system.run_ssp(bad, "fmpy")
 
 
-@pytest.mark.parametrize("master", ["fmpy", "libcosim"])
+@pytest.mark.parametrize("master", ["fmpy", "libcosim", "ecos"])
 def test_a_value_the_agent_refuses_as_it_starts_is_named_in_its_own_words(package, tmp_path, master):  # noqa: F811
     if master == "libcosim" and not LIBCOSIM:
         pytest.skip("libcosimpy is not installed (the test extra)")
+    if master == "ecos" and ssp_ecos.missing():
+        pytest.skip(ssp_ecos.missing())
     bad = with_value(package, tmp_path / "zero.ssp", TRIAL, "proprioceptive_variance", "0")  # in [0, inf], as declared
     done = rhi("run-system", str(bad), "--master", master, "--out", str(tmp_path / "o.csv"))
     lines = done.stderr.strip().splitlines()
     assert done.returncode == 2 and len(lines) == 1, done.stderr
-    assert lines[0] == ("rhi run-system: error: zero.ssp: brain.proprioceptive_variance must be positive and finite, "
-                        f"got 0.0 (refused as the FMU started under {master})")
+    # Ecos applies the bound file itself (its parameter set, by name) and so starts the agent with the 0; it
+    # neither checks an FMU's status nor passes on its messages, so the reason is not the agent's own words
+    reason = (ssp_ecos_failed if master == "ecos" else
+              "brain.proprioceptive_variance must be positive and finite, got 0.0")
+    assert lines[0] == f"rhi run-system: error: zero.ssp: {reason} (refused as the FMU started under {master})"
     assert not (tmp_path / "o.csv").exists()

@@ -8,12 +8,16 @@ import os
 import time
 
 
-HELP = "export the agent (stimulus, rubber arm, camera, decoder, brain; --task reach: the reach's) as an FMI 2.0 FMU"
+HELP = ("export the agent (stimulus, rubber arm, camera, decoder, brain; --task reach: the reach's) as an FMI 2.0 FMU "
+        "(--fmi 3.0: the illusion's, its camera image an array)")
 
 
 def add_arguments(parser) -> None:
     """`rhi export-agent`'s arguments."""
     add_common(parser)
+    parser.add_argument("--fmi", default="2.0", metavar="VERSION",
+                        help="2.0 (default; pythonfmu) or 3.0 (pythonfmu3: the illusion's agent, its camera image a "
+                             "Float64 array output)")
     parser.add_argument("--out", metavar="FILE.fmu", required=True)
 
 
@@ -63,8 +67,11 @@ def run(args) -> int:
     from master.export.agent_fmu import export_agent
 
     started = time.perf_counter()
+    from master.export.agent_fmu import check_fmi
+
+    check_fmi(args.fmi, args.task)
     check_out(args, "FMU file", ".fmu")
-    path, checkpoint = export_agent(args.out, load(args), args.decoder, args.task)
+    path, checkpoint = export_agent(args.out, load(args), args.decoder, args.task, args.fmi)
     print(f"wrote {path} ({os.path.getsize(path) / 1024:.0f} KiB, decoder {checkpoint}) "
           f"in {time.perf_counter() - started:.1f} s")
     return 0

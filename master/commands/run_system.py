@@ -1,17 +1,17 @@
-"""`rhi run-system FILE.ssp`: an SSP package run under FMPy's or libcosim's master; the CSV written, printed."""
+"""`rhi run-system FILE.ssp`: an SSP package run under FMPy's, libcosim's or Ecos's master; the CSV written, printed."""
 from __future__ import annotations
 
 import time
 
 from master.commands.export_agent import check_out
 
-HELP = "run an SSP package under FMPy's or libcosim's master"
+HELP = "run an SSP package under FMPy's, libcosim's or Ecos's master"
 
 
 def add_arguments(parser) -> None:
     """`rhi run-system`'s arguments."""
     parser.add_argument("ssp", metavar="FILE.ssp")
-    parser.add_argument("--master", choices=("fmpy", "libcosim"), default="libcosim")
+    parser.add_argument("--master", choices=("fmpy", "libcosim", "ecos"), default="libcosim")
     parser.add_argument("--trial", metavar="NAME", help="the agent's parameter file resources/trials/NAME.ssv "
                                                         "instead of the bound one (e.g. conv_right_sync_0, or "
                                                         "a reach's conv_near_1)")

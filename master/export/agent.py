@@ -210,6 +210,14 @@ class Agent(Component):
     def _inner(self, path: str) -> Variable:
         return self._system.variable(path)
 
+    def inner_variable(self, path: str) -> Variable:
+        """The inner system's declared variable ``path`` (``camera.image``)."""
+        return self._inner(path)
+
+    def inner(self, path: str):
+        """The inner session's current value of ``path`` (batch first), or None before the session is built."""
+        return None if self._session is None else self._session.get(path)
+
     def parameter_variables(self) -> list[Variable]:
         """The agent's parameters, declared as the inner variables they set are (the seed as two Integers)."""
         variables = []

@@ -12,6 +12,7 @@ Example::
 """
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 import shutil
@@ -25,6 +26,7 @@ from master.export.fmu_files import build_with_pythonfmu, built_beside, check_ta
 MANIFEST = "rhi_agent.json"
 CHECKPOINT = "decoder.pt"
 SLAVE = Path(__file__).with_name("agent_slave.py")
+SLAVES = {"2.0": SLAVE, "3.0": Path(__file__).with_name("agent_slave3.py")}  # FMI version -> the slave script
 
 
 def ports(agent) -> list[list[str]]:
@@ -79,7 +81,19 @@ def agent_from_resources(resources: str):
     return agent, TASKS[task].model_name, f"{description}; rhi {manifest['rhi']}"
 
 
-def build_agent_fmu(out, kind: str, config: dict, checkpoint: str, task: str = "illusion") -> Path:
+def check_fmi(fmi: str, task: str) -> None:
+    """ConfigError, in one line, unless the agent of ``task`` is built for FMI ``fmi``: 2.0 (pythonfmu) for every
+    task, 3.0 (pythonfmu3, the camera's image an array output) for the illusion's, whose camera it exposes."""
+    if fmi not in SLAVES:
+        raise ConfigError(f"--fmi {fmi!r} is not one of {', '.join(SLAVES)}")
+    if fmi == "3.0" and task != "illusion":
+        raise ConfigError(f"--fmi 3.0 is built for --task illusion only (its camera image as an array); --task {task} "
+                          "is FMI 2.0")
+    if fmi == "3.0" and importlib.util.find_spec("pythonfmu3") is None:
+        raise ConfigError("--fmi 3.0 needs pythonfmu3 (pip install pythonfmu3==0.3.4, in the test extra)")
+
+
+def build_agent_fmu(out, kind: str, config: dict, checkpoint: str, task: str = "illusion", fmi: str = "2.0") -> Path:
     """Build the agent FMU at ``out`` (a path ending in .fmu), whole or not at all.
 
     Parameters
@@ -95,6 +109,8 @@ def build_agent_fmu(out, kind: str, config: dict, checkpoint: str, task: str = "
         The decoder's checkpoint, copied into the FMU's resources.
     task : str
         ``illusion`` or ``reach`` (``master.export.tasks``).
+    fmi : str
+        ``2.0`` (pythonfmu) or ``3.0`` (pythonfmu3, :mod:`master.export.agent_fmi3`; the illusion's agent).
 
     Returns
     -------
@@ -103,6 +119,7 @@ def build_agent_fmu(out, kind: str, config: dict, checkpoint: str, task: str = "
     """
     from importlib import metadata
 
+    check_fmi(fmi, task)
     out = check_target(out)
     agent = make_agent(checkpoint, kind, config, task)  # refuses a checkpoint of another kind or camera first
     try:
@@ -113,17 +130,18 @@ def build_agent_fmu(out, kind: str, config: dict, checkpoint: str, task: str = "
     with tempfile.TemporaryDirectory(prefix="rhi_agent_") as staging:
         staging = Path(staging)
         try:
-            script = staged_script(SLAVE, staging, "rhi_agent_slave")
+            script = staged_script(SLAVES[fmi], staging, "rhi_agent_slave" if fmi == "2.0" else "rhi_agent_slave3")
             (staging / MANIFEST).write_text(json.dumps(manifest, indent=1), encoding="utf-8")
             shutil.copyfile(checkpoint, staging / CHECKPOINT)
         except OSError as error:  # a full TMPDIR: shutil's writes name no file
             raise OSError(error.errno, error.strerror, error.filename or str(staging)) from error
         files = [staging / MANIFEST, staging / CHECKPOINT]
-        build = lambda target: build_with_pythonfmu(script, target, files, "the agent FMU")
+        build = lambda target: build_with_pythonfmu(script, target, files, "the agent FMU", fmi)
         return built_beside(out, build)
 
 
-def export_agent(out, config: dict, kind: str | None = None, task: str = "illusion") -> tuple[Path, str]:
+def export_agent(out, config: dict, kind: str | None = None, task: str = "illusion",
+                 fmi: str = "2.0") -> tuple[Path, str]:
     """``rhi export-agent``: check everything, train the decoder if it is the default and not cached yet
     (as ``rhi experiment`` does), and build the agent FMU at ``out``.
 
@@ -138,6 +156,8 @@ def export_agent(out, config: dict, kind: str | None = None, task: str = "illusi
         ``conv`` or ``vae`` (default: the configuration's first decoder).
     task : str
         ``illusion`` or ``reach``.
+    fmi : str
+        ``2.0`` or ``3.0`` (:func:`check_fmi`).
 
     Returns
     -------
@@ -152,6 +172,7 @@ def export_agent(out, config: dict, kind: str | None = None, task: str = "illusi
     if kind not in ("conv", "vae"):
         raise ConfigError(f"--decoder {kind!r} is not one of conv, vae")
     task_named(task)  # a known one
+    check_fmi(fmi, task)
     model = models.of(config)
     if model.sees_pose:
         raise ConfigError(f"--model {model.name}: its brain reads the seen arm's pose through a pose encoder, which "
@@ -164,7 +185,7 @@ def export_agent(out, config: dict, kind: str | None = None, task: str = "illusi
     check_parameters(config)
     check_decoders(config)
     checkpoints, _ = ensure_checkpoints(config, progress=False)
-    return build_agent_fmu(out, kind, config, checkpoints[kind], task), checkpoints[kind]
+    return build_agent_fmu(out, kind, config, checkpoints[kind], task, fmi), checkpoints[kind]
 
 
 def check_carried(config: dict) -> None:

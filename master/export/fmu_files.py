@@ -65,13 +65,17 @@ def staged_script(slave: Path, staging: Path, prefix: str, loads=()) -> Path:
     return script
 
 
-def build_with_pythonfmu(script: Path, target: Path, project_files, what: str) -> Path:
-    """pythonfmu's builder: the FMU of ``script`` with ``project_files`` in its resources, at ``target``.
+def build_with_pythonfmu(script: Path, target: Path, project_files, what: str, fmi: str = "2.0") -> Path:
+    """pythonfmu's builder (FMI 2.0; pythonfmu3's for ``fmi`` 3.0): the FMU of ``script`` with ``project_files`` in
+    its resources, at ``target``.
 
     A slave the builder cannot load is refused as ``cannot build <what>: <reason>`` (ConfigError);
     ``sys.path`` is left as it was (the builder puts the script's folder on it for good).
     """
-    from pythonfmu.builder import FmuBuilder
+    if fmi == "3.0":
+        from pythonfmu3.builder import FmuBuilder
+    else:
+        from pythonfmu.builder import FmuBuilder
 
     saved_path = list(sys.path)
     try:

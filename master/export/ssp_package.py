@@ -42,7 +42,7 @@ SOURCES = {AGENT: "resources/agent.fmu", BODY: "resources/body.fmu"}
 BODY_PARAMETERS = "resources/body.ssv"
 TRIALS = "resources/trials"
 FMU_TYPE = "application/x-fmu-sharedlibrary"
-MASTERS = ("fmpy", "libcosim")
+MASTERS = ("fmpy", "libcosim", "ecos")
 # run-system's communication steps: 2.8 h of the experiment's 0.01 s steps, its recorded connectors (about 20
 # float64 each) 160 MB; far beyond the protocol's runs, far below what would exhaust memory or run for days.
 MAX_STEPS = 1_000_000

@@ -1,4 +1,5 @@
-"""``python -m master.export.ssp_runner REQUEST.json``: one SSP package run by FMPy's or libcosim's master.
+"""``python -m master.export.ssp_runner REQUEST.json``: one SSP package run by FMPy's, libcosim's or Ecos's master
+(:mod:`master.export.ssp_ecos`).
 
 :func:`master.export.system.run_ssp` starts this in a child process and writes the request: the
 package, the master, the steps and step size, each component's parameters (as the package binds
@@ -18,6 +19,7 @@ import sys
 
 import numpy as np
 
+from master.export.ssp_ecos import ECOS_FAILED, ECOS_LOG, ecos_run
 from master.outputs.processes import die_with_parent
 
 # libcosim's log line of a message an FMU logged with status error or fatal
@@ -39,10 +41,15 @@ def first_reason(messages) -> str | None:
 def refusal(folder: str, stderr: str) -> str | None:
     """Why a component refused to start, in its own words, after the child failed (its stderr ``stderr``, its
     request's folder ``folder``), or None: FMPy's reason from the runner's last line, libcosim's from its log
-    when no step was done."""
+    when no step was done; under Ecos, whose process ends (Ecos steps on past an FMU's failed initialization)
+    before a first step, that a component failed, without its reason (Ecos keeps the FMUs' messages to
+    itself)."""
     lines = [line for line in stderr.splitlines() if line.strip()]
     if lines and lines[-1].startswith(REFUSED):
         return lines[-1].removeprefix(REFUSED)
+    if os.path.isfile(os.path.join(folder, ECOS_LOG)) and not os.path.exists(os.path.join(folder, STEPPED)) and \
+            not any(line.startswith("rhi-ssp-runner: ") for line in lines):  # Ecos's process ended as it started
+        return ECOS_FAILED
     log = os.path.join(folder, LOG)
     if os.path.exists(os.path.join(folder, STEPPED)) or not os.path.isfile(log):
         return None
@@ -177,7 +184,7 @@ def libcosim_run(request: dict) -> dict:
             raise RuntimeError(f"libcosim failed a step: {execution.status()}")
         if step == 0:  # libcosim initializes the FMUs in its first step; a failure after it is no refusal
             open(os.path.join(os.path.dirname(request["out"]), STEPPED), "wb").close()
-        times.append(execution.status().current_time * 1e-9)
+        times.append(execution.status().current_time / 1e9)
         for component, names in references.items():
             values = observer.last_real_values(slaves[component], list(names.values()))
             for name, value in zip(names, values):
@@ -186,12 +193,15 @@ def libcosim_run(request: dict) -> dict:
 
 
 def main(path: str) -> int:
-    """Run the request of the JSON file ``path`` under its master (FMPy or libcosim) and save the result to its
-    ``out`` (.npz); returns the exit status, 0."""
+    """Run the request of the JSON file ``path`` under its master (FMPy, libcosim or Ecos) and save the result to
+    its ``out`` (.npz); returns the exit status, 0."""
     die_with_parent()
     with open(path, encoding="utf-8") as file:
         request = json.load(file)
-    result = (fmpy_run if request["master"] == "fmpy" else libcosim_run)(request)
+    if request["master"] == "ecos":
+        result = ecos_run(request, os.path.join(os.path.dirname(request["out"]), STEPPED))
+    else:
+        result = (fmpy_run if request["master"] == "fmpy" else libcosim_run)(request)
     with open(request["out"], "wb") as file:
         np.savez(file, **result)
     return 0

@@ -2,8 +2,8 @@
 body FMUs.
 
 :func:`export_system` builds the package (:mod:`master.export.ssp_package`); :func:`run_ssp` checks it
-(:mod:`master.export.ssp_check`) and runs it, unchanged, under FMPy's SSP master (``fmpy.ssp``) or libcosim
-(``libcosimpy``), in a child process (``python -m master.export.ssp_runner``): the masters load the FMUs'
+(:mod:`master.export.ssp_check`) and runs it, unchanged, under FMPy's SSP master (``fmpy.ssp``), libcosim
+(``libcosimpy``) or Ecos (``ecospy``, :mod:`master.export.ssp_ecos`), in a child process (``python -m master.export.ssp_runner``): the masters load the FMUs'
 native libraries, and a crash there must not take the command down.
 """
 from __future__ import annotations
@@ -33,8 +33,8 @@ def run_ssp(path, master: str, trial: str | None = None, steps: int | None = Non
     path : path
         The .ssp file (checked first: :func:`read_ssp`).
     master : str
-        ``fmpy`` (FMPy's SSP master, ``fmpy.ssp.simulation.simulate_ssp``) or ``libcosim``
-        (``CosimExecution.from_ssp_file``).
+        ``fmpy`` (FMPy's SSP master, ``fmpy.ssp.simulation.simulate_ssp``), ``libcosim``
+        (``CosimExecution.from_ssp_file``) or ``ecos`` (``ecospy.EcosSimulation``).
     trial : str, optional
         A parameter file of ``resources/trials`` (``conv_left_sync_0``) for the agent, in place of the one
         the SSD binds; the same values are given to both masters as their API takes them.
@@ -63,6 +63,10 @@ def run_ssp(path, master: str, trial: str | None = None, steps: int | None = Non
         raise ConfigError(f"--master {master!r} is not one of {', '.join(MASTERS)}")
     if master == "libcosim" and importlib.util.find_spec("libcosimpy") is None:
         raise ConfigError("--master libcosim needs libcosimpy (pip install libcosimpy==0.0.6, in the test extra)")
+    if master == "ecos":
+        from master.export.ssp_ecos import missing
+        if (reason := missing()) is not None:
+            raise ConfigError(reason)
     package = read_ssp(path)
     parameters = trial_parameters(package, trial)
     if package.step_size is None:
@@ -80,10 +84,13 @@ def run_ssp(path, master: str, trial: str | None = None, steps: int | None = Non
         unpacked, fmus = unpack(package, Path(folder))
         request = Path(folder) / "request.json"
         request.write_text(json.dumps({
-            "ssp": str(unpacked), "fmus": fmus, "master": master, "steps": steps, "step_size": package.step_size,
+            "ssp": str(unpacked), "fmus": fmus, "master": master, "trial": trial, "steps": steps,
+            "step_size": package.step_size,
             "parameters": {c: {k: [t, v] for k, (t, v) in values.items()} for c, values in parameters.items()},
             "connectors": {c: [v for v, (causality, kind) in package.variables[c].items()
                                if causality in ("input", "output") and kind == "Real"] for c in package.components},
+            "inputs": {c: [v for v, (causality, kind) in package.variables[c].items()
+                           if causality == "input" and kind == "Real"] for c in package.components},
             "out": str(Path(folder) / "result.npz")}))
         scratch = Path(folder) / "tmp"  # the masters' own unpacked copies, removed with the folder
         scratch.mkdir()

@@ -287,7 +287,14 @@ def ownership_constants() -> str:
     return markdown(["parameter", "from", "value", "source or derivation"], rows)
 
 
+def fmi_compat() -> str:
+    """docs/fmi.md's compatibility matrix, from the results ``python -m master.export.compat`` measured."""
+    from master.export.compat import stored_table
+
+    return stored_table()
+
+
 TABLES = {"model-columns": model_columns, "ownership-constants": ownership_constants, "configuration-keys": configuration_keys, "paper-preset": paper_preset, "summary-columns": summary_columns,
           "trials-columns": trials_columns, "sweep-columns": sweep_columns, "phenomenon-columns": phenomenon_columns,
           "agent-ports": agent_ports, "reach-agent-ports": lambda: agent_ports("reach"), "body-ports": body_ports,
-          "c-body-fmi3-ports": c_body_fmi3_ports, "worker-command": worker_command}
+          "c-body-fmi3-ports": c_body_fmi3_ports, "fmi-compat": fmi_compat, "worker-command": worker_command}
