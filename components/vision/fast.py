@@ -51,6 +51,58 @@ def linearised_terms(projected, squared, gram, step):
     return drive, error.clamp(min=0)
 
 
+def nearest_within(points, slots, targets, tolerance):
+    """For each target, the nearest of ``points`` in the max-norm if it lies within that target's tolerance.
+
+    The same choice as taking the argmin of max|point - target| over all points in ``slots`` order (the first of
+    equal distances: the smallest slot) and keeping it where the distance is <= the tolerance, without
+    comparing every target with every point: only the points whose first coordinate lies within the tolerance
+    (found by a sort on it, the window widened by a relative 1e-9 so that rounding cannot leave one out) have
+    their distance computed, exactly as the full comparison would.
+
+    Parameters
+    ----------
+    points : ndarray, (N, 2)
+        The stored points, deg, in the order of ``slots``.
+    slots : ndarray, (N,) int
+        Their slots, ascending.
+    targets : ndarray, (M, 2)
+        deg.
+    tolerance : ndarray, (M,)
+        deg, >= 0.
+
+    Returns
+    -------
+    nearest : ndarray, (M,) int
+        The slot of each target's nearest point within its tolerance; 0 where there is none.
+    distance : ndarray, (M,)
+        Its max-norm distance, deg; inf where there is none.
+    """
+    nearest, distance = np.zeros(len(targets), dtype=np.int64), np.full(len(targets), np.inf)
+    if not len(points) or not len(targets):
+        return nearest, distance
+    order = np.argsort(points[:, 0], kind="stable")
+    first = points[order, 0]
+    reach = tolerance * (1 + 1e-9) + 1e-300
+    low = np.searchsorted(first, targets[:, 0] - reach, side="left")
+    high = np.searchsorted(first, targets[:, 0] + reach, side="right")
+    counts = high - low
+    if not counts.sum():
+        return nearest, distance
+    target = np.repeat(np.arange(len(targets)), counts)  # one (target, candidate) pair a row
+    starts = np.repeat(low - np.cumsum(counts) + counts, counts)
+    candidate = order[np.arange(counts.sum()) + starts]
+    gap = np.abs(points[candidate] - targets[target]).max(axis=1)
+    keep = gap <= tolerance[target]
+    target, candidate, gap = target[keep], candidate[keep], gap[keep]
+    best = np.lexsort((candidate, gap, target))  # per target: the smallest gap, then the first in slot order
+    target, candidate, gap = target[best], candidate[best], gap[best]
+    head = np.ones(len(target), dtype=bool)
+    head[1:] = target[1:] != target[:-1]
+    nearest[target[head]], distance[target[head]] = slots[candidate[head]], gap[head]
+    return nearest, distance
+
+
 class LinearisedDecoder(Decoder):
     """Decoder component with the tangent-linear fast mode; same variables plus relinearise_tolerance.
 
@@ -114,15 +166,11 @@ class LinearisedDecoder(Decoder):
         mu, else its mu itself; the new points are evaluated in one decoder call."""
         tolerance = self.values["relinearise_tolerance"]
         stored = np.flatnonzero(~np.isnan(self._points[:, 0]))
-        # The nearest stored point of every trial at once (in chunks of ~16 MB), then, trial by trial, the nearest
-        # of this call's new points: the stored one wins a tie, as the first of one list, stored then new, would.
-        nearest, distance = np.zeros(len(trials), dtype=np.int64), np.full(len(trials), np.inf)  # inf: none
-        if len(stored):
-            points, chunk = self._points[stored], max(1, 2**20 // len(stored))
-            for start in range(0, len(trials), chunk):
-                gap = np.abs(points[None] - mu[trials[start:start + chunk], None]).max(axis=2)
-                closest = gap.argmin(axis=1)
-                nearest[start:start + chunk], distance[start:start + chunk] = stored[closest], gap.min(axis=1)
+        # The nearest stored point within its tolerance of every trial at once (distance inf where there is none:
+        # a farther stored point could never be taken, and a new point nearer than it is nearer than inf too),
+        # then, trial by trial, the nearest of this call's new points: the stored one wins a tie, as the first of
+        # one list, stored then new, would.
+        nearest, distance = nearest_within(self._points[stored], stored, mu[trials], tolerance[trials])
         new = np.empty((len(trials), 2))  # this call's new points; the k-th has slot -1 - k until evaluated
         count = 0
         for trial, slot, gap in zip(trials, nearest, distance):
