@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from tests.faults import CONV_ONLY, ENV, Resources, expand, experiment
+from tests.in_process import rhi_in_process
 
 
 @pytest.fixture(scope="module")
@@ -25,6 +26,11 @@ def start(resources, work, *args, marker=None):
         env["RHI_TEST_HANG_MARKER"] = str(marker)
     return subprocess.Popen([sys.executable, "-m", "master", *[expand(a, resources) for a in args]], cwd=work,
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def refusal(resources, work, *args):
+    """A run refused before any work: main() in this process (tests/in_process.py), as a subprocess would give it."""
+    return rhi_in_process([expand(a, resources) for a in args], work, {"RHI_CACHE": str(work.parent / "cache")})
 
 
 def wait_for(marker: Path, process) -> None:
@@ -43,9 +49,9 @@ def test_catalogue_a_second_run_is_refused_while_the_first_writes(resources, tmp
     first = start(resources, work, *experiment("--body", "{fmu:HangingArmPlant}", "--out", "race"), marker=marker)
     try:
         wait_for(marker, first)
-        second = start(resources, work, *experiment("--out", "race"))
-        _, err = second.communicate(timeout=300)
-        assert second.returncode == 2 and len(err.strip().splitlines()) == 1, err
+        second = refusal(resources, work, *experiment("--out", "race"))
+        err = second.stderr
+        assert second.status == 2 and len(err.strip().splitlines()) == 1, err
         assert "another rhi run is writing race" in err and "Traceback" not in err
     finally:
         first.send_signal(signal.SIGINT)
@@ -88,7 +94,7 @@ def test_catalogue_force_replaces_our_output_whole_and_nothing_else(resources, t
     assert (work / "out" / "summary.csv").read_bytes() != old
     assert sorted(os.listdir(work)) == ["conv_only.toml", "out"]  # no .old or .partial left
     (work / "out" / "notes.txt").write_text("mine")
-    third = start(resources, work, *experiment("--out", "out", "--force"))
-    _, err = third.communicate(timeout=300)
-    assert third.returncode == 2 and "it holds notes.txt" in err and len(err.strip().splitlines()) == 1, err
+    third = refusal(resources, work, *experiment("--out", "out", "--force"))
+    err = third.stderr
+    assert third.status == 2 and "it holds notes.txt" in err and len(err.strip().splitlines()) == 1, err
     assert (work / "out" / "notes.txt").read_text() == "mine"

@@ -2,8 +2,9 @@
 folders that are not rhi's, and inputs that ask for unbounded work.
 
 Each case reproduces a way a downloaded or hand-made file could make rhi write, delete or allocate what it
-should not, through the command line where the behaviour is the command's (tests.faults.rhi: in this process, or a subprocess
-where noted; cwd a fresh folder, TMPDIR and RHI_CACHE inside the case's own tree), or a function where it is the unit.
+should not, through the command line where the behaviour is the command's (tests.faults.rhi: in this process, or
+a subprocess where noted; cwd a fresh folder, TMPDIR and RHI_CACHE inside the case's own tree), or a function
+where it is the unit.
 """
 from __future__ import annotations
 
@@ -153,7 +154,8 @@ def hostile_runs(body_fmu, tmp_path_factory):
 def test_a_fair_package_runs_from_its_checked_folder_under_both_masters(body_fmu, tmp_path, master):
     (tmp_path / "work").mkdir()
     one_body_package(body_fmu, tmp_path / "work" / "Y.ssp")
-    done = rhi(tmp_path, "run-system", "Y.ssp", "--master", master, "--out", "y.csv")
+    # own process: the run starts the master's child process
+    done = rhi(tmp_path, "run-system", "Y.ssp", "--master", master, "--out", "y.csv", own_process=True)
     assert done.returncode == 0, done.stderr[-800:]
     rows = (tmp_path / "work" / "y.csv").read_text().splitlines()
     assert len(rows) == 1 + 5 and rows[-1].startswith("0.05")  # 0.05 s / 0.01 s: 5 steps after the header

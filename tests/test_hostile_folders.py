@@ -2,10 +2,10 @@
 records and JSON that are not what rhi writes, a FIFO where a file belongs, and a user's file where --out names one.
 
 Each case runs the real command line (tests.faults.rhi: in this process, or a subprocess where noted; cwd the case's
-own ``work``, TMPDIR and RHI_CACHE inside its tree) and checks what rhi guarantees (docs/configuration.md, "What rhi refuses, and what it
-guarantees"; docs/safety.md): one line on stderr and exit status 2 for a refusal, no traceback, and nothing
-changed that rhi did not write. The folders are made in-process as rhi writes them (the units that write them),
-so that no case trains a decoder or runs a long sweep first.
+own ``work``, TMPDIR and RHI_CACHE inside its tree) and checks what rhi guarantees (docs/configuration.md, "What rhi
+refuses, and what it guarantees"; docs/safety.md): one line on stderr and exit status 2 for a refusal, no traceback,
+and nothing changed that rhi did not write. The folders are made in-process as rhi writes them (the units that
+write them), so that no case trains a decoder or runs a long sweep first.
 """
 from __future__ import annotations
 
@@ -238,12 +238,13 @@ def test_out_file_with_force_replaces_a_file_rhi_wrote_of_its_kind(tmp_path, one
     work = prepared(tmp_path)
     agent_inputs(work)
     suffix, arguments = out_file_commands(one_body_ssp)[command]
-    done = rhi(tmp_path, *arguments, "--out", f"ours{suffix}", timeout=120)
+    child = command == "run-system"  # its run starts the master's child process: in a process of its own
+    done = rhi(tmp_path, *arguments, "--out", f"ours{suffix}", timeout=120, own_process=child)
     assert done.returncode == 0, done.stderr[-2000:]
     first = (work / f"ours{suffix}").read_bytes()
     refused(rhi(tmp_path, *arguments, "--out", f"ours{suffix}"), "--force")
     assert (work / f"ours{suffix}").read_bytes() == first
-    done = rhi(tmp_path, *arguments, "--out", f"ours{suffix}", "--force", timeout=120)
+    done = rhi(tmp_path, *arguments, "--out", f"ours{suffix}", "--force", timeout=120, own_process=child)
     assert done.returncode == 0, done.stderr[-2000:]
     assert sorted(p.name for p in work.iterdir()) == ["c.toml", "ckpt.pt", f"ours{suffix}"]  # nothing left beside it
     if suffix == ".csv":

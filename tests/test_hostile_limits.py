@@ -245,31 +245,17 @@ def test_fit_estimator_threads_over_the_limit_is_refused_by_the_command_before_a
 # ======================================================================================================
 # 10. A loss that becomes NaN while the estimator trains: one line, exit status 1 (a failure during the work)
 # ======================================================================================================
-LIFTED = """
-import sys
-import master.fit.plan as plan
-plan.MAX_LEARNING_RATE = float("inf")  # the bound that refuses learning_rate = 1e30 before any work, lifted
-from master.commands.cli import main
-sys.exit(main(sys.argv[1:]))
-"""
-
-
 def test_a_loss_that_becomes_nan_in_training_is_one_line_and_exit_status_1(tmp_path, monkeypatch):
-    import subprocess
-    import sys
-
     import master.fit.plan
     import tests.test_hostile_folders as folders
-    from tests.faults import ENV
 
+    # the bound that refuses learning_rate = 1e30 before any work, lifted: here, where rhi runs (in this process)
     monkeypatch.setattr(master.fit.plan, "MAX_LEARNING_RATE", float("inf"))
     monkeypatch.setattr(folders, "FIT", folders.FIT.replace("threads = 1\n", "threads = 1\nlearning_rate = 1e30\n"))
     work = prepared(tmp_path)
     out = folders.fit_folder(work)  # every simulation made up: the fit goes straight to the training
     before = tree(tmp_path)
-    done = subprocess.run([sys.executable, "-c", LIFTED, "fit", "--data", "data.csv", "--config", "fit.toml", "--out",
-                           "out"], cwd=work, capture_output=True, text=True, timeout=120,
-                          env={**ENV, "TMPDIR": str(tmp_path / "tmp"), "RHI_CACHE": str(tmp_path / "cache")})
+    done = rhi(tmp_path, "fit", "--data", "data.csv", "--config", "fit.toml", "--out", "out", timeout=120)
     assert done.returncode == 1 and "Traceback" not in done.stderr, done.stderr[-2000:]
     assert done.stderr.strip().splitlines()[-1] == (
         "rhi fit: error: training the estimator failed: its loss became NaN or infinite (fit.estimator.learning_rate "
