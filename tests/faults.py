@@ -118,8 +118,9 @@ def snapshot(folder: Path) -> dict:
 def rhi(root: Path, *args, timeout=60, own_process=False):
     """``rhi ARGS`` with cwd root/work, TMPDIR root/tmp and RHI_CACHE root/cache: in this process (tests.in_process:
     a refusal then costs milliseconds, not the seconds of a fresh interpreter importing torch), or with
-    ``own_process`` in a subprocess, for a run that may hang (its timeout is the check), is signalled, starts
-    processes, loads FMUs or needs the limits of a process of its own. A CompletedProcess either way."""
+    ``own_process`` in a subprocess, for a run that may hang (its timeout is the check), talks to a listener,
+    starts a child process, or would, were a bound missing, allocate or start threads without end. A
+    CompletedProcess either way."""
     for name in ("work", "tmp", "cache"):
         (root / name).mkdir(parents=True, exist_ok=True)
     arguments = [*map(str, args)]
