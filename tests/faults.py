@@ -115,12 +115,23 @@ def snapshot(folder: Path) -> dict:
     return found
 
 
-def rhi(root: Path, *args, timeout=60):
-    """``rhi ARGS`` with cwd root/work, TMPDIR root/tmp and RHI_CACHE root/cache."""
+def rhi(root: Path, *args, timeout=60, own_process=False):
+    """``rhi ARGS`` with cwd root/work, TMPDIR root/tmp and RHI_CACHE root/cache: in this process (tests.in_process:
+    a refusal then costs milliseconds, not the seconds of a fresh interpreter importing torch), or with
+    ``own_process`` in a subprocess, for a run that may hang (its timeout is the check), talks to a listener,
+    starts a child process, or would, were a bound missing, allocate or start threads without end. A
+    CompletedProcess either way."""
     for name in ("work", "tmp", "cache"):
         (root / name).mkdir(parents=True, exist_ok=True)
+    arguments = [*map(str, args)]
+    if not own_process:
+        from tests.in_process import rhi_in_process
+
+        done = rhi_in_process(arguments, root / "work", {"TMPDIR": str(root / "tmp"), "RHI_CACHE": str(root / "cache")},
+                              timeout=timeout)
+        return subprocess.CompletedProcess(["rhi", *arguments], done.status, done.stdout, done.stderr)
     env = {**ENV, "TMPDIR": str(root / "tmp"), "RHI_CACHE": str(root / "cache")}
-    return subprocess.run([sys.executable, "-m", "master", *map(str, args)], cwd=root / "work", env=env,
+    return subprocess.run([sys.executable, "-m", "master", *arguments], cwd=root / "work", env=env,
                           capture_output=True, text=True, timeout=timeout)
 
 

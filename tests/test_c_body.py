@@ -1,9 +1,9 @@
 """A body written in C (bodies/kinematic_c): built with gcc and fmpy's FMI headers, valid, and the same body as the
 Python kinematic arm - under fmpy's own master, under this master, and through `rhi experiment --body`."""
 import csv
-import os
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,6 +15,7 @@ from components.fmu import FMUComponent
 from master import ConfigError
 from master.export.body import build_fmu
 from master.export.c_body import build_c_fmu
+from tests.in_process import rhi_in_process
 from tests.test_fmu import OUTPUTS, run, under_fmpy
 
 
@@ -55,8 +56,10 @@ def test_through_the_master_per_trial(bodies):
 
 
 def rhi(*args, cache):
-    return subprocess.run([sys.executable, "-m", "master", *args], capture_output=True, text=True, timeout=600,
-                          env={**os.environ, "RHI_CACHE": str(cache)})
+    """`rhi ARGS` in this process (tests/in_process.py): a conv-only run is one batch (no worker pool), and these
+    FMUs load in this process above already; a subprocess would add seconds of imports to each run."""
+    done = rhi_in_process(list(args), Path.cwd(), {"RHI_CACHE": str(cache)})
+    return subprocess.CompletedProcess(["rhi", *args], done.status, done.stdout, done.stderr)
 
 
 def test_rhi_experiment_with_the_c_body_gives_the_python_kinematic_summary(bodies, tmp_path, quick_cache):

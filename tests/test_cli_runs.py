@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from tests.faults import CONV_ONLY, ENV, Resources, expand, experiment
+from tests.in_process import rhi_in_process
 
 
 @pytest.fixture(scope="module")
@@ -25,6 +26,12 @@ def start(resources, work, *args, marker=None):
         env["RHI_TEST_HANG_MARKER"] = str(marker)
     return subprocess.Popen([sys.executable, "-m", "master", *[expand(a, resources) for a in args]], cwd=work,
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def here(resources, work, *args):
+    """A run that needs no process of its own (no signal, no hanging FMU; conv only: one batch, no worker pool):
+    main() in this process (tests/in_process.py), as a subprocess would give it, without seconds of imports."""
+    return rhi_in_process([expand(a, resources) for a in args], work, {"RHI_CACHE": str(work.parent / "cache")})
 
 
 def wait_for(marker: Path, process) -> None:
@@ -43,9 +50,9 @@ def test_catalogue_a_second_run_is_refused_while_the_first_writes(resources, tmp
     first = start(resources, work, *experiment("--body", "{fmu:HangingArmPlant}", "--out", "race"), marker=marker)
     try:
         wait_for(marker, first)
-        second = start(resources, work, *experiment("--out", "race"))
-        _, err = second.communicate(timeout=300)
-        assert second.returncode == 2 and len(err.strip().splitlines()) == 1, err
+        second = here(resources, work, *experiment("--out", "race"))
+        err = second.stderr
+        assert second.status == 2 and len(err.strip().splitlines()) == 1, err
         assert "another rhi run is writing race" in err and "Traceback" not in err
     finally:
         first.send_signal(signal.SIGINT)
@@ -68,9 +75,8 @@ def test_catalogue_a_killed_run_s_staging_is_cleaned_by_the_next(resources, tmp_
     killed.communicate(timeout=60)
     left = sorted(os.listdir(work))
     assert ".out.lock" in left and len([n for n in left if n.endswith(".partial")]) == 2, left
-    again = start(resources, work, *experiment("--out", "out"))
-    _, err = again.communicate(timeout=300)
-    assert again.returncode == 0 and "Traceback" not in err, err[-2000:]
+    again = here(resources, work, *experiment("--out", "out"))
+    assert again.status == 0 and "Traceback" not in again.stderr, again.stderr[-2000:]
     assert sorted(os.listdir(work)) == [".out.zzzzzzzz.partial", "conv_only.toml", "out"]
     assert (theirs / "keep.txt").read_text() == "mine"
 
@@ -79,16 +85,15 @@ def test_catalogue_force_replaces_our_output_whole_and_nothing_else(resources, t
     work = tmp_path / "work"
     work.mkdir()
     (work / "conv_only.toml").write_text(CONV_ONLY)
-    first = start(resources, work, *experiment("--out", "out"))
-    assert first.communicate(timeout=300) and first.returncode == 0
+    first = here(resources, work, *experiment("--out", "out"))
+    assert first.status == 0, first.stderr[-2000:]
     old = (work / "out" / "summary.csv").read_bytes()
-    second = start(resources, work, *experiment("--out", "out", "--force", "--trials", "2"))
-    _, err = second.communicate(timeout=300)
-    assert second.returncode == 0 and "Traceback" not in err, err[-2000:]
+    second = here(resources, work, *experiment("--out", "out", "--force", "--trials", "2"))
+    assert second.status == 0 and "Traceback" not in second.stderr, second.stderr[-2000:]
     assert (work / "out" / "summary.csv").read_bytes() != old
     assert sorted(os.listdir(work)) == ["conv_only.toml", "out"]  # no .old or .partial left
     (work / "out" / "notes.txt").write_text("mine")
-    third = start(resources, work, *experiment("--out", "out", "--force"))
-    _, err = third.communicate(timeout=300)
-    assert third.returncode == 2 and "it holds notes.txt" in err and len(err.strip().splitlines()) == 1, err
+    third = here(resources, work, *experiment("--out", "out", "--force"))
+    err = third.stderr
+    assert third.status == 2 and "it holds notes.txt" in err and len(err.strip().splitlines()) == 1, err
     assert (work / "out" / "notes.txt").read_text() == "mine"

@@ -1,4 +1,6 @@
 """The fast mode's check (master.tasks.illusion.fast_check): its verdict's numbers, where it is kept, when it is redone."""
+import contextlib
+import io
 import json
 
 import numpy as np
@@ -13,20 +15,35 @@ from master.config.protocol import make_trial
 from master.runtime.context import RunContext
 
 
-@pytest.fixture
-def quick(quick_cache, monkeypatch, tmp_path):
-    """The --quick configuration over a copy of the session's decoders in a cache of this test's own."""
+def quick_config(quick_cache, folder, monkeypatch):
+    """The --quick configuration over a copy of the session's decoders in the cache ``folder``."""
     for path in quick_cache.glob("*.pt"):
-        (tmp_path / path.name).write_bytes(path.read_bytes())
-    monkeypatch.setenv("RHI_CACHE", str(tmp_path))
+        (folder / path.name).write_bytes(path.read_bytes())
+    monkeypatch.setenv("RHI_CACHE", str(folder))
     config = configuration.load(quick=True, overrides={"experiment.decoders": ["conv"], "decoder.fast": True})
     return config, {"conv": checkpoint_path("conv", config, must_exist=True)}
 
 
-def test_the_verdict_compares_the_fast_and_exact_drifts_of_the_protocol_s_own_trials(quick, tmp_path, capsys):
-    config, checkpoints = quick
-    verdict = fast_check.verdicts(config, checkpoints, progress=True)["conv"]
-    said = capsys.readouterr().err
+@pytest.fixture
+def quick(quick_cache, monkeypatch, tmp_path):
+    """The --quick configuration over a copy of the session's decoders in a cache of this test's own."""
+    return quick_config(quick_cache, tmp_path, monkeypatch)
+
+
+@pytest.fixture(scope="module")
+def checked(quick_cache, tmp_path_factory):
+    """The conv decoder checked once, in a cache of the module's own: its configuration, checkpoints, verdict, what
+    it said on stderr, and the cache (which holds the verdict), for the tests that read that one check."""
+    folder = tmp_path_factory.mktemp("fast_check")
+    said = io.StringIO()
+    with pytest.MonkeyPatch.context() as monkeypatch, contextlib.redirect_stderr(said):
+        config, checkpoints = quick_config(quick_cache, folder, monkeypatch)
+        verdict = fast_check.verdicts(config, checkpoints, progress=True)["conv"]
+    return config, checkpoints, verdict, said.getvalue(), folder
+
+
+def test_the_verdict_compares_the_fast_and_exact_drifts_of_the_protocol_s_own_trials(checked):
+    config, checkpoints, verdict, said, folder = checked
     checked = len(verdict["trials"])
     assert said.startswith(f"checking the fast mode of the conv decoder: {checked} trials each, exact and fast "
                            "(once per decoder and settings)\n")
@@ -46,16 +63,17 @@ def test_the_verdict_compares_the_fast_and_exact_drifts_of_the_protocol_s_own_tr
         condition, stimulation, index = name.split()
         assert drift == pytest.approx(final[trials.index(make_trial(config, "conv", condition, stimulation,
                                                                     int(index)))], rel=1e-6, abs=1e-9)
-    stored = list(tmp_path.glob("fast-check-conv-*.json"))
+    stored = list(folder.glob("fast-check-conv-*.json"))
     assert len(stored) == 1 and json.loads(stored[0].read_text()) == verdict
 
 
-def test_a_stored_verdict_is_reused_and_a_trial_setting_asks_for_a_new_one(quick, monkeypatch):
-    config, checkpoints = quick
-    first = fast_check.verdicts(config, checkpoints)
+def test_a_stored_verdict_is_reused_and_a_trial_setting_asks_for_a_new_one(checked, monkeypatch):
+    config, checkpoints, verdict, _, folder = checked
+    monkeypatch.setenv("RHI_CACHE", str(folder))  # the module's check stored its verdict there
     monkeypatch.setattr(fast_check, "check", lambda *job: pytest.fail("checked again"))
+    assert fast_check.verdicts(config, checkpoints) == {"conv": verdict}
     more_trials = {**config, "experiment": {**config["experiment"], "trials": 4}}
-    assert fast_check.verdicts(more_trials, checkpoints) == first  # the trial count moves no checked trial
+    assert fast_check.verdicts(more_trials, checkpoints) == {"conv": verdict}  # the trial count moves no checked trial
     assert fast_check.verdict_key(checkpoints["conv"], config) != fast_check.verdict_key(
         checkpoints["conv"], {**config, "decoder": {**config["decoder"], "visual_variance": 30.0}})
 

@@ -2,8 +2,9 @@
 folders that are not rhi's, and inputs that ask for unbounded work.
 
 Each case reproduces a way a downloaded or hand-made file could make rhi write, delete or allocate what it
-should not, through the command line where the behaviour is the command's (a subprocess, cwd a fresh
-folder, TMPDIR and RHI_CACHE inside the case's own tree), in-process where a function is the unit.
+should not, through the command line where the behaviour is the command's (tests.faults.rhi: in this process, or
+a subprocess where noted; cwd a fresh folder, TMPDIR and RHI_CACHE inside the case's own tree), or a function
+where it is the unit.
 """
 from __future__ import annotations
 
@@ -146,8 +147,7 @@ def hostile_runs(body_fmu, tmp_path_factory):
             write_zip(work / "Bad.fmu", [("modelDescription.xml", b"<x/>")] + bad)
             args = ["export-system", "--quick", "--body", "Bad.fmu", "--out", "out.ssp"]
         cases.append((case, args, snapshot(case)))
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        done = list(pool.map(lambda c: rhi(c[0], *c[1]), cases))
+    done = [rhi(case, *args) for case, args, _ in cases]  # in turn: an in-process run changes cwd and environment
     return [(case, args, before, result, snapshot(case)) for (case, args, before), result in zip(cases, done)]
 
 
@@ -158,7 +158,8 @@ def test_a_fair_package_runs_from_its_checked_folder_under_every_master(body_fmu
         pytest.skip(ssp_ecos.missing())
     (tmp_path / "work").mkdir()
     one_body_package(body_fmu, tmp_path / "work" / "Y.ssp")
-    done = rhi(tmp_path, "run-system", "Y.ssp", "--master", master, "--out", "y.csv")
+    # own process: the run starts the master's child process
+    done = rhi(tmp_path, "run-system", "Y.ssp", "--master", master, "--out", "y.csv", own_process=True)
     assert done.returncode == 0, done.stderr[-800:]
     rows = (tmp_path / "work" / "y.csv").read_text().splitlines()
     assert len(rows) == 1 + 5 and rows[-1].startswith("0.05")  # 0.05 s / 0.01 s: 5 steps after the header
@@ -252,15 +253,20 @@ def test_a_listener_that_is_not_a_dask_scheduler_is_refused_within_the_limit_and
     silent.listen()  # the kernel completes the handshake; nothing ever answers
     (tmp_path / "work").mkdir()
     sweep_file(tmp_path / "work" / "s.toml", grid={"conditions.left": [-0.1]})
+    # Each in its own process: its timeout is the check, and dask's threads stay out of the test's process. The
+    # two at once (a folder each: a sweep holds its --out while it connects): the second's refusal comes while the
+    # first waits out the limit.
+    arguments = ["sweep", "--config", "s.toml", "--scheduler"]
     began = time.monotonic()
-    with silent:
-        done = rhi(tmp_path, "sweep", "--config", "s.toml", "--scheduler",
-                   f"tcp://127.0.0.1:{silent.getsockname()[1]}", "--out", "out", timeout=60)
+    with silent, ThreadPoolExecutor(max_workers=2) as pool:
+        closed = pool.submit(rhi, tmp_path, *arguments, "tls://127.0.0.1:1", "--out", "other", own_process=True)
+        done = rhi(tmp_path, *arguments, f"tcp://127.0.0.1:{silent.getsockname()[1]}", "--out", "out", timeout=60,
+                   own_process=True)
+        elapsed = time.monotonic() - began
     refused(done, "cannot reach the Dask scheduler")
-    assert time.monotonic() - began < CONNECT_TIMEOUT_S + 10  # the limit, plus the command's start-up
-    assert not (tmp_path / "work" / "out").exists()
-    done = rhi(tmp_path, "sweep", "--config", "s.toml", "--scheduler", "tls://127.0.0.1:1", "--out", "out")
-    refused(done, "cannot reach the Dask scheduler at tls://127.0.0.1:1")
+    assert elapsed < CONNECT_TIMEOUT_S + 10  # the limit, plus the command's start-up
+    refused(closed.result(), "cannot reach the Dask scheduler at tls://127.0.0.1:1")
+    assert sorted(p.name for p in (tmp_path / "work").iterdir()) == ["s.toml"]  # no folder left by either
 
 
 def test_run_system_s_child_dies_with_its_parent(body_fmu, tmp_path):

@@ -1,11 +1,11 @@
 """Hostile output folders and the files in them: a manifest entry that leads through a link out of DIR, trial
 records and JSON that are not what rhi writes, a FIFO where a file belongs, and a user's file where --out names one.
 
-Each case runs the real command line (tests.faults.rhi: a subprocess, cwd the case's own ``work``, TMPDIR and
-RHI_CACHE inside its tree) and checks what rhi guarantees (docs/configuration.md, "What rhi refuses, and what it
-guarantees"; docs/safety.md): one line on stderr and exit status 2 for a refusal, no traceback, and nothing
-changed that rhi did not write. The folders are made in-process as rhi writes them (the units that write them),
-so that no case trains a decoder or runs a long sweep first.
+Each case runs the real command line (tests.faults.rhi: in this process, or a subprocess where noted; cwd the case's
+own ``work``, TMPDIR and RHI_CACHE inside its tree) and checks what rhi guarantees (docs/configuration.md, "What rhi
+refuses, and what it guarantees"; docs/safety.md): one line on stderr and exit status 2 for a refusal, no traceback,
+and nothing changed that rhi did not write. The folders are made in-process as rhi writes them (the units that
+write them), so that no case trains a decoder or runs a long sweep first.
 """
 from __future__ import annotations
 
@@ -238,12 +238,13 @@ def test_out_file_with_force_replaces_a_file_rhi_wrote_of_its_kind(tmp_path, one
     work = prepared(tmp_path)
     agent_inputs(work)
     suffix, arguments = out_file_commands(one_body_ssp)[command]
-    done = rhi(tmp_path, *arguments, "--out", f"ours{suffix}", timeout=120)
+    child = command == "run-system"  # its run starts the master's child process: in a process of its own
+    done = rhi(tmp_path, *arguments, "--out", f"ours{suffix}", timeout=120, own_process=child)
     assert done.returncode == 0, done.stderr[-2000:]
     first = (work / f"ours{suffix}").read_bytes()
     refused(rhi(tmp_path, *arguments, "--out", f"ours{suffix}"), "--force")
     assert (work / f"ours{suffix}").read_bytes() == first
-    done = rhi(tmp_path, *arguments, "--out", f"ours{suffix}", "--force", timeout=120)
+    done = rhi(tmp_path, *arguments, "--out", f"ours{suffix}", "--force", timeout=120, own_process=child)
     assert done.returncode == 0, done.stderr[-2000:]
     assert sorted(p.name for p in work.iterdir()) == ["c.toml", "ckpt.pt", f"ours{suffix}"]  # nothing left beside it
     if suffix == ".csv":
@@ -263,7 +264,8 @@ def test_fit_data_that_is_a_fifo_or_a_device_is_refused_at_once(tmp_path, kind):
     if kind == "fifo":
         os.mkfifo(work / "pipe.csv")  # nothing ever writes it: opening it for reading would wait forever
     before = tree(tmp_path)
-    refused(rhi(tmp_path, "fit", "--data", data, "--config", "fit.toml", "--out", "out", timeout=30),
+    # own process: opening the FIFO would wait forever, reading the device would never end
+    refused(rhi(tmp_path, "fit", "--data", data, "--config", "fit.toml", "--out", "out", timeout=30, own_process=True),
             f"data file {data} is not a regular file")
     assert changed_outside(before, tree(tmp_path), "\0") == []
 
@@ -289,7 +291,8 @@ def test_a_malformed_trial_record_in_a_sweep_folder_is_refused_naming_it(tmp_pat
     else:
         record.write_text(BAD_RECORDS[name])
     before = tree(tmp_path)
-    refused(rhi(tmp_path, "sweep", "--config", "s.toml", "--out", "out", timeout=30),
+    # the FIFO in its own process: opening it would wait forever
+    refused(rhi(tmp_path, "sweep", "--config", "s.toml", "--out", "out", timeout=30, own_process=name == "fifo"),
             f"trial record out/trials/{record.name} is not "
             + ("a regular file" if name == "fifo" else "one rhi wrote"))
     assert changed_outside(before, tree(tmp_path), "\0") == []  # nothing written, in DIR either

@@ -2,8 +2,8 @@
 listeners that are not what they claim, and processes that would outlive their command.
 
 A refusal is asserted through the command line where it is the command's (one line on stderr, exit status 2,
-no traceback, nothing written: tests.test_hostile_files.rhi and refused), in-process where a function is the
-unit. No case trains a decoder.
+no traceback, nothing written: tests.faults.rhi, in this process or a subprocess where noted, and refused), or a
+function where it is the unit. No case trains a decoder.
 """
 from __future__ import annotations
 
@@ -218,8 +218,9 @@ def test_an_http_listener_as_scheduler_is_refused_within_the_limit(tmp_path, ser
     sweep_file(tmp_path / "work" / "s.toml", grid={"conditions.left": [-0.1]})
     began = time.monotonic()
     try:
+        # own process: its timeout is the check, and dask's threads stay out of the test's process
         done = rhi(tmp_path, "sweep", "--config", "s.toml", "--scheduler",
-                   f"tcp://127.0.0.1:{listener.server_address[1]}", "--out", "out", timeout=60)
+                   f"tcp://127.0.0.1:{listener.server_address[1]}", "--out", "out", timeout=60, own_process=True)
     finally:
         listener.shutdown()
         listener.server_close()

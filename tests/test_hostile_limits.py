@@ -2,8 +2,8 @@
 memory or work than any machine has, values that are not numbers where numbers belong, and settings read from one
 file but not from another.
 
-Each case runs the real command line (tests.faults.rhi: a subprocess, cwd the case's own ``work``, TMPDIR and
-RHI_CACHE inside its tree) where the refusal is the command's, and checks what rhi guarantees
+Each case runs the real command line (tests.faults.rhi: in this process, or a subprocess where noted; cwd the case's
+own ``work``, TMPDIR and RHI_CACHE inside its tree) where the refusal is the command's, and checks what rhi guarantees
 (docs/configuration.md, "What rhi refuses, and what it guarantees"; docs/safety.md): one line on stderr and exit
 status 2 for a refusal, before any work, no traceback, nothing written. No case trains a default decoder.
 """
@@ -38,7 +38,9 @@ def test_a_checkpoint_that_is_a_fifo_or_a_device_is_refused_by_its_kind(tmp_path
                  "export-agent": ["export-agent", "--decoder", "conv", "--checkpoint", path, "--out", "a.fmu"]}[command]
     before = tree(tmp_path)
     says = f"--checkpoint {path}" if command == "bench" else f"decoder.conv_checkpoint: {path}"
-    refused(rhi(tmp_path, *arguments, timeout=30), f"{says} is not a regular file (a FIFO, a device or a socket)")
+    # own process: opening the FIFO would wait forever, reading the device would never end
+    refused(rhi(tmp_path, *arguments, timeout=30, own_process=True),
+            f"{says} is not a regular file (a FIFO, a device or a socket)")
     assert changed_outside(before, tree(tmp_path), "\0") == []
 
 
@@ -86,7 +88,8 @@ def test_a_checkpoint_whose_metadata_nests_deep_is_refused_in_one_line(tmp_path)
 def test_a_reach_with_too_many_goals_is_refused_with_the_memory_it_implies(tmp_path, goals):
     prepared(tmp_path)
     before = tree(tmp_path)
-    done = rhi(tmp_path, "reach", "--quick", "--goals", goals, "--out", "out", timeout=30)
+    # own process: were the bound not applied, the allocation would take the test's process down
+    done = rhi(tmp_path, "reach", "--quick", "--goals", goals, "--out", "out", timeout=30, own_process=True)
     refused(done, "this reach would need about ")
     assert f"({goals} goals x 1 bands x 2 decoders of 500 steps at 32 x 32 px), more than this machine's" in done.stderr
     assert "lower reach.goals (--goals)" in done.stderr
@@ -233,39 +236,26 @@ def test_fit_estimator_threads_over_the_limit_is_refused_by_the_command_before_a
     checkpoint = tiny_checkpoint(work / "tiny.pt", rest_pose=list(REST_POSE), half_ranges=list(HALF_RANGES))
     fit_files(work, estimator="threads = 100000", checkpoint=str(checkpoint))
     before = tree(tmp_path)
-    refused(rhi(tmp_path, "fit", "--data", "data.csv", "--config", "fit.toml", "--out", "out", timeout=60),
-            "fit.estimator.threads = 100000 is over the limit of 1024")
+    # own process: were the bound not applied, 100 000 torch threads would be started in the test's process
+    refused(rhi(tmp_path, "fit", "--data", "data.csv", "--config", "fit.toml", "--out", "out", timeout=60,
+                own_process=True), "fit.estimator.threads = 100000 is over the limit of 1024")
     assert changed_outside(before, tree(tmp_path), "\0") == []
 
 
 # ======================================================================================================
 # 10. A loss that becomes NaN while the estimator trains: one line, exit status 1 (a failure during the work)
 # ======================================================================================================
-LIFTED = """
-import sys
-import master.fit.plan as plan
-plan.MAX_LEARNING_RATE = float("inf")  # the bound that refuses learning_rate = 1e30 before any work, lifted
-from master.commands.cli import main
-sys.exit(main(sys.argv[1:]))
-"""
-
-
 def test_a_loss_that_becomes_nan_in_training_is_one_line_and_exit_status_1(tmp_path, monkeypatch):
-    import subprocess
-    import sys
-
     import master.fit.plan
     import tests.test_hostile_folders as folders
-    from tests.faults import ENV
 
+    # the bound that refuses learning_rate = 1e30 before any work, lifted: here, where rhi runs (in this process)
     monkeypatch.setattr(master.fit.plan, "MAX_LEARNING_RATE", float("inf"))
     monkeypatch.setattr(folders, "FIT", folders.FIT.replace("threads = 1\n", "threads = 1\nlearning_rate = 1e30\n"))
     work = prepared(tmp_path)
     out = folders.fit_folder(work)  # every simulation made up: the fit goes straight to the training
     before = tree(tmp_path)
-    done = subprocess.run([sys.executable, "-c", LIFTED, "fit", "--data", "data.csv", "--config", "fit.toml", "--out",
-                           "out"], cwd=work, capture_output=True, text=True, timeout=120,
-                          env={**ENV, "TMPDIR": str(tmp_path / "tmp"), "RHI_CACHE": str(tmp_path / "cache")})
+    done = rhi(tmp_path, "fit", "--data", "data.csv", "--config", "fit.toml", "--out", "out", timeout=120)
     assert done.returncode == 1 and "Traceback" not in done.stderr, done.stderr[-2000:]
     assert done.stderr.strip().splitlines()[-1] == (
         "rhi fit: error: training the estimator failed: its loss became NaN or infinite (fit.estimator.learning_rate "
@@ -348,7 +338,9 @@ def test_a_phenomenon_protocol_s_bad_value_is_refused_in_one_line_before_any_wor
     work = prepared(tmp_path)
     (work / "c.toml").write_text(f"[{table}]\n{line}\n")
     before = tree(tmp_path)
-    done = rhi(tmp_path, "phenomenon", name, "--config", "c.toml", "--model", "paper", "--out", "out", timeout=30)
+    # the release of 1e12 s in its own process: were the bound not applied, its allocation would take the test's down
+    done = rhi(tmp_path, "phenomenon", name, "--config", "c.toml", "--model", "paper", "--out", "out", timeout=30,
+               own_process=line == "release = 1e12")
     refused(done, says)
     if line == "release = 1e12":
         assert "lower reach_after.release or reach_after.window" in done.stderr

@@ -10,6 +10,7 @@ import re
 import subprocess
 import sys
 import zipfile
+from pathlib import Path
 
 import pytest
 
@@ -17,6 +18,7 @@ from master.cosim import ConfigError
 from master.export import ssp_ecos
 from master.export.ssp_check import read_ssp
 from master.export.ssp_ecos import ECOS_FAILED as ssp_ecos_failed
+from tests.in_process import rhi_in_process
 from tests.test_agent import agent_fmu, quick  # noqa: F401 (fixtures)
 from tests.test_ssp_export import package  # noqa: F401 (fixture)
 
@@ -76,9 +78,11 @@ def test_a_bad_value_is_refused_in_one_line_before_any_master_starts(package, tm
     from master.export import system
 
     bad = with_value(package, tmp_path / "bad.ssp", TRIAL, "period", "nan")
-    done = rhi("run-system", str(bad), "--master", "libcosim" if LIBCOSIM else "fmpy", "--out", str(tmp_path / "o.csv"))
+    # refused before any master: main() in this process (tests/in_process.py), as a subprocess would give it
+    done = rhi_in_process(["run-system", str(bad), "--master", "libcosim" if LIBCOSIM else "fmpy", "--out",
+                           str(tmp_path / "o.csv")], Path.cwd(), {})
     lines = done.stderr.strip().splitlines()
-    assert done.returncode == 2 and len(lines) == 1 and "not a finite Real" in lines[0], done.stderr
+    assert done.status == 2 and len(lines) == 1 and "not a finite Real" in lines[0], done.stderr
     assert not (tmp_path / "o.csv").exists()
 
     def no_master(*args, **kwargs):  # the child process a master runs in
@@ -96,6 +100,7 @@ def test_a_value_the_agent_refuses_as_it_starts_is_named_in_its_own_words(packag
     if master == "ecos" and ssp_ecos.missing():
         pytest.skip(ssp_ecos.missing())
     bad = with_value(package, tmp_path / "zero.ssp", TRIAL, "proprioceptive_variance", "0")  # in [0, inf], as declared
+    # a process of its own: the refusal comes from the master's child, as the FMU starts
     done = rhi("run-system", str(bad), "--master", master, "--out", str(tmp_path / "o.csv"))
     lines = done.stderr.strip().splitlines()
     assert done.returncode == 2 and len(lines) == 1, done.stderr

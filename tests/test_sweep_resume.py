@@ -16,6 +16,7 @@ from master.cosim import ConfigError
 from master import config as configuration
 from master.tasks.illusion import trial_seed
 from master.commands.sweep import run as run_sweep
+from tests.in_process import rhi_in_process
 from tests.sweep_files import ENV, args, batched_file, command, expected, records, single_core, sweep_file
 
 
@@ -176,9 +177,9 @@ def test_killed_batched_sweep_resumes_bitwise(quick_decoders, tmp_path):
     assert set(first) <= set(before)
     (out / "trials" / f"{first[1]}.json").unlink()  # a finished chunk with a record lost
     stamps = {path: path.stat().st_mtime_ns for path in (out / "trials").glob("*.json")}
-    rerun = subprocess.run(command("--config", path, "--out", out), env=ENV, cwd=tmp_path,
-                           capture_output=True, text=True, timeout=300)
-    assert rerun.returncode == 0, rerun.stderr
+    # the rerun in this process (tests/in_process.py; one worker: no pool), without seconds of start-up
+    rerun = rhi_in_process(["sweep", "--config", str(path), "--out", str(out)], tmp_path, {})
+    assert rerun.status == 0, rerun.stderr
     assert f"16 of 16 trials done ({16 - len(before) + 1} now)" in rerun.stdout
     assert all(path.stat().st_mtime_ns == stamp for path, stamp in stamps.items())  # kept as they were
     after = records(out)
