@@ -159,7 +159,7 @@ def test_a_decoder_whose_whole_batch_failed_costs_only_its_trials(monkeypatch):
 
     monkeypatch.setattr(runner, "run_batch", fake_run_batch)
     monkeypatch.setattr("master.decoders.cache.decoder_component", lambda kind, path, config, *how, **where: None)
-    monkeypatch.setattr(runner, "measures", lambda result: {"drift_cm": np.zeros((3, 6))})
+    monkeypatch.setattr(runner, "measures", lambda result, model=None: {"drift_cm": np.zeros((3, 6))})
     kept, _, per_step, _, failures = runner.run(config, {"conv": "c.pt", "vae": "v.pt"}, context=RunContext(processes=1))
     assert {t.decoder for t in kept} == {"vae"} and len(failures) == 6
     assert all("out of memory" in error for error in failures.values())

@@ -19,7 +19,6 @@ import sys
 
 import numpy as np
 
-from master.export.ssp_ecos import ECOS_FAILED, ECOS_LOG, ecos_run
 from master.outputs.processes import die_with_parent
 
 # libcosim's log line of a message an FMU logged with status error or fatal
@@ -44,6 +43,8 @@ def refusal(folder: str, stderr: str) -> str | None:
     when no step was done; under Ecos, whose process ends (Ecos steps on past an FMU's failed initialization)
     before a first step, that a component failed, without its reason (Ecos keeps the FMUs' messages to
     itself)."""
+    from master.export.ssp_ecos import ECOS_FAILED, ECOS_LOG
+
     lines = [line for line in stderr.splitlines() if line.strip()]
     if lines and lines[-1].startswith(REFUSED):
         return lines[-1].removeprefix(REFUSED)
@@ -199,6 +200,8 @@ def main(path: str) -> int:
     with open(path, encoding="utf-8") as file:
         request = json.load(file)
     if request["master"] == "ecos":
+        from master.export.ssp_ecos import ecos_run  # after die_with_parent: its imports take seconds
+
         result = ecos_run(request, os.path.join(os.path.dirname(request["out"]), STEPPED))
     else:
         result = (fmpy_run if request["master"] == "fmpy" else libcosim_run)(request)
