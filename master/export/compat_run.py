@@ -9,10 +9,11 @@ write. A failure is one line on stderr, exit status 1.
 from __future__ import annotations
 
 import json
-import os
 import sys
 
 import numpy as np
+
+from master.outputs.processes import error_line, exit_child
 
 COMPONENT, SET = "fmu", "inputs"  # the component's name in the package; the name of its parameter set
 
@@ -70,8 +71,6 @@ if __name__ == "__main__":
             np.savez(file, **result)
         status = 0
     except BaseException as error:  # noqa: BLE001: one line for the parent, whatever happened
-        print(f"{type(error).__name__}: {' '.join(str(error).split())}", file=sys.stderr)
+        print(error_line(error), file=sys.stderr)
         status = 1
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(status)
+    exit_child(status)

@@ -19,7 +19,7 @@ import sys
 
 import numpy as np
 
-from master.outputs.processes import die_with_parent
+from master.outputs.processes import die_with_parent, error_line, exit_child
 
 # libcosim's log line of a message an FMU logged with status error or fatal
 LOGGED = re.compile(r"\[FMI status=(?:error|fatal), category=[^\]]*\] (.*)")
@@ -217,8 +217,6 @@ if __name__ == "__main__":
         print(f"{REFUSED}{' '.join(str(error).split())}", file=sys.stderr)
         status = 1
     except BaseException as error:  # noqa: BLE001: one line for the parent, whatever happened
-        print(f"rhi-ssp-runner: {type(error).__name__}: {' '.join(str(error).split())}", file=sys.stderr)
+        print(f"rhi-ssp-runner: {error_line(error)}", file=sys.stderr)
         status = 1
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(status)
+    exit_child(status)

@@ -22,3 +22,16 @@ def die_with_parent(parent: int | None = None) -> None:
         ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
     if os.getppid() != parent:
         os._exit(1)
+
+
+def error_line(error: BaseException) -> str:
+    """``Type: message``, the message on one line: how a child process reports a failure to its parent."""
+    return f"{type(error).__name__}: {' '.join(str(error).split())}"
+
+
+def exit_child(status: int):
+    """End a child process now with ``status``, its streams flushed and nothing else run (no atexit, no
+    finalizers: a master's native library may hang or crash in them)."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(status)
