@@ -1,55 +1,52 @@
-"""The compatibility matrix: every FMU rhi exports (the bodies native, kinematic, kinematic-c; the illusion's agent;
-FMI 2.0 and 3.0 where built) x every check (:data:`master.export.fmi_checks.CHECKS`) and every master (FMPy,
-libcosim, Ecos), each cell ``pass``, ``fail`` or ``not supported``, with the reason of every cell that is not a
-pass.
+"""The compatibility matrix: every FMU rhi exports (the bodies native, kinematic, kinematic-c; the illusion's and the
+reach's agents; FMI 2.0 and 3.0 where built) x every check (:data:`master.export.fmi_checks.CHECKS`, the SSP
+schemas), every master (FMPy, libcosim, Ecos), an instantiation after a freed one and a reference trajectory,
+each cell ``pass``, ``fail`` or ``not supported``, with the reason of every cell that is not a pass.
 
-A master's cell: the FMU alone, its inputs held (a body's command at its start, 0; the agent's sensed arm at the
-resting pose, bound as a parameter set), stepped :data:`STEPS` steps of :data:`STEP` s: FMPy's ``simulate_fmu``,
-libcosim and Ecos on a one-component SSP package (:mod:`master.export.compat_run`, a child process each). It
-passes when every step is done and no output is NaN (the agent's event times are -inf before the first event),
-and, for an FMI 3.0 FMU, every output equals its FMI 2.0 twin's under FMPy to the last bit (an array element by
-element). A master that cannot load the FMU, or shows an array as fewer values than it holds, is ``not
-supported``, in its own words.
+A master's cell: the FMU alone, its inputs held (a body's command at its start, 0; an agent's sensed arm at the
+resting pose, bound as a parameter set; the reach agent's goal its start, the plan's first), stepped
+:data:`STEPS` steps of :data:`STEP` s: FMPy's ``simulate_fmu``, libcosim and Ecos on a one-component SSP package
+(:mod:`master.export.compat_run`, a child process each). It passes when every step is done and no output is NaN
+(the agent's event times are -inf before the first event), and, for an FMI 3.0 FMU, every output equals its FMI
+2.0 twin's under FMPy to the last bit (an array element by element). A master that cannot load the FMU, or shows
+an array as fewer values than it holds, is ``not supported``, in its own words.
 
-``python -m master.export.compat`` measures the whole matrix (a minute: it builds every FMU and starts every
-master) into :data:`RESULTS`; docs/fmi.md's table is written from that file by ``python -m master.reference``,
-and tests/test_compat.py measures a cheap part of it again.
+The other columns (:mod:`master.export.compat_checks`): ``SSP schema``, that package's SystemStructure.ssd and
+parameter set read against the SSP 1.0 schemas; ``instantiate-free-instantiate``, two instances one after the
+other in one fresh process, the second's first step the first's to the bit and the process's exit clean;
+``reference trajectory``, FMPy's run of :data:`REFERENCE_STEPS` steps within ``fmpy.util.validate_result``'s
+band of the shipped CSV in :data:`REFERENCES` (written by ``--write-references``).
+
+``python -m master.export.compat [--write-references]`` measures the whole matrix (about 40 s on 2 cores: it
+builds every FMU and starts every master) into :data:`RESULTS`; docs/fmi.md's table is written from that file
+by ``python -m master.reference``, and tests/test_compat.py measures a cheap part of it again.
 """
 from __future__ import annotations
 
 import json
 import os
 import re
-import subprocess
 import sys
 import tempfile
-import zipfile
 from pathlib import Path
 
 import numpy as np
 
+from master.export.compat_checks import package, reference_problems, run_child, schema_problems, twice_problems
+from master.export.compat_checks import write_reference
 from master.export.fmi_checks import CHECKS
 
 RESULTS = Path(__file__).resolve().parents[2] / "docs" / "fmi" / "compat.json"
+REFERENCES = RESULTS.parent / "reference"  # a CSV per row, named by :func:`reference_path`
 STEP, STEPS = 2.0 ** -6, 5  # a step binary holds: every master's communication points are exact
+REFERENCE_STEPS = 64  # 1 s: more samples than the masters' 5 steps for validate_result, which skips the ends
 ROWS = (("body", "native", "2.0"), ("body", "kinematic", "2.0"), ("body", "kinematic-c", "2.0"),
-        ("body", "kinematic-c", "3.0"), ("agent", "illusion", "2.0"), ("agent", "illusion", "3.0"))
+        ("body", "kinematic-c", "3.0"), ("agent", "illusion", "2.0"), ("agent", "illusion", "3.0"),
+        ("agent", "reach", "2.0"))
 MASTERS = ("FMPy", "libcosim", "Ecos")
-COLUMNS = (*CHECKS, *MASTERS)
+SCHEMA, TWICE, REFERENCE = "SSP schema", "instantiate-free-instantiate", "reference trajectory"
+COLUMNS = (*CHECKS, SCHEMA, *MASTERS, TWICE, REFERENCE)
 PASS, FAIL, UNSUPPORTED = "pass", "fail", "not supported"
-SSD = """<?xml version="1.0" encoding="UTF-8"?>
-<ssd:SystemStructureDescription version="1.0" name="compat" xmlns:ssd="http://ssp-standard.org/SSP1/SystemStructureDescription"
- xmlns:ssc="http://ssp-standard.org/SSP1/SystemStructureCommon" xmlns:osp="https://opensimulationplatform.com/SSP/OSPAnnotations">
-<ssd:System name="compat"><ssd:Elements><ssd:Component name="fmu" type="application/x-fmu-sharedlibrary"
- source="resources/fmu.fmu">{bindings}</ssd:Component></ssd:Elements></ssd:System>
-<ssd:DefaultExperiment startTime="0.0" stopTime="{stop!r}"><ssd:Annotations><ssc:Annotation type="com.opensimulationplatform">
-<osp:Algorithm><osp:FixedStepAlgorithm baseStepSize="{step!r}"/></osp:Algorithm></ssc:Annotation></ssd:Annotations>
-</ssd:DefaultExperiment></ssd:SystemStructureDescription>
-"""
-SSV = """<?xml version="1.0" encoding="UTF-8"?>
-<ssv:ParameterSet version="1.0" name="inputs" xmlns:ssv="http://ssp-standard.org/SSP1/SystemStructureParameterValues">
-<ssv:Parameters>{parameters}</ssv:Parameters></ssv:ParameterSet>
-"""
 
 
 def row_name(row) -> str:
@@ -58,18 +55,31 @@ def row_name(row) -> str:
     return f"{kind} {variant}, FMI {fmi}"
 
 
+def reference_path(row) -> Path:
+    """The row's reference CSV: ``docs/fmi/reference/body-kinematic-c-fmi3.csv``."""
+    kind, variant, fmi = row
+    return REFERENCES / f"{kind}-{variant}-fmi{fmi[0]}.csv"
+
+
 def build(folder, config: dict, rows=ROWS) -> dict:
-    """The FMUs of ``rows`` built into ``folder``: ``{row: path}`` (``config``: the agent's configuration, its
-    conv checkpoint named)."""
+    """The FMUs of ``rows`` built into ``folder``: ``{row: path}`` (``config``: the illusion agent's --quick
+    configuration, its conv checkpoint named; the reach agent's is ``rhi reach --quick``'s with that checkpoint,
+    as ``rhi export-agent --task reach --quick`` loads it)."""
     from master.export.agent_fmu import build_agent_fmu
     from master.export.body import export_body
+    from master.tasks.reach import task as reach
 
     folder, fmus = Path(folder), {}
     for row in rows:
         kind, variant, fmi = row
         out = folder / f"{kind}-{variant}-{fmi[0]}.fmu"
-        fmus[row] = (export_body(out, variant, fmi) if kind == "body" else
-                     build_agent_fmu(out, "conv", config, config["decoder"]["conv_checkpoint"], variant, fmi))
+        if kind == "body":
+            fmus[row] = export_body(out, variant, fmi)
+            continue
+        checkpoint = config["decoder"]["conv_checkpoint"]
+        given = config if variant == "illusion" else reach.load(quick=True, overrides={
+            "decoder.conv_checkpoint": checkpoint, "experiment.decoders": ["conv"]})
+        fmus[row] = build_agent_fmu(out, "conv", given, checkpoint, variant, fmi)
     return fmus
 
 
@@ -99,43 +109,32 @@ def sizes(fmu) -> dict:
             for v in read_model_description(str(fmu), validate=False).modelVariables if v.causality == "output"}
 
 
-def fmpy_run(fmu) -> dict:
-    """FMPy's ``simulate_fmu``: ``{output: (steps, ...) array}`` after each step."""
+def trajectory(fmu, steps: int = STEPS) -> np.ndarray:
+    """FMPy's ``simulate_fmu`` of ``steps`` steps, the inputs held: its structured array, ``time`` then the
+    outputs, a row at the start and one after each step."""
     from fmpy import simulate_fmu
 
-    names = outputs(fmu)
-    result = simulate_fmu(str(fmu), start_time=0.0, stop_time=STEPS * STEP, step_size=STEP, output_interval=STEP,
-                          start_values=held_inputs(fmu), output=names)
-    return {name: np.asarray(result[name], dtype=float)[1:] for name in names}
+    return simulate_fmu(str(fmu), start_time=0.0, stop_time=steps * STEP, step_size=STEP, output_interval=STEP,
+                        start_values=held_inputs(fmu), output=outputs(fmu))
+
+
+def fmpy_run(fmu) -> dict:
+    """FMPy's ``simulate_fmu``: ``{output: (steps, ...) array}`` after each step."""
+    result = trajectory(fmu)
+    return {name: np.asarray(result[name], dtype=float)[1:] for name in outputs(fmu)}
 
 
 def child_run(master: str, fmu, folder: Path, timeout: float = 300) -> dict:
     """libcosim or Ecos on a one-component package of ``fmu`` (in ``folder``), in a child process: ``{output:
     (steps,) array}``, or RuntimeError with the master's one-line reason."""
-    ssp = folder / "ssp"
-    (ssp / "resources").mkdir(parents=True)
-    with zipfile.ZipFile(fmu) as source, zipfile.ZipFile(ssp / "resources" / "fmu.fmu", "w") as copy:
-        for item in source.infolist():
-            copy.writestr(item, source.read(item.filename))
     held = held_inputs(fmu)
-    bindings = ""
-    if held:
-        parameters = "".join(f'<ssv:Parameter name="{n}"><ssv:Real value="{v!r}"/></ssv:Parameter>'
-                             for n, v in held.items())
-        (ssp / "resources" / "fmu.ssv").write_text(SSV.format(parameters=parameters))
-        bindings = ('<ssd:ParameterBindings><ssd:ParameterBinding type="application/x-ssp-parameter-set" '
-                    'source="resources/fmu.ssv"/></ssd:ParameterBindings>')
-    (ssp / "SystemStructure.ssd").write_text(SSD.format(bindings=bindings, stop=STEPS * STEP, step=STEP))
+    ssp = package(fmu, folder, held, STEPS * STEP, STEP)
     request = folder / "request.json"
     request.write_text(json.dumps({"master": master, "ssp": str(ssp), "steps": STEPS, "step_size": STEP,
                                    "read": outputs(fmu), "bound": bool(held), "out": str(folder / "out.npz")}))
     scratch = folder / "tmp"
     scratch.mkdir()
-    root = str(Path(__file__).resolve().parents[2])
-    env = {**os.environ, "TMPDIR": str(scratch),
-           "PYTHONPATH": os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")]))}
-    done = subprocess.run([sys.executable, "-m", "master.export.compat_run", str(request)], capture_output=True,
-                          text=True, timeout=timeout, env=env)
+    done = run_child(request, scratch, timeout)
     if done.returncode != 0 or not (folder / "out.npz").is_file():
         lines = [line for line in done.stderr.splitlines() if line.strip()]
         raise RuntimeError(lines[-1] if lines else f"the process ended with status {done.returncode}")
@@ -186,15 +185,36 @@ def master_cell(master: str, row, fmu, twin: dict | None, folder: Path) -> tuple
     return PASS, "", values
 
 
-def measure(fmus: dict, rows=ROWS, columns=COLUMNS) -> dict:
-    """The matrix of ``fmus`` (``{row: path}``): ``{row name: {column: [result, reason]}}``."""
+def check_cell(column: str, row, fmu, folder: Path, write: bool = False) -> list[str]:
+    """The problems of ``fmu`` (the FMU of ``row``) in a column that is not a master's, ``folder`` its own
+    scratch; ``write``: the reference CSV is written from this run first."""
+    from fmpy.util import read_csv
+
+    if column in CHECKS:
+        return CHECKS[column](fmu)
+    if column == SCHEMA:
+        return schema_problems(package(fmu, folder, held_inputs(fmu), STEPS * STEP, STEP))
+    if column == TWICE:
+        return twice_problems(fmu, held_inputs(fmu), outputs(fmu), STEP, folder)
+    path, result = reference_path(row), trajectory(fmu, REFERENCE_STEPS)
+    if write:
+        write_reference(path, result)
+    if not path.is_file():
+        return [f"no reference {path.name} (python -m master.export.compat --write-references writes it)"]
+    return reference_problems(result, read_csv(path))
+
+
+def measure(fmus: dict, rows=ROWS, columns=COLUMNS, write: bool = False) -> dict:
+    """The matrix of ``fmus`` (``{row: path}``): ``{row name: {column: [result, reason]}}`` (``write``: each
+    row's reference CSV written from this run first)."""
     matrix, runs = {}, {}
     with tempfile.TemporaryDirectory(prefix="rhi_compat_") as scratch:
         for number, row in enumerate(rows):
             cells = {}
             for column in columns:
-                if column in CHECKS:
-                    problems = CHECKS[column](fmus[row])
+                folder = Path(scratch) / f"{number}-{column}"
+                if column not in MASTERS:
+                    problems = check_cell(column, row, fmus[row], folder, write)
                     cells[column] = [PASS, ""] if not problems else [FAIL, "; ".join(problems)[:300]]
                     continue
                 twin = None
@@ -202,7 +222,6 @@ def measure(fmus: dict, rows=ROWS, columns=COLUMNS) -> dict:
                     twin = runs.get((row[0], row[1], "2.0", "FMPy"))
                     if twin is None:
                         twin = fmpy_run(fmus[(row[0], row[1], "2.0")])
-                folder = Path(scratch) / f"{number}-{column}"
                 result, reason, values = master_cell(column, row, fmus[row], twin, folder)
                 runs[(*row, column)] = values
                 cells[column] = [result, reason]
@@ -237,20 +256,27 @@ def stored_table() -> str:
 
 
 def main(argv: list[str]) -> int:
-    """``python -m master.export.compat``: build every FMU (the --quick conv decoder for the agent, trained if not
-    cached), measure the matrix and write :data:`RESULTS`; then ``python -m master.reference`` updates the docs."""
+    """``python -m master.export.compat [--write-references]``: build every FMU (the --quick conv decoder for the
+    agents, trained if not cached), measure the matrix (``--write-references``: each row's reference CSV written
+    from this run first) and write :data:`RESULTS`; then ``python -m master.reference`` updates the docs."""
     from master import config as configuration
     from master.decoders.cache import ensure_checkpoints
     from master.outputs.files import atomic_write
 
+    unknown = [a for a in argv if a != "--write-references"]
+    if unknown:
+        print(f"python -m master.export.compat: unknown argument {unknown[0]!r} (only --write-references)",
+              file=sys.stderr)
+        return 2
     config = configuration.load(quick=True)
     config["experiment"]["decoders"] = ["conv"]
     checkpoints, _ = ensure_checkpoints(config, progress=False)
     config["decoder"]["conv_checkpoint"] = checkpoints["conv"]
     with tempfile.TemporaryDirectory(prefix="rhi_compat_fmus_") as folder:
-        matrix = measure(build(folder, config))
+        matrix = measure(build(folder, config), write="--write-references" in argv)
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write(RESULTS, json.dumps({"step": STEP, "steps": STEPS, "matrix": matrix}, indent=1) + "\n")
+    atomic_write(RESULTS, json.dumps({"step": STEP, "steps": STEPS, "reference_steps": REFERENCE_STEPS,
+                                      "matrix": matrix}, indent=1) + "\n")
     print(table(matrix))
     return 0
 
