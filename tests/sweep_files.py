@@ -3,13 +3,18 @@ own lockstep sweeps at quick size, and the truth each is compared with, computed
 import argparse
 import json
 import os
+import signal
+import subprocess
 import sys
+import time
+from contextlib import contextmanager
 from pathlib import Path
 
 from tests.sweep_tasks import fake_outcome
 
 REPO = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
+DASK = Path(sys.executable).with_name("dask")
 
 
 def sweep_file(path, grid=None, points=None, task="fake_outcome", trials=2, conditions=("left", "right"),
@@ -102,3 +107,48 @@ def one_trial_sweep_folder(work):
         pass
     return sweep, work / "out" / "trials" / f"{sweep.trials[0].id}.json"
 
+
+@contextmanager
+def dask_cluster_at(folder: Path, workers: int, env: dict | None = None):
+    """A real `dask scheduler` and ``workers`` `dask worker` processes on 127.0.0.1 (ports the OS picks, logs and
+    files in ``folder``, the environment ``env``, default ENV); yields the scheduler's address."""
+    from dask.distributed import Client
+
+    env = env or ENV
+    log = open(folder / "cluster.log", "w")
+    started = []
+
+    def start(*arguments, core=None):
+        pin = None if core is None else (lambda: os.sched_setaffinity(0, {core}))
+        started.append(subprocess.Popen([str(DASK), *arguments], stdout=log, stderr=subprocess.STDOUT, env=env,
+                                        cwd=folder, start_new_session=True, preexec_fn=pin))
+
+    try:
+        start("scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+              "--scheduler-file", str(folder / "scheduler.json"))
+        deadline = time.monotonic() + 60
+        while not (folder / "scheduler.json").exists():
+            assert time.monotonic() < deadline and started[0].poll() is None, "the dask scheduler did not start"
+            time.sleep(0.1)
+        address = json.loads((folder / "scheduler.json").read_text())["address"]
+        # one core each, as sweep workers are meant to be: the decoder sizes torch's threads from the
+        # process's cores, and two-thread processes on two busy cores run small convolutions ~30x slower
+        cores = sorted(os.sched_getaffinity(0))
+        for number in range(workers):
+            start("worker", address, "--host", "127.0.0.1", "--nthreads", "1", "--no-nanny", "--no-dashboard",
+                  "--name", f"w{number}", "--local-directory", str(folder), "--death-timeout", "60",
+                  core=cores[number % len(cores)])
+        with Client(address, timeout="30s") as client:
+            client.wait_for_workers(workers, timeout=90)
+        yield address
+    finally:
+        for group in (started[1:], started[:1]):  # workers first: they would wait for a lost scheduler
+            for process in group:
+                process.terminate()
+            for process in group:
+                try:
+                    process.wait(timeout=10)
+                except subprocess.TimeoutExpired:  # its own session: the group holds only what it started
+                    os.killpg(process.pid, signal.SIGKILL)
+                    process.wait()
+        log.close()

@@ -1,5 +1,5 @@
 """The human-phenomena protocols: the shipped files, the report by hand, and each command end to end at
-quick size (tiny decoders in a session's own cache, two points, a few seconds of trial)."""
+quick size (the session's --quick decoders, two points, a few seconds of trial, on one shared Dask worker)."""
 import csv
 import json
 import tomllib
@@ -13,6 +13,7 @@ from master.cosim import ConfigError
 from master.phenomena import FILES, NAMES, human_file, sweep_file
 from master.phenomena import report as reports
 from master.sweeps import plan as sweeps
+from tests.sweep_files import ENV, dask_cluster_at
 
 
 def to_toml(table: dict, prefix: str = "") -> str:
@@ -41,9 +42,12 @@ def shipped(name: str) -> dict:
         return tomllib.load(file)
 
 
-@pytest.fixture(scope="session")
-def cache(tmp_path_factory):
-    return tmp_path_factory.mktemp("phenomena-decoders")
+@pytest.fixture(scope="module")
+def one_worker(quick_cache, tmp_path_factory):
+    """A Dask scheduler and one worker shared by the protocols' runs (a local pool each would start its own)."""
+    with dask_cluster_at(tmp_path_factory.mktemp("cluster"), workers=1,
+                         env={**ENV, "RHI_CACHE": str(quick_cache)}) as address:
+        yield address
 
 
 def test_shipped_files_load_and_span_the_human_ranges():
@@ -140,10 +144,11 @@ def quick_copy(name: str, folder: Path) -> Path:
 
 
 @pytest.mark.parametrize("name", NAMES)
-def test_each_protocol_end_to_end_at_quick_size(name, cache, tmp_path, monkeypatch, capsys):
-    monkeypatch.setenv("RHI_CACHE", str(cache))
+def test_each_protocol_end_to_end_at_quick_size(name, quick_cache, one_worker, tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("RHI_CACHE", str(quick_cache))
     out = tmp_path / "out"
-    command = ["phenomenon", name, "--config", str(quick_copy(name, tmp_path)), "--out", str(out), "--model", "paper"]
+    command = ["phenomenon", name, "--config", str(quick_copy(name, tmp_path)), "--out", str(out), "--model", "paper",
+               "--scheduler", one_worker]
     assert main(command) == 0
     stem = FILES[name].removesuffix(".toml")
     assert (out / f"{stem}.png").stat().st_size > 10_000 and (out / "paper" / "sweep.json").exists()

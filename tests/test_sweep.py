@@ -5,12 +5,7 @@ The trials run tests/sweep_tasks.py stand-ins, whose exact results the tests com
 """
 import csv
 import json
-import os
-import signal
 import subprocess
-import sys
-import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,54 +14,13 @@ from master.sweeps import plan as sweeps
 from master import config as configuration
 from master.commands.cli import main
 from master.commands.sweep import run as run_sweep
-from tests.sweep_files import ENV, args, batched_file, command, expected, lockstep_truth, records, single_core, sweep_file
-
-DASK = Path(sys.executable).with_name("dask")
-
+from tests.sweep_files import ENV, args, dask_cluster_at, batched_file, command, expected, lockstep_truth, records, single_core, sweep_file
 
 @pytest.fixture(scope="module")
 def dask_cluster(tmp_path_factory):
     """A real `dask scheduler` and two `dask worker` processes on 127.0.0.1, on ports the OS picks."""
-    from dask.distributed import Client
-
-    folder = tmp_path_factory.mktemp("cluster")
-    log = open(folder / "cluster.log", "w")
-    started = []
-
-    def start(*arguments, core=None):
-        pin = None if core is None else (lambda: os.sched_setaffinity(0, {core}))
-        started.append(subprocess.Popen([str(DASK), *arguments], stdout=log, stderr=subprocess.STDOUT, env=ENV,
-                                        cwd=folder, start_new_session=True, preexec_fn=pin))
-
-    try:
-        start("scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
-              "--scheduler-file", str(folder / "scheduler.json"))
-        deadline = time.monotonic() + 60
-        while not (folder / "scheduler.json").exists():
-            assert time.monotonic() < deadline and started[0].poll() is None, "the dask scheduler did not start"
-            time.sleep(0.1)
-        address = json.loads((folder / "scheduler.json").read_text())["address"]
-        # one core each, as sweep workers are meant to be: the decoder sizes torch's threads from the
-        # process's cores, and two-thread processes on two busy cores run small convolutions ~30x slower
-        cores = sorted(os.sched_getaffinity(0))
-        for number, name in enumerate(("w0", "w1")):
-            start("worker", address, "--host", "127.0.0.1", "--nthreads", "1", "--no-nanny", "--no-dashboard",
-                  "--name", name, "--local-directory", str(folder), "--death-timeout", "60",
-                  core=cores[number % len(cores)])
-        with Client(address, timeout="30s") as client:
-            client.wait_for_workers(2, timeout=90)
+    with dask_cluster_at(tmp_path_factory.mktemp("cluster"), workers=2) as address:
         yield address
-    finally:
-        for group in (started[1:], started[:1]):  # workers first: they would wait for a lost scheduler
-            for process in group:
-                process.terminate()
-            for process in group:
-                try:
-                    process.wait(timeout=10)
-                except subprocess.TimeoutExpired:  # its own session: the group holds only what it started
-                    os.killpg(process.pid, signal.SIGKILL)
-                    process.wait()
-        log.close()
 
 
 def test_local_pool_and_dask_cluster_give_the_same_trials(dask_cluster, tmp_path, capsys):
