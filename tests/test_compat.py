@@ -78,6 +78,15 @@ def test_the_c_bodys_references_hold_its_resting_pose_and_its_fmi3_arrays_are_it
     np.testing.assert_array_equal(fmi3["hand"], np.stack([fmi2["hand_x"], fmi2["hand_y"]], axis=-1))
 
 
+@pytest.mark.parametrize("variant", ["native", "kinematic"])
+def test_the_pythonfmu_bodies_fmi3_references_are_their_fmi2_references_to_the_bit(variant):
+    fmi2, fmi3 = (read_csv(compat.reference_path(("body", variant, fmi))) for fmi in ("2.0", "3.0"))
+    assert fmi3.dtype.names == ("time", "q", "hand", "force")
+    for array, (first, second) in (("q", ("q_shoulder", "q_elbow")), ("hand", ("hand_x", "hand_y")),
+                                   ("force", ("force_x", "force_y"))):
+        np.testing.assert_array_equal(fmi3[array], np.stack([fmi2[first], fmi2[second]], axis=-1))
+
+
 def test_the_reference_comparison_takes_last_bits_and_validate_results_band_and_no_more():
     reference = read_csv(compat.reference_path(C3))
     assert reference_problems(reference.copy(), reference) == []

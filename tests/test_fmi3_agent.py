@@ -153,3 +153,20 @@ def test_fmi3_is_refused_for_the_reach_and_an_unknown_version():
         check_fmi("3.0", "reach")
     with pytest.raises(ConfigError, match=r"^--fmi '1\.0' is not one of 2\.0, 3\.0$"):
         check_fmi("1.0", "illusion")
+
+
+def test_force_knows_the_fmi3_agent_as_rhi_s_own_and_nothing_else_with_its_layout(agent3, tmp_path):
+    """--force replaces an FMU rhi wrote (master.export.own_files): the FMI 3.0 agent's slave script is
+    rhi_agent_slave3_*; the same archive without rhi's agent metadata is not rhi's."""
+    import zipfile
+
+    from master.export.own_files import fmu_problem
+
+    assert fmu_problem(agent3) is None
+    stripped = tmp_path / "Other.fmu"
+    with zipfile.ZipFile(agent3) as old, zipfile.ZipFile(stripped, "w") as new:
+        for item in old.infolist():
+            if item.filename != "resources/rhi_agent.json":
+                new.writestr(item, old.read(item))
+    assert fmu_problem(stripped) == "its model description names another generationTool than rhi and its slave is not rhi's"
+

@@ -28,8 +28,10 @@ COSIM_MAY_IMPORT = ("master.cosim", "components.component", "components.variable
 COSIM_FORBIDDEN_WORDS = ("decoder", "drift", "gamma", "rubber", "brain")
 # components/ never imports master. A component folder imports the core and itself, no other folder;
 # a module directly in components/ (stimulus, the core) imports the core only.
-COMPONENT_CORE = ("components.component", "components.variables", "components.model_description", "components.archives",
-                  "components.fmu_slave_base")  # the body FMU's slave loads the base from its bundled copy
+# The body FMUs' slaves load the bundle and the slave bases from their bundled copy.
+COMPONENT_CORE = ("components.component", "components.variables", "components.model_description",
+                  "components.model_description3", "components.archives", "components.fmu_bundle",
+                  "components.fmu_slave_base", "components.fmu_slave3_base")
 COMPONENT_FOLDERS = ("body", "vision", "brain", "fmu")
 PROJECT = ("master", "components")  # top-level packages whose imports are checked
 

@@ -11,52 +11,36 @@ takes the class of this file that has ``Fmi2Slave`` deepest among its bases.
 """
 from __future__ import annotations
 
-import importlib
+import importlib.util
 import os
 import sys
 
 COMPONENT_FILE = "rhi_component.txt"  # "<model name> <module>:<class>", in the FMU's resources
+HERE = os.path.dirname(os.path.abspath(__file__))  # the FMU's resources, or the builder's staging folder
 
 
-_BUNDLES: dict[str, tuple[set, dict]] = {}  # resources folder -> (its packages, the modules imported from them)
+def own_bundle():
+    """``components/fmu_bundle.py`` of the copy beside this file, loaded by its path (not imported by name: the
+    host's ``components`` would answer), once per process under a name of this script's: pythonfmu's library runs
+    this file again from the module a process imported first, whose folder (a builder's staging folder) may be
+    gone by then."""
+    name = f"{__name__}_bundle"
+    if name not in sys.modules:
+        spec = importlib.util.spec_from_file_location(name, os.path.join(HERE, "components", "fmu_bundle.py"))
+        sys.modules[name] = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(sys.modules[name])
+    return sys.modules[name]
 
 
 def bundled(resources: str, spec: str):
-    """``module:name`` from the FMU's own copy of its packages (a class, say).
-
-    In a process that already imported this checkout's ``components`` (the master, under
-    fmpy in-process), a plain import would return the host's modules. The packages in
-    ``resources`` are imported with the host's modules of the same names set aside, and
-    put back afterwards, so the FMU runs the code it carries and the host keeps its own.
-    A folder is listed once: pythonfmu runs this file again from the module a process
-    imported first, whose folder (a builder's staging folder) may be gone by then.
-    """
-    if resources not in _BUNDLES:
-        own = {entry.removesuffix(".py") for entry in os.listdir(resources)
-               if entry.endswith(".py") or os.path.isfile(os.path.join(resources, entry, "__init__.py"))}
-        _BUNDLES[resources] = own - {__name__, "pythonfmu"}, {}
-    own, bundle = _BUNDLES[resources]
-    ours = lambda module: module.partition(".")[0] in own
-    host = {name: module for name, module in sys.modules.items() if ours(name)}
-    for name in host:
-        del sys.modules[name]
-    sys.modules.update(bundle)
-    sys.path.insert(0, resources)
-    try:
-        module, _, name = spec.partition(":")
-        return getattr(importlib.import_module(module), name)
-    finally:
-        sys.path.remove(resources)
-        bundle.update({name: module for name, module in sys.modules.items() if ours(name)})
-        for name in bundle:
-            sys.modules.pop(name, None)
-        sys.modules.update(host)
+    """``module:name`` from the FMU's own copy of its packages (:func:`components.fmu_bundle.bundled`)."""
+    return _BUNDLE.bundled(resources, spec, __name__)
 
 
-# The base from the copy this file sits beside (the FMU's resources, or the builder's staging folder).
-ComponentSlaveBase = bundled(os.path.dirname(os.path.abspath(__file__)),
-                             "components.fmu_slave_base:ComponentSlaveBase")
-xml_value = bundled(os.path.dirname(os.path.abspath(__file__)), "components.model_description:xml_value")
+_BUNDLE = own_bundle()
+# The base from the copy this file sits beside.
+ComponentSlaveBase = bundled(HERE, "components.fmu_slave_base:ComponentSlaveBase")
+xml_value = bundled(HERE, "components.model_description:xml_value")
 
 
 class ComponentSlave(ComponentSlaveBase):

@@ -4,7 +4,7 @@ from __future__ import annotations
 import os
 import time
 
-HELP = "export the body plant as an FMI 2.0 FMU (the C body also as FMI 3.0)"
+HELP = "export the body plant as an FMI 2.0 or FMI 3.0 FMU"
 
 
 def add_arguments(parser) -> None:
@@ -12,7 +12,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--variant", metavar="NAME",
                         help="native (default: the pymunk plant), kinematic, or kinematic-c (the kinematic arm in C)")
     parser.add_argument("--fmi", default="2.0", metavar="VERSION",
-                        help="2.0 (default) or 3.0 (--variant kinematic-c only: its ports as arrays)")
+                        help="2.0 (default) or 3.0 (its ports as arrays)")
     parser.add_argument("--out", metavar="FILE.fmu", required=True)
     parser.add_argument("--force", action="store_true", help="replace an existing --out FILE, if rhi wrote it")
 

@@ -1,17 +1,21 @@
-"""``rhi export-body``: the body plant as an FMI 2.0 co-simulation FMU, built with pythonfmu (the C body,
-:mod:`master.export.c_body`, also as FMI 3.0).
+"""``rhi export-body``: the body plant as a co-simulation FMU: FMI 2.0, built with pythonfmu, or FMI 3.0, built
+with pythonfmu3 (the C body, :mod:`master.export.c_body`, for either).
 
 The FMU carries its own copy of the ``components`` package (Python sources
-only) next to the slave script ``components/body/fmu_slave.py``, so it runs
-without this checkout, in any Python that has numpy, pymunk and pythonfmu's
-runtime. A resource file tells the slave which component class to wrap.
+only) next to the slave script (``components/body/fmu_slave.py``; for FMI 3.0
+``components/body/fmu_slave3.py``, its ports the body contract's arrays,
+``components.body.contract.FMI3_ARRAYS``), so it runs without this checkout, in
+any Python that has numpy and pymunk (the builder puts its runtime in the FMU). A
+resource file tells the slave which component class to wrap.
 
 Example::
 
     build_fmu("Body.fmu", "kinematic")   # or: rhi export-body --variant kinematic --out Body.fmu
+    build_fmu("Body3.fmu", fmi="3.0")    # or: rhi export-body --fmi 3.0 --out Body3.fmu
 """
 from __future__ import annotations
 
+import importlib.util
 import shutil
 import tempfile
 from pathlib import Path
@@ -26,17 +30,20 @@ VARIANTS = {
 }
 C_VARIANT = "kinematic-c"  # the kinematic arm written in C (master/export/c_body.py)
 VARIANT_NAMES = (*VARIANTS, C_VARIANT)
-FMI_VERSIONS = {"2.0": VARIANT_NAMES, "3.0": (C_VARIANT,)}  # FMI version -> the variants built for it
+FMI_VERSIONS = ("2.0", "3.0")  # every variant is built for both
 PACKAGE = Path(__file__).resolve().parents[2] / "components"
+SLAVES = {"2.0": ("fmu_slave.py", "fmu_slave_base.py"), "3.0": ("fmu_slave3.py", "fmu_slave3_base.py")}  # script, base
 
 
 def build_fmu(out, variant: str = "native", component: str | None = None, model_name: str | None = None,
-              extra_files=()) -> Path:
+              extra_files=(), fmi: str = "2.0") -> Path:
     """Build an FMU at ``out`` (a path ending in .fmu) and return its path.
 
     variant: a name in VARIANTS; ``component`` (``module:Class``) and ``model_name`` override it,
-    with ``extra_files`` (Python modules that define that class) bundled next to the slave.
+    with ``extra_files`` (Python modules that define that class) bundled next to the slave. fmi: ``2.0``
+    (pythonfmu) or ``3.0`` (pythonfmu3; the component must declare the body contract's pairs, which become arrays).
     """
+    check_fmi(variant, fmi)
     out = check_target(out)
     if variant not in VARIANTS:
         raise ConfigError(f"--variant {variant!r} is not one of {', '.join(VARIANT_NAMES)}")
@@ -44,33 +51,36 @@ def build_fmu(out, variant: str = "native", component: str | None = None, model_
     component = component or VARIANTS[variant][1]
     if not model_name.isidentifier():
         raise ConfigError(f"model name {model_name!r} must be an identifier (it names the FMU's library)")
-    return built_beside(out, lambda target: _build(target, model_name, component, extra_files))
+    return built_beside(out, lambda target: _build(target, model_name, component, extra_files, fmi))
 
 
 def check_fmi(variant: str, fmi: str) -> None:
-    """ConfigError, in one line, unless ``variant`` can be built for FMI ``fmi`` (FMI_VERSIONS)."""
+    """ConfigError, in one line, unless ``variant`` can be built for FMI ``fmi`` here: a version of FMI_VERSIONS,
+    and for FMI 3.0 of a pythonfmu variant, pythonfmu3 installed."""
     if fmi not in FMI_VERSIONS:
         raise ConfigError(f"--fmi {fmi!r} is not one of {', '.join(FMI_VERSIONS)}")
-    if variant in VARIANT_NAMES and variant not in FMI_VERSIONS[fmi]:
-        raise ConfigError(f"--fmi {fmi} is built for --variant {' or '.join(FMI_VERSIONS[fmi])} only; "
-                          f"--variant {variant} is FMI 2.0 (pythonfmu)")
+    if fmi == "3.0" and variant in VARIANTS and importlib.util.find_spec("pythonfmu3") is None:
+        raise ConfigError(f"--fmi 3.0 --variant {variant} needs pythonfmu3 (pip install pythonfmu3==0.3.4, in the "
+                          "test extra)")
 
 
 def export_body(out, variant: str = "native", fmi: str = "2.0") -> Path:
-    """The body FMU of ``variant`` for FMI ``fmi`` at ``out``: a pythonfmu one (VARIANTS, FMI 2.0), or the body
-    written in C (C_VARIANT, FMI 2.0 or 3.0)."""
+    """The body FMU of ``variant`` for FMI ``fmi`` (2.0 or 3.0) at ``out``: a pythonfmu or pythonfmu3 one
+    (VARIANTS), or the body written in C (C_VARIANT)."""
     check_fmi(variant, fmi)
     if variant == C_VARIANT:
         from master.export.c_body import build_c_fmu
         return build_c_fmu(out, fmi)
-    return build_fmu(out, variant)
+    return build_fmu(out, variant, fmi=fmi)
 
 
-def _build(target: Path, model_name: str, component: str, extra_files) -> Path:
+def _build(target: Path, model_name: str, component: str, extra_files, fmi: str) -> Path:
+    script, base = SLAVES[fmi]
     with tempfile.TemporaryDirectory(prefix="rhi_export_") as staging:
         staging = Path(staging)
-        script = staged_script(PACKAGE / "body" / "fmu_slave.py", staging, "rhi_fmu_slave",
-                               loads=[PACKAGE / "fmu_slave_base.py"])
+        # One prefix for both versions (master/export/own_files.py knows it); the content's hash tells them apart.
+        script = staged_script(PACKAGE / "body" / script, staging, "rhi_fmu_slave",
+                               loads=[PACKAGE / base, PACKAGE / "fmu_bundle.py"])
         # Python sources only: no caches, checkpoints or data files in the FMU.
         shutil.copytree(PACKAGE, staging / "components",
                         ignore=lambda folder, names: [n for n in names if not (
@@ -78,4 +88,4 @@ def _build(target: Path, model_name: str, component: str, extra_files) -> Path:
         spec = staging / "rhi_component.txt"
         spec.write_text(f"{model_name} {component}\n")
         return build_with_pythonfmu(script, target, [staging / "components", spec, *map(Path, extra_files)],
-                                    f"the {model_name} FMU from {component}")
+                                    f"the {model_name} FMU from {component}", fmi)

@@ -22,6 +22,7 @@ import tempfile
 import zipfile
 from pathlib import Path
 
+from components.body.contract import FMI3_ARRAYS
 from components.body.variants import KinematicArm
 from components.model_description3 import sizes, to_xml3
 from master.cosim import ConfigError
@@ -32,14 +33,7 @@ SOURCE = Path(__file__).resolve().parents[2] / "bodies" / "kinematic_c" / "kinem
 MODEL_IDENTIFIER = "KinematicArmC"  # the FMI model identifier, which names the shared library
 STARTS = ("q0_shoulder", "q0_elbow", "servo_gain", "torque_limit", "held")  # compiled in as START_<NAME>
 FMI_VERSIONS = ("2.0", "3.0")
-# The FMI 3.0 arrays: name -> (description, the Python arm's scalars it carries, in order).
-ARRAYS = {
-    "u": ("commanded joint velocities a: shoulder, elbow", ("u_shoulder", "u_elbow")),
-    "q": ("joint angles (proprioception s_p): shoulder from +x, elbow relative to the upper arm",
-          ("q_shoulder", "q_elbow")),
-    "hand": ("hand position: x right of the body midline, y forward of the shoulder line", ("hand_x", "hand_y")),
-    "force": ("force the held arm exerts at the hand: x, y (0 when free)", ("force_x", "force_y")),
-}
+ARRAYS = FMI3_ARRAYS  # the FMI 3.0 arrays (the body contract's): name -> (description, the scalars it carries)
 
 
 def declared_body() -> KinematicArm:

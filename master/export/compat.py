@@ -1,6 +1,6 @@
-"""The compatibility matrix: every FMU rhi exports (the bodies native, kinematic, kinematic-c; the illusion's and the
-reach's agents; FMI 2.0 and 3.0 where built) x every check (:data:`master.export.fmi_checks.CHECKS`, the SSP
-schemas), every master (FMPy, libcosim, Ecos), an instantiation after a freed one and a reference trajectory,
+"""The compatibility matrix: every FMU rhi exports (the bodies native, kinematic, kinematic-c, FMI 2.0 and 3.0; the
+illusion's and the reach's agents, FMI 2.0 and, the illusion's, 3.0) x every check
+(:data:`master.export.fmi_checks.CHECKS`, the SSP schemas), every master (FMPy, libcosim, Ecos), an instantiation after a freed one and a reference trajectory,
 each cell ``pass``, ``fail`` or ``not supported``, with the reason of every cell that is not a pass.
 
 A master's cell: the FMU alone, its inputs held (a body's command at its start, 0; an agent's sensed arm at the
@@ -17,7 +17,7 @@ other in one fresh process, the second's first step the first's to the bit and t
 ``reference trajectory``, FMPy's run of :data:`REFERENCE_STEPS` steps within ``fmpy.util.validate_result``'s
 band of the shipped CSV in :data:`REFERENCES` (written by ``--write-references``).
 
-``python -m master.export.compat [--write-references]`` measures the whole matrix (about 40 s on 2 cores: it
+``python -m master.export.compat [--write-references]`` measures the whole matrix (about 50 s on 2 cores: it
 builds every FMU and starts every master) into :data:`RESULTS`; docs/fmi.md's table is written from that file
 by ``python -m master.reference``, and tests/test_compat.py measures a cheap part of it again.
 """
@@ -40,9 +40,9 @@ RESULTS = Path(__file__).resolve().parents[2] / "docs" / "fmi" / "compat.json"
 REFERENCES = RESULTS.parent / "reference"  # a CSV per row, named by :func:`reference_path`
 STEP, STEPS = 2.0 ** -6, 5  # a step binary holds: every master's communication points are exact
 REFERENCE_STEPS = 64  # 1 s: more samples than the masters' 5 steps for validate_result, which skips the ends
-ROWS = (("body", "native", "2.0"), ("body", "kinematic", "2.0"), ("body", "kinematic-c", "2.0"),
-        ("body", "kinematic-c", "3.0"), ("agent", "illusion", "2.0"), ("agent", "illusion", "3.0"),
-        ("agent", "reach", "2.0"))
+ROWS = (("body", "native", "2.0"), ("body", "native", "3.0"), ("body", "kinematic", "2.0"), ("body", "kinematic", "3.0"),
+        ("body", "kinematic-c", "2.0"), ("body", "kinematic-c", "3.0"), ("agent", "illusion", "2.0"),
+        ("agent", "illusion", "3.0"), ("agent", "reach", "2.0"))
 MASTERS = ("FMPy", "libcosim", "Ecos")
 SCHEMA, TWICE, REFERENCE = "SSP schema", "instantiate-free-instantiate", "reference trajectory"
 COLUMNS = (*CHECKS, SCHEMA, *MASTERS, TWICE, REFERENCE)
@@ -144,9 +144,9 @@ def child_run(master: str, fmu, folder: Path, timeout: float = 300) -> dict:
 
 def twin_equal(values: dict, twin: dict) -> list[str]:
     """The outputs of an FMI 3.0 run ``values`` that differ from its FMI 2.0 twin's run ``twin`` in any bit: an
-    array (the C body's ``q``: ``q_shoulder``, ``q_elbow``) element by element; an output the twin lacks (the
+    array (a body's ``q``: ``q_shoulder``, ``q_elbow``) element by element; an output the twin lacks (the
     agent's ``image``) is not compared."""
-    from master.export.c_body import ARRAYS
+    from components.body.contract import FMI3_ARRAYS as ARRAYS
 
     differ = []
     for name, value in values.items():

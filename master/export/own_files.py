@@ -8,7 +8,8 @@ within bounds) and returns None for a file rhi wrote, else what it is not. A fil
 - ``.fmu``: a zip archive (checked: components.archives) whose ``modelDescription.xml`` names the
   generationTool ``rhi`` (the C body, every component's own description), or a pythonfmu FMU whose slave
   module is rhi's (``resources/slavemodule.txt`` names ``rhi_fmu_slave_*`` beside ``resources/rhi_component.txt``:
-  a body; ``rhi_agent_slave_*`` beside ``resources/rhi_agent.json``: an agent);
+  a body; ``rhi_agent_slave_*`` or ``rhi_agent_slave3_*`` (FMI 3.0) beside ``resources/rhi_agent.json``: an
+  agent);
 - ``.ssp``: a zip archive whose ``SystemStructure.ssd`` names the generationTool ``rhi``;
 - ``.csv``: run-system's table: the header ``time`` and then the connectors ``component.variable``, sorted,
   and every row that follows in the first block read a number per column.
@@ -24,7 +25,8 @@ from xml.etree import ElementTree as ET
 
 MAX_MEMBER_BYTES = 16 * 2**20   # a model or system description read to be identified
 MAX_CSV_HEAD_BYTES = 1 << 20    # the first block of a CSV read to be identified
-SLAVES = {"rhi_fmu_slave_": "resources/rhi_component.txt", "rhi_agent_slave_": "resources/rhi_agent.json"}
+SLAVES = {"rhi_fmu_slave_": "resources/rhi_component.txt", "rhi_agent_slave_": "resources/rhi_agent.json",
+          "rhi_agent_slave3_": "resources/rhi_agent.json"}  # the FMI 3.0 agent's script (master/export/agent_fmu.py)
 
 
 def _zip_member(path: Path, member: str) -> tuple[set[str], bytes | None] | str:

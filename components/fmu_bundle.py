@@ -1,0 +1,50 @@
+"""Importing from an FMU's own copy of its packages: :func:`bundled`, for the body FMUs' slave scripts
+(``components/body/fmu_slave.py``, FMI 2.0; ``components/body/fmu_slave3.py``, FMI 3.0).
+
+A script loads this file by its path from the copy of ``components`` beside it (``own_bundle``, in each script:
+the copy cannot be imported by name before this file is there to do it). It imports nothing of the
+project, so the FMU's copy and the host's are the same file.
+"""
+from __future__ import annotations
+
+import importlib
+import os
+import sys
+
+# The builders' runtimes, which they put in an FMU's resources too: the host's copy is the one to use.
+RUNTIMES = {"pythonfmu", "pythonfmu3"}
+
+_BUNDLES: dict[str, tuple[set, dict]] = {}  # resources folder -> (its packages, the modules imported from them)
+
+
+def bundled(resources: str, spec: str, script: str):
+    """``module:name`` from the FMU's own copy of its packages (a class, say).
+
+    In a process that already imported this checkout's ``components`` (the master, under
+    fmpy in-process), a plain import would return the host's modules. The packages in
+    ``resources`` are imported with the host's modules of the same names set aside, and
+    put back afterwards, so the FMU runs the code it carries and the host keeps its own.
+    A folder is listed once: pythonfmu runs the script again from the module a process
+    imported first, whose folder (a builder's staging folder) may be gone by then.
+    ``script``: the slave script's module name, which is in ``resources`` but not one of its packages.
+    """
+    if resources not in _BUNDLES:
+        own = {entry.removesuffix(".py") for entry in os.listdir(resources)
+               if entry.endswith(".py") or os.path.isfile(os.path.join(resources, entry, "__init__.py"))}
+        _BUNDLES[resources] = own - {script} - RUNTIMES, {}
+    own, bundle = _BUNDLES[resources]
+    ours = lambda module: module.partition(".")[0] in own
+    host = {name: module for name, module in sys.modules.items() if ours(name)}
+    for name in host:
+        del sys.modules[name]
+    sys.modules.update(bundle)
+    sys.path.insert(0, resources)
+    try:
+        module, _, name = spec.partition(":")
+        return getattr(importlib.import_module(module), name)
+    finally:
+        sys.path.remove(resources)
+        bundle.update({name: module for name, module in sys.modules.items() if ours(name)})
+        for name in bundle:
+            sys.modules.pop(name, None)
+        sys.modules.update(host)
