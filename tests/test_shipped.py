@@ -50,11 +50,11 @@ def test_rhi_train_makes_the_checkpoint_the_experiment_trains_side_by_side(quick
     given = tmp_path / "quick.toml"
     given.write_text(f"[experiment]\nresolution = {settings.resolution}\n[train]\n" + "".join(
         f"{key} = {json.dumps(getattr(settings, key))}\n" for key in configuration.load(quick=True)["train"]))
+    monkeypatch.setenv("RHI_CACHE", str(quick_cache))  # its training set is rendered there already
     for kind in ("conv", "vae"):
         out = tmp_path / f"{kind}.pt"
         done = subprocess.run([sys.executable, "-m", "master", "train", "--decoder", kind, "--config", str(given),
                                "--out", str(out)], cwd=ROOT, capture_output=True, text=True, timeout=600)
         assert done.returncode == 0, done.stderr[-2000:]
-        monkeypatch.setenv("RHI_CACHE", str(quick_cache))
         assert out.read_bytes() == open(checkpoint_path(kind, config, must_exist=True), "rb").read()
         assert "seconds" not in checkpoint.load(out)[1]  # no wall time in the bytes
