@@ -176,7 +176,8 @@ class LinearisedDecoder(Decoder):
     device: where the decoder runs (as for Decoder); the stored linearisations stay on the CPU.
 
     After a run: ``relinearisations`` (B,) counts how often each trial's linearisation point
-    changed (the first included); ``call_sizes`` lists the points of each batched decoder call.
+    changed (the first included); ``call_sizes`` lists the points of each batched decoder call; ``grouped_products``
+    says whether the products per point stayed batched by the number of trials at a point (:meth:`_products`).
     """
 
     def __init__(self, checkpoint, name: str = "decoder", relinearise_tolerance: float = DEFAULT_TOLERANCE,
