@@ -48,3 +48,18 @@ def bundled(resources: str, spec: str, script: str):
         for name in bundle:
             sys.modules.pop(name, None)
         sys.modules.update(host)
+
+
+COMPONENT_FILE = "rhi_component.txt"  # "<model name> <module>:<class>", in a body FMU's resources
+
+
+def served_component(resources: str, script: str):
+    """(model name, component, description) of the body FMU whose resources are ``resources``: the class its
+    ``rhi_component.txt`` names, from the FMU's own copy (:func:`bundled`), instantiated; the description is the
+    first line of the class's docstring, else its spec."""
+    with open(os.path.join(resources, COMPONENT_FILE)) as file:
+        model_name, spec = file.read().split()
+    component = bundled(resources, spec, script)()
+    doc = (type(component).__doc__ or "").strip()
+    return model_name, component, doc.splitlines()[0] if doc else spec
+

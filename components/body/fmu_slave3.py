@@ -15,7 +15,6 @@ import sys
 
 from pythonfmu3 import Fmi3Slave
 
-COMPONENT_FILE = "rhi_component.txt"  # "<model name> <module>:<class>", in the FMU's resources
 HERE = os.path.dirname(os.path.abspath(__file__))  # the FMU's resources, or the builder's staging folder
 
 
@@ -46,9 +45,5 @@ class ComponentSlave(ComponentSlave3Base, Fmi3Slave):
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        with open(os.path.join(self.resources, COMPONENT_FILE)) as file:
-            self.modelName, spec = file.read().split()
-        component = bundled(self.resources, spec)()
-        doc = (type(component).__doc__ or "").strip()
-        self.description = doc.splitlines()[0] if doc else spec
+        self.modelName, component, self.description = _BUNDLE.served_component(self.resources, __name__)
         self.serve(component, bundled(self.resources, "components.body.contract:FMI3_ARRAYS"))

@@ -20,6 +20,7 @@ import shutil
 import tempfile
 from pathlib import Path
 
+from components.fmu_bundle import COMPONENT_FILE
 from master.cosim import ConfigError
 from master.export.fmu_files import build_with_pythonfmu, built_beside, check_target, staged_script
 
@@ -85,7 +86,7 @@ def _build(target: Path, model_name: str, component: str, extra_files, fmi: str)
         shutil.copytree(PACKAGE, staging / "components",
                         ignore=lambda folder, names: [n for n in names if not (
                             n.endswith(".py") or (Path(folder) / n).is_dir()) or n == "__pycache__"])
-        spec = staging / "rhi_component.txt"
+        spec = staging / COMPONENT_FILE
         spec.write_text(f"{model_name} {component}\n")
         return build_with_pythonfmu(script, target, [staging / "components", spec, *map(Path, extra_files)],
                                     f"the {model_name} FMU from {component}", fmi)
