@@ -1,7 +1,6 @@
 """Stimulation schedules against hand computation: the events of a block schedule, vision only, the stroke's
 timing, a hidden rubber arm, the drift at probe times (from trials.csv's rows), and the refusals, one line each."""
 import csv
-import os
 import subprocess
 import sys
 
@@ -17,6 +16,7 @@ from master.cosim import ConfigError
 from master.tasks.illusion import wiring
 from master.outputs.tables import probe_name
 from master.tasks.illusion.measures import probes
+from tests.in_process import rhi_in_process
 
 STEP = 0.02
 
@@ -148,10 +148,9 @@ def test_probes_are_the_per_step_drift_of_trials_csv(tmp_path, quick_cache):
     path.write_text('[experiment]\ndecoders = ["conv"]\nconditions = ["left"]\nstimulations = ["sync", "vision"]\n'
                     'steps = 150\nprobe_times = [1.0, 2.01]\n[stimulations.vision]\ntouch = false\n'
                     'blocks = [[0.5, 2.6]]\n')
-    done = subprocess.run([sys.executable, "-m", "master", "experiment", "--quick", "--config", str(path), "--out",
-                           str(tmp_path / "out")], capture_output=True, text=True, timeout=600,
-                          env={**os.environ, "RHI_CACHE": str(quick_cache)})
-    assert done.returncode == 0, done.stderr[-2000:]
+    done = rhi_in_process(["experiment", "--quick", "--config", str(path), "--out", str(tmp_path / "out")], tmp_path,
+                          {"RHI_CACHE": str(quick_cache)}, timeout=300)
+    assert done.status == 0, done.stderr[-2000:]
     with open(tmp_path / "out" / "summary.csv") as file:
         summary = list(csv.DictReader(file))
     with open(tmp_path / "out" / "trials.csv") as file:
