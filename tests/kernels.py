@@ -20,7 +20,7 @@ import sys
 # The numeric tests whose numbers come through float32 kernels: the decoders, their contracts with the
 # brain, fast mode, batching, training, and the published numbers' reference table.
 NUMERIC = ("tests/test_reproducibility.py", "tests/test_contracts.py", "tests/test_fast.py", "tests/test_batching.py",
-           "tests/test_vision.py", "tests/test_training.py", "tests/test_brain.py")
+           "tests/test_vision.py", "tests/test_training.py", "tests/test_brain.py", "tests/test_fast_grouped.py")
 
 # Each tier: torch's capability, oneDNN's ISA, MKL's (torch's matrix products), and numpy's feature groups
 # above it (disabled where present).
