@@ -24,7 +24,50 @@ FMI_TYPES = {"Real": Float64, "Integer": Int32, "Boolean": Boolean}
 PYTHON_TYPES = {"Real": float, "Integer": int, "Boolean": bool}
 
 
-class ComponentSlave3Base(Fmi3Slave):
+class Fmi3Lifecycle:
+    """The FMI 3.0 co-simulation calls on ``self.component`` (one trial of a component of
+    :mod:`components.component`), for a pythonfmu3 slave: the body's (:class:`ComponentSlave3Base`) and the agent's
+    (``master.export.agent_fmi3``). ``time`` follows the steps."""
+
+    def setup_experiment(self, start_time):
+        """The start time fmi3EnterInitializationMode gives, s (pythonfmu3 does not pass the stop time on)."""
+        self.component.setup_experiment(start_time, None)
+        self.time = start_time
+
+    def enter_initialization_mode(self):
+        """fmi3EnterInitializationMode: the component enters initialization mode."""
+        self.component.enter_initialization_mode()
+
+    def exit_initialization_mode(self):
+        """fmi3ExitInitializationMode: the component initializes; a failure is logged as one line and raised."""
+        try:
+            self.component.exit_initialization_mode()
+            if self.component.last_reason:
+                raise RuntimeError(self.component.last_reason)
+        except Exception as error:  # the reason as one line in the log (pythonfmu3's own is the exception's repr)
+            self.log(str(error), Fmi3Status.error)
+            raise
+
+    def do_step(self, current_time, step_size):
+        """fmi3DoStep: one step of the component; False (discard) when it failed, its reason logged. ``time`` is
+        then the step's end, ``current_time + step_size`` (as the C body sums it)."""
+        try:
+            status = self.component.do_step(current_time, step_size)
+        except Exception as error:  # raised, it would be fmi3Fatal: log the cause, discard the step
+            self.log("".join(traceback.format_exception_only(error)).strip(), Fmi3Status.error)
+            return False
+        if status >= 2:  # discard, error or fatal
+            self.log(self.component.last_reason or f"status {status}", Fmi3Status.error)
+            return False
+        self.time = current_time + step_size
+        return True
+
+    def terminate(self):
+        """fmi3Terminate: the component terminates."""
+        self.component.terminate()
+
+
+class ComponentSlave3Base(Fmi3Lifecycle, Fmi3Slave):
     """One trial (batch size 1) of ``self.component``, driven through FMI 3.0 co-simulation calls."""
 
     def serve(self, component, arrays: dict) -> None:
@@ -75,44 +118,6 @@ class ComponentSlave3Base(Fmi3Slave):
         if len(values) != expected:
             raise ValueError(f"fmi3SetFloat64: {len(values)} values for {expected} elements")
         super().set_float64(vrs, values)
-
-    # -- FMI 3.0 lifecycle ------------------------------------------------------------------
-    def setup_experiment(self, start_time):
-        """The start time fmi3EnterInitializationMode gives, s (pythonfmu3 does not pass the stop time on)."""
-        self.component.setup_experiment(start_time, None)
-        self.time = start_time
-
-    def enter_initialization_mode(self):
-        """fmi3EnterInitializationMode: the component enters initialization mode."""
-        self.component.enter_initialization_mode()
-
-    def exit_initialization_mode(self):
-        """fmi3ExitInitializationMode: the component initializes; a failure is logged as one line and raised."""
-        try:
-            self.component.exit_initialization_mode()
-            if self.component.last_reason:
-                raise RuntimeError(self.component.last_reason)
-        except Exception as error:  # the reason as one line in the log (pythonfmu3's own is the exception's repr)
-            self.log(str(error), Fmi3Status.error)
-            raise
-
-    def do_step(self, current_time, step_size):
-        """fmi3DoStep: one step of the component; False (discard) when it failed, its reason logged. ``time`` is
-        then the step's end, ``current_time + step_size`` (as the C body sums it)."""
-        try:
-            status = self.component.do_step(current_time, step_size)
-        except Exception as error:  # raised, it would be fmi3Fatal: log the cause, discard the step
-            self.log("".join(traceback.format_exception_only(error)).strip(), Fmi3Status.error)
-            return False
-        if status >= 2:  # discard, error or fatal
-            self.log(self.component.last_reason or f"status {status}", Fmi3Status.error)
-            return False
-        self.time = current_time + step_size
-        return True
-
-    def terminate(self):
-        """fmi3Terminate: the component terminates."""
-        self.component.terminate()
 
     # -- model description ----------------------------------------------------------------
     def to_xml(self, model_options=None):

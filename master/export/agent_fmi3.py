@@ -14,13 +14,12 @@ Value references follow the FMI 2.0 ones (the agent's declaration order); ``imag
 """
 from __future__ import annotations
 
-import traceback
 from xml.etree import ElementTree as ET
 
 import numpy as np
 from pythonfmu3 import Boolean, Dimension, Fmi3Causality, Fmi3Slave, Fmi3Variability, Float64, Int32
-from pythonfmu3.enums import Fmi3Status
 
+from components.fmu_slave3_base import Fmi3Lifecycle
 from components.model_description import typed_attributes, unit_definitions, xml_value
 from master.export.agent_fmu import agent_from_resources
 
@@ -40,20 +39,20 @@ def variability(variable) -> Fmi3Variability:
     return Fmi3Variability.continuous
 
 
-class AgentSlave3(Fmi3Slave):
+class AgentSlave3(Fmi3Lifecycle, Fmi3Slave):
     """One trial of the agent (the illusion's or the reach's) through FMI 3.0 co-simulation calls."""
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        self.agent, self.modelName, self.description = agent_from_resources(self.resources)
+        self.component, self.modelName, self.description = agent_from_resources(self.resources)
         self.author, self.license = "rhi", "MIT"
-        self.agent.instantiate(1)
-        self.scalars = [v for v in self.agent.variables.values() if v.type != "Array"]
-        values = self.agent.values
+        self.component.instantiate(1)
+        self.scalars = [v for v in self.component.variables.values() if v.type != "Array"]
+        values = self.component.values
         for variable in self.scalars:
             name, cast = variable.name, CASTS[variable.type]
             if variable.causality == "parameter":
-                setter = lambda value, name=name, cast=cast: self.agent.set(name, np.array([cast(value)]))
+                setter = lambda value, name=name, cast=cast: self.component.set(name, np.array([cast(value)]))
             elif variable.causality == "input":
                 setter = lambda value, name=name, cast=cast: values.__setitem__(name, np.array([cast(value)]))
             else:
@@ -62,7 +61,7 @@ class AgentSlave3(Fmi3Slave):
                 name, causality=getattr(Fmi3Causality, variable.causality), variability=variability(variable),
                 description=variable.description, setter=setter,
                 getter=lambda name=name, cast=cast: cast(values[name][0]) if name in values else float("nan")))
-        self.shape = tuple(int(n) for n in self.agent.inner_variable(IMAGE_PATH).shape)
+        self.shape = tuple(int(n) for n in self.component.inner_variable(IMAGE_PATH).shape)
         self.register_variable(Float64(
             IMAGE, causality=Fmi3Causality.output, variability=Fmi3Variability.continuous,
             dimensions=[Dimension(start=str(n)) for n in self.shape], getter=self.image,
@@ -73,46 +72,10 @@ class AgentSlave3(Fmi3Slave):
 
     def image(self) -> list:
         """The camera's image now, row by row (NaN before initialization)."""
-        image = self.agent.inner(IMAGE_PATH)
+        image = self.component.inner(IMAGE_PATH)
         if image is None:
             return [float("nan")] * int(np.prod(self.shape))
         return np.asarray(image[0], dtype=np.float64).ravel().tolist()
-
-    # -- FMI 3.0 lifecycle --------------------------------------------------------------------
-    def setup_experiment(self, start_time):
-        """The start time fmi3EnterInitializationMode gives, s (its stop time is not passed on by pythonfmu3)."""
-        self.agent.setup_experiment(start_time, None)
-
-    def enter_initialization_mode(self):
-        """fmi3EnterInitializationMode: the agent enters initialization mode."""
-        self.agent.enter_initialization_mode()
-
-    def exit_initialization_mode(self):
-        """fmi3ExitInitializationMode: the agent initializes; a failure is logged as one line and raised."""
-        try:
-            self.agent.exit_initialization_mode()
-            if self.agent.last_reason:
-                raise RuntimeError(self.agent.last_reason)
-        except Exception as error:
-            self.log(str(error), Fmi3Status.error)
-            raise
-
-    def do_step(self, current_time, step_size):
-        """fmi3DoStep: one step of the agent; False (discard) when it failed, its reason logged."""
-        try:
-            status = self.agent.do_step(current_time, step_size)
-        except Exception as error:
-            self.log("".join(traceback.format_exception_only(error)).strip(), Fmi3Status.error)
-            return False
-        if status >= 2:
-            self.log(self.agent.last_reason or f"status {status}", Fmi3Status.error)
-            return False
-        self.time = current_time + step_size
-        return True
-
-    def terminate(self):
-        """fmi3Terminate: the agent terminates."""
-        self.agent.terminate()
 
     # -- model description -----------------------------------------------------------------
     def to_xml(self, model_options=None):
