@@ -8,8 +8,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.stats import norm, uniform
+from scipy.stats import multivariate_normal, norm, uniform
 
+from components.body.kinematics import FOREARM, UPPER_ARM, forward
 from components.brain import ownership_inference as oi
 from components.brain.ownership_brain import NOISE_STREAM, OwnershipBrain
 from components.vision import pose_encoder as pe
@@ -49,6 +50,28 @@ def test_the_evidence_of_a_touch_is_the_log_ratio_of_scipy_densities(delay):
     assert got[0] == pytest.approx(hand, rel=1e-13, abs=1e-13)  # rounding of a few terms
     if delay == 0.0:  # the peak: -log(sd sqrt(2 pi)) + log T = 2.19 nats, about 1.7 nats on average over the noise
         assert got[0] == pytest.approx(-math.log(sd * math.sqrt(2 * math.pi)) + math.log(period), rel=1e-13)
+
+
+@pytest.mark.parametrize("seen, felt", [((150.0, -80.0), (140.0, -90.0)), ((59.2, -28.1), (147.7, -91.2)),
+                                        ((160.0, -120.0), (160.0, -120.0))])
+def test_the_evidence_of_a_touchs_place_is_the_log_ratio_of_scipy_densities(seen, felt):
+    spread = 0.127
+    got = oi.spatial_log_likelihood_ratio(
+        oi.hand_separation(np.array([seen]), np.array([felt]), UPPER_ARM, FOREARM), spread, UPPER_ARM + FOREARM)
+    assert got[0] == pytest.approx(place_evidence(seen, felt, spread), rel=1e-12, abs=1e-12)  # a few roundings
+
+
+def test_the_peripersonal_spread_makes_a_touch_at_the_boundary_neutral():
+    reach = UPPER_ARM + FOREARM
+    spread = oi.peripersonal_sd_from_boundary(0.30, reach)
+    assert spread < 0.30 / math.sqrt(2)  # the smaller root
+    # the log ratio at the boundary is 0 to the root finder's tolerance (a relative 4 eps on sigma: ~1e-15 nats)
+    assert oi.spatial_log_likelihood_ratio(0.30, spread, reach) == pytest.approx(0.0, abs=1e-12)
+    # and the evidence falls with the distance: for one cause within, against beyond
+    near, far = oi.spatial_log_likelihood_ratio(np.array([0.15, 0.45]), spread, reach)
+    assert near > 0 > far
+    with pytest.raises(ValueError, match="reach > boundary"):  # L <= D sqrt(e): no spread is neutral there
+        oi.peripersonal_sd_from_boundary(0.30, 0.30 * math.sqrt(math.e))
 
 
 def bayes_by_hand(gamma, log_ratio):
@@ -132,11 +155,20 @@ def step(made, t, s_p, seen, visual=-np.inf, tactile=-np.inf):
     made.step(t, STEP)
 
 
+def place_evidence(seen, felt, spread):
+    """The spatial log ratio by hand: scipy's 2-D normal density of the hands' offset (the body's own forward
+    kinematics) over the uniform density of a disc of the arm's reach."""
+    offset = np.subtract(forward(*seen), forward(*felt))
+    reach = UPPER_ARM + FOREARM
+    return multivariate_normal(np.zeros(2), spread**2 * np.eye(2)).logpdf(offset) + math.log(math.pi * reach**2)
+
+
 def test_the_brain_accumulates_each_touch_with_its_own_noise_and_records_the_onset():
-    sd, period, seed, prior = 0.089, 2.0, 7, 0.01
+    sd, period, seed, prior, spread = 0.089, 2.0, 7, 0.01, 0.12
     made = brain(1, timing_sd=sd, stroke_period=period, participant_seed=seed, ownership_prior=prior,
-                 coupling_prior=0.73, switching_rate=0.0, realignment_rate=0.0)
+                 coupling_prior=0.73, switching_rate=0.0, realignment_rate=0.0, peripersonal_sd=spread)
     noise = np.random.default_rng([seed, NOISE_STREAM])
+    place = place_evidence((150.0, -80.0), (140.0, -90.0), spread)
     odds_gamma, odds_coupling, onset, touches = logit(prior), logit(0.73), None, 0
     for k in range(round(12.0 / STEP)):
         t = k * STEP
@@ -147,7 +179,7 @@ def test_the_brain_accumulates_each_touch_with_its_own_noise_and_records_the_ons
         if touch:
             touches += 1
             perceived = 0.03 + sd * noise.standard_normal()
-            value = norm(0, sd).logpdf(perceived) + math.log(period)
+            value = norm(0, sd).logpdf(perceived) + math.log(period) + place
             odds_gamma, odds_coupling = odds_gamma + value, odds_coupling + value
             if onset is None and logistic(odds_gamma) >= 0.5:
                 onset = t + STEP

@@ -6,9 +6,10 @@ Each step, for each of the B trials (docs/model.md, "The ownership model"; the e
 1. ownership gamma and the coupling rho, two common-cause beliefs about the seen and the felt arm, are
    predicted over the step as two-state chains relaxing to their priors at the switching rate
    (:func:`~components.brain.body_inference.hazard_predict`); at a new visuo-tactile pair both add the same
-   touch's evidence, the log likelihood ratio of the perceived asynchrony
+   touch's evidence: the log likelihood ratio of the perceived asynchrony
    (:func:`~components.brain.ownership_inference.asynchrony_log_likelihood_ratio`; the delay plus this
-   trial's perceptual noise), by Bayes' rule (:func:`~components.brain.body_inference.posterior`). They differ
+   trial's perceptual noise) plus that of the distance between the seen and the felt hand
+   (:func:`~components.brain.ownership_inference.spatial_log_likelihood_ratio`), by Bayes' rule (:func:`~components.brain.body_inference.posterior`). They differ
    only in their priors: ownership starts from the paper's gamma0 and needs evidence; the coupling starts high
    and needs none, but asynchronous touches take it away;
 2. the ownership onset: the first time gamma reaches 1/2;
@@ -30,7 +31,7 @@ from components.brain.base import BeliefBrain, PerceptualNoise, BeliefRate, add_
 from components.brain.body_inference import hazard_predict, posterior
 from components.brain.goal import goal_inputs
 from components.brain.ownership_inference import asynchrony_log_likelihood_ratio, belief_rate, free_energy, \
-    ownership_onset, realignment_step, realignment_target
+    hand_separation, ownership_onset, realignment_step, realignment_target, spatial_log_likelihood_ratio
 from components.component import ComponentError
 from components.variables import Variable
 
@@ -69,6 +70,12 @@ class OwnershipBrain(PerceptualNoise, BeliefBrain):
                      description="sigma_t, sd of the perceived visuo-tactile asynchrony"),
             Variable("stroke_period", "parameter", start=2.0, unit="s", **positive,
                      description="T: the asynchrony under two causes is uniform over one period (density 1/T)"),
+            Variable("peripersonal_sd", "parameter", start=0.127, unit="m", **positive,
+                     description="sigma_s: spread of a seen touch about the felt one under one cause, per axis"),
+            Variable("upper_arm_length", "parameter", start=0.3595, unit="m", **positive,
+                     description="the body schema's upper arm (shoulder to elbow)"),
+            Variable("forearm_length", "parameter", start=0.3694, unit="m", **positive,
+                     description="the body schema's forearm (elbow to hand); the reach L is the two summed"),
             Variable("switching_rate", "parameter", start=0.0, unit="1/s", min=0.0,
                      description="lambda = k_on + k_off of the common-cause chains (0: evidence kept for good)"),
             Variable("realignment_weight", "parameter", start=0.39, unit="1", min=0.0, max=1.0,
@@ -114,7 +121,8 @@ class OwnershipBrain(PerceptualNoise, BeliefBrain):
         """The shared parameters (:meth:`BeliefBrain.check_parameters`), then the model's rates and times
         positive or zero and finite."""
         super().check_parameters()
-        self.require_positive_finite("timing_sd", "stroke_period")
+        self.require_positive_finite("timing_sd", "stroke_period", "peripersonal_sd", "upper_arm_length",
+                                     "forearm_length")
         for name in ("switching_rate", "realignment_rate"):
             bad = self.values[name][~((self.values[name] >= 0) & np.isfinite(self.values[name]))]
             if bad.size:
@@ -134,6 +142,9 @@ class OwnershipBrain(PerceptualNoise, BeliefBrain):
             delay = np.where(pair, v["visual_time"] - np.where(pair, v["tactile_time"], 0.0), 0.0)
             evidence = asynchrony_log_likelihood_ratio(delay + v["timing_sd"] * noise, v["timing_sd"],
                                                        v["stroke_period"])
+            upper, forearm = v["upper_arm_length"], v["forearm_length"]
+            evidence = evidence + spatial_log_likelihood_ratio(
+                hand_separation(v["seen_pose"], s_p, upper, forearm), v["peripersonal_sd"], upper + forearm)
             ratio = np.exp(np.where(pair, evidence, 0.0))
             gamma = np.where(pair, posterior(gamma, ratio), gamma)
             coupling = np.where(pair, posterior(coupling, ratio), coupling)

@@ -3,7 +3,9 @@
 One function per equation, each vectorised over the batch of B trials (docs/model.md, "The ownership model"):
 
 - :func:`timing_sd_from_jnd`: the sd of a perceived visuo-tactile asynchrony from a temporal-order JND;
-- :func:`asynchrony_log_likelihood_ratio`: the evidence of one touch, log p(Δ' | one cause) / p(Δ' | two);
+- :func:`asynchrony_log_likelihood_ratio`: the evidence of one touch's timing, log p(Δ' | one cause) / p(Δ' | two);
+- :func:`hand_separation` and :func:`spatial_log_likelihood_ratio`: the evidence of its place, how far the seen
+  touch lies from the felt one (:func:`peripersonal_sd_from_boundary` derives the spread from where it is neutral);
 - between touches the common-cause state relaxes to its prior as a two-state Markov chain, and at a touch
   Bayes' rule adds the touch's evidence to its log odds: the causal model's
   :func:`~components.brain.body_inference.hazard_predict` (switching_time = 1 / switching rate) and
@@ -13,6 +15,8 @@ One function per equation, each vectorised over the batch of B trials (docs/mode
 - :func:`belief_rate` and :func:`free_energy`: the belief follows the realigned proprioception s_p + b.
 """
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -67,6 +71,89 @@ def asynchrony_log_likelihood_ratio(perceived_asynchrony, timing_sd, stroke_peri
     from scipy.stats import norm  # here, not at the top: a refused command never pays for scipy.stats
 
     return norm.logpdf(perceived_asynchrony, loc=0.0, scale=timing_sd) + np.log(np.asarray(stroke_period, float))
+
+
+def hand_separation(seen_pose, felt_pose, upper_arm, forearm):
+    """The distance between the hands two poses of one arm put, (B,), m: the brain's body schema.
+
+    Planar two-link forward kinematics from the shared shoulder: hand = U (cos s, sin s) + F (cos(s + e),
+    sin(s + e)) for shoulder angle s and relative elbow angle e (the body's frame, docs/design.md); the
+    shoulder's position cancels in the difference.
+
+    Parameters
+    ----------
+    seen_pose, felt_pose : array_like, (B, 2)
+        (shoulder, elbow), deg: x_v (the pose encoder's reading) and s_p (sensed).
+    upper_arm, forearm : array_like, (B,)
+        U and F, the segments' lengths, m.
+
+    Returns
+    -------
+    ndarray, (B,)
+        m.
+    """
+    def hand(pose):
+        shoulder = np.radians(np.asarray(pose, float)[:, 0])
+        forearm_angle = shoulder + np.radians(np.asarray(pose, float)[:, 1])
+        return np.stack([upper_arm * np.cos(shoulder) + forearm * np.cos(forearm_angle),
+                         upper_arm * np.sin(shoulder) + forearm * np.sin(forearm_angle)], axis=1)
+    return np.hypot(*(hand(seen_pose) - hand(felt_pose)).T)
+
+
+def spatial_log_likelihood_ratio(separation, peripersonal_sd, reach):
+    """The evidence of one touch's place: log N2(d; 0, sigma_s^2 I) - log(1 / (pi L^2)), (B,), in nats.
+
+    Under one cause the seen stroke is the felt one, seen within the felt hand's peripersonal space: its
+    displacement d in the table's plane is an isotropic Gaussian of sd sigma_s per axis. Under two causes the
+    seen stroke is on some other hand-like object anywhere within one arm's reach L of the felt hand, uniform
+    over that disc (density 1 / (pi L^2)). So log ratio = log(L^2 / (2 sigma_s^2)) - |d|^2 / (2 sigma_s^2):
+    positive near the hand, zero at the boundary (:func:`peripersonal_sd_from_boundary`), negative beyond.
+
+    Parameters
+    ----------
+    separation : array_like, (B,)
+        |d|, m (:func:`hand_separation`).
+    peripersonal_sd, reach : array_like, (B,)
+        sigma_s and L, m.
+
+    Returns
+    -------
+    ndarray, (B,)
+        The log likelihood ratio, nats (positive: evidence for one cause).
+    """
+    variance = np.asarray(peripersonal_sd, float) ** 2
+    return np.log(np.asarray(reach, float) ** 2 / (2.0 * variance)) - np.asarray(separation, float) ** 2 / (2.0 * variance)
+
+
+def peripersonal_sd_from_boundary(boundary, reach):
+    """sigma_s such that a touch seen ``boundary`` from the felt one carries no evidence of its place, m.
+
+    Solves :func:`spatial_log_likelihood_ratio` = 0 at |d| = D: log(L^2 / (2 s^2)) = D^2 / (2 s^2). Its left
+    side minus its right has one maximum, 2 log(L / D) - 1 at s = D / sqrt 2, so there are two roots when
+    L > D sqrt(e) and none otherwise; this is the smaller, below D / sqrt 2: with the larger the
+    common cause's spread would exceed the boundary itself, so that a seen hand beyond the space where it is
+    still taken as one's own would be typical of one cause. Root-finding by scipy's brentq.
+
+    Parameters
+    ----------
+    boundary, reach : float
+        D and L, m (L > D sqrt(e)).
+
+    Returns
+    -------
+    float
+        sigma_s, m.
+    """
+    from scipy.optimize import brentq
+
+    boundary, reach = float(boundary), float(reach)
+    if not (0.0 < boundary and 2.0 * math.log(reach / boundary) > 1.0):
+        raise ValueError(f"no peripersonal sd gives a neutral touch at {boundary:g} m within a reach of "
+                         f"{reach:g} m (needs reach > boundary * sqrt(e))")
+
+    def neutral(sd):
+        return float(spatial_log_likelihood_ratio(boundary, sd, reach))
+    return brentq(neutral, boundary * 1e-3, boundary / math.sqrt(2.0), xtol=1e-15, rtol=4 * np.finfo(float).eps)
 
 
 def ownership_onset(onset, gamma, time, threshold=0.5):

@@ -21,6 +21,12 @@ OWN_SOURCES = {
     "brain.coupling_prior": "ownership.coupling_prior",
     "brain.timing_sd": "derived: ownership.timing_jnd / 0.6745, the sd of a temporal-order judgement's "
                        "cumulative Gaussian (ownership_inference.timing_sd_from_jnd)",
+    "brain.peripersonal_sd": "derived: from ownership.peripersonal_boundary and the arm's reach, the spread at "
+                             "which a touch seen that far from the felt one is neutral "
+                             "(ownership_inference.peripersonal_sd_from_boundary)",
+    "brain.upper_arm_length": "derived: the body's upper arm, components.body.kinematics.UPPER_ARM (the brain's "
+                              "body schema is the body's geometry)",
+    "brain.forearm_length": "derived: the body's forearm, components.body.kinematics.FOREARM",
     "brain.realignment_weight": "ownership.realignment_weight",
     "brain.switching_rate": "ownership.switching_rate",
     "brain.realignment_rate": "ownership.realignment_rate",
@@ -31,7 +37,8 @@ SHARED_KEYS = {"brain.gamma0": "the paper's initial gamma (Rood et al. 2020: \"T
                                "0.01\"), here the prior of ownership and its chain's stationary probability",
                "stimulus.period": "s, the protocol's stroke period: the asynchrony under two causes is uniform over "
                                   "one period, density 1/T"}
-DERIVED_FROM = "ownership.timing_jnd"  # the key brain.timing_sd is derived from
+# The keys derived parameters come from: brain.timing_sd from the JND, brain.peripersonal_sd from the boundary.
+DERIVED_FROM = {"brain.timing_sd": "ownership.timing_jnd", "brain.peripersonal_sd": "ownership.peripersonal_boundary"}
 # The free parameters, fitted on the training set: (prior, low, high) each, stated before the fit that uses it
 # (docs/model.md, "The ownership model": why these ranges, and why the coupling prior joined the rates). Their
 # values in ownership.toml are the posterior medians of the fit shipped in FIT_FOLDER (relative to the project).
@@ -39,6 +46,15 @@ FREE_PARAMETERS = {"ownership.switching_rate": ("log-uniform", 1.0 / 600.0, 1.0)
                    "ownership.realignment_rate": ("log-uniform", 1.0 / 600.0, 1.0),
                    "ownership.coupling_prior": ("uniform", 0.01, 0.99)}
 FIT_FOLDER = "docs/fit/human/ownership_rohde2011"
+
+
+def positive(trials: TrialValues, key: str, unit: str) -> np.ndarray:
+    """The values of configuration ``key`` per trial (or one), a ConfigError if one is not positive and finite."""
+    values = np.asarray(trials.value(key), dtype=float)
+    bad = values[~((values > 0) & np.isfinite(values))]
+    if bad.size:
+        raise ConfigError(f"{key} must be a positive, finite {unit}, got {float(bad.flat[0])!r}")
+    return values
 
 
 def _brain_class():
@@ -54,7 +70,7 @@ class OwnershipModel(Model):
     settings_file = "ownership.toml"
     sees_pose = True
     pose_encoder_key = "ownership.{kind}_pose_encoder"
-    batchable = (DERIVED_FROM,)
+    batchable = tuple(DERIVED_FROM.values())
     links = (("camera.image", "pose_encoder.image"), ("pose_encoder.pose", "brain.seen_pose"))
     record = ("brain.coupling", "brain.realignment", "brain.ownership_onset")
     measures = {"ownership_onset_s": "brain.ownership_onset", "coupling": "brain.coupling"}
@@ -69,15 +85,21 @@ class OwnershipModel(Model):
         return with_paper_sources(_brain_class()(), OWN_SOURCES)
 
     def parameters(self, trials: TrialValues) -> dict:
-        """The plain sources' values, and the derived ones: timing_sd per trial, the seeds."""
-        from components.brain.ownership_inference import timing_sd_from_jnd
+        """The plain sources' values, and the derived ones: timing_sd and peripersonal_sd per trial, the body
+        schema's lengths, the seeds."""
+        from components.body.kinematics import FOREARM, UPPER_ARM
+        from components.brain.ownership_inference import peripersonal_sd_from_boundary, timing_sd_from_jnd
 
         given = {**super().parameters(trials), "brain.mu0": rest_belief(trials)}
-        jnd = np.asarray(trials.value(DERIVED_FROM), dtype=float)
-        bad = jnd[~((jnd > 0) & np.isfinite(jnd))]
-        if bad.size:
-            raise ConfigError(f"{DERIVED_FROM} must be a positive, finite time in s, got {float(bad.flat[0])!r}")
+        jnd, boundary = (positive(trials, DERIVED_FROM[path], unit) for path, unit in
+                         (("brain.timing_sd", "time in s"), ("brain.peripersonal_sd", "distance in m")))
         given["brain.timing_sd"] = timing_sd_from_jnd(jnd)
+        reach = UPPER_ARM + FOREARM
+        try:
+            given["brain.peripersonal_sd"] = np.vectorize(peripersonal_sd_from_boundary)(boundary, reach)
+        except ValueError as error:
+            raise ConfigError(f"{DERIVED_FROM['brain.peripersonal_sd']}: {error}") from None
+        given["brain.upper_arm_length"], given["brain.forearm_length"] = UPPER_ARM, FOREARM
         given["brain.participant_seed"] = np.asarray(trials.seeds, dtype=np.int64)
         return given
 

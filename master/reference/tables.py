@@ -253,7 +253,8 @@ def ownership_constants() -> str:
     """The ownership model's constants: each brain parameter, the key it comes from, its value (a derived one
     computed by the code that derives it) and its source, from master/models/ownership.toml's comments; the free
     parameters with their prior ranges (master.models.ownership.FREE_PARAMETERS)."""
-    from components.brain.ownership_inference import QUARTILE_Z, timing_sd_from_jnd
+    from components.body.kinematics import FOREARM, UPPER_ARM
+    from components.brain.ownership_inference import QUARTILE_Z, peripersonal_sd_from_boundary, timing_sd_from_jnd
     from master import config as configuration
     from master.models.ownership import DERIVED_FROM, FIT_FOLDER, FREE_PARAMETERS, OWN_SOURCES, SHARED_KEYS
 
@@ -266,15 +267,23 @@ def ownership_constants() -> str:
         table, _, name = key.partition(".")
         return config[table][name]
 
+    reach = UPPER_ARM + FOREARM
+    derivations = {  # parameter: (how, value), each computed by the function the model derives it with
+        "brain.timing_sd": (f"/ {QUARTILE_Z:.4f}", float(timing_sd_from_jnd(value(DERIVED_FROM["brain.timing_sd"])))),
+        "brain.peripersonal_sd": (f"and the reach L = {reach:.4f} m",
+                                  peripersonal_sd_from_boundary(value(DERIVED_FROM["brain.peripersonal_sd"]), reach))}
+    body = {"brain.upper_arm_length": UPPER_ARM, "brain.forearm_length": FOREARM}
     rows = []
     for parameter, source in OWN_SOURCES.items():
         name = f"`{parameter.partition('.')[2]}`"
         if source.startswith("per trial:"):
             continue
-        if source.startswith("derived:"):
-            jnd = value(DERIVED_FROM)
-            rows.append([name, f"`{DERIVED_FROM}` / {QUARTILE_Z:.4f}", f"{float(timing_sd_from_jnd(jnd)):.4f}",
-                         f"derived: {comments[DERIVED_FROM]}"])
+        if parameter in DERIVED_FROM:
+            key = DERIVED_FROM[parameter]
+            derived = derivations[parameter]
+            rows.append([name, f"`{key}` {derived[0]}", f"{derived[1]:.4f}", f"derived: {comments[key]}"])
+        elif source.startswith("derived:"):
+            rows.append([name, "the body", f"{body[parameter]:g}", source.partition(":")[2].strip()])
         elif source in FREE_PARAMETERS:
             prior, low, high = FREE_PARAMETERS[source]
             shown_low = f"1/{1 / low:g}" if prior == "log-uniform" else f"{low:g}"
