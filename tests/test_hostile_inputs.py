@@ -108,9 +108,9 @@ def test_a_huge_step_size_is_one_line_without_numpy_s_warnings(tmp_path):
 def test_a_phenomenon_point_out_of_reach_is_refused_before_the_sweep_runs(tmp_path):
     (tmp_path / "work").mkdir()
     shipped = (REPO / "master" / "phenomena" / "distance.toml").read_text()
-    (tmp_path / "work" / "far.toml").write_text(shipped.replace("0.40, 0.45]", "0.40, 0.95]"))
+    (tmp_path / "work" / "far.toml").write_text(shipped.replace("0.55, 0.60]", "0.55, 0.95]"))
     done = rhi(tmp_path, "phenomenon", "distance", "--config", "far.toml", "--out", "out")
-    refused(done, "sweep point 8 (conditions.right=0.95): conditions.right = 0.95 m (rubber_arm.offset_y = 0.0 m) puts "
+    refused(done, "sweep point 11 (conditions.right=0.95): conditions.right = 0.95 m (rubber_arm.offset_y = 0.0 m) puts "
                   "the rubber hand out of the arm's reach")
     assert sorted(os.listdir(tmp_path / "work")) == ["far.toml"]
 

@@ -5,7 +5,7 @@ report (:mod:`master.phenomena.report`) that reads the sweep's trial records and
 and a figure with the human reference (``human.toml``, one source per number) beside the model:
 
 - ``temporal-window``: drift, force and gamma against a fixed visuo-tactile delay, 0 to 1 s;
-- ``distance``: drift and force against the rubber hand's lateral distance, 5 to 45 cm;
+- ``distance``: drift and force against the rubber hand's lateral distance, 5 to 60 cm;
 - ``time-course``: when the drift reaches half its final value under synchronous touch;
 - ``persistence``: the stroking stops at 30 s; drift and gamma followed to 90 s;
 - ``vision-only``: the drift under synchronous and asynchronous touch and under vision alone.
