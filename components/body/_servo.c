@@ -12,6 +12,10 @@
 #include <math.h>
 #include <stdint.h>
 
+#if UINTPTR_MAX != UINT64_MAX
+#error "the plant passes addresses as uint64 (a failed build leaves the plant on its numpy loop)"
+#endif
+
 typedef void (*step_fn)(void *space, double dt);
 typedef double (*get_fn)(void *object);
 typedef void (*set_fn)(void *body, double value);
