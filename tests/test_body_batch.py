@@ -3,16 +3,19 @@
 The reference is the plant as one would write it for one trial: its own pymunk space, the servo law in Python
 floats, the load cell's impulses read spring by spring through pymunk's ``Constraint.impulse``, the angles from
 ``Body.angle`` and the hand from ``Body.local_to_world``. The plant puts every trial in ONE space, reads and
-writes the bodies with pymunk's batch calls and computes the servo in numpy on (B, 2) arrays. Trials never
-interact (their bodies share no constraint, and there are no shapes to collide), and IEEE arithmetic is
-element-wise, so the two must agree exactly: any difference is a bug, not rounding (tolerance 0).
+writes the bodies with pymunk's batch calls and computes the servo in numpy on (B, 2) arrays, or runs those
+sub-steps in C (components/body/_servo.c) where it is built: checked with each. Trials never interact (their
+bodies share no constraint, and there are no shapes to collide), and IEEE arithmetic is element-wise, so the
+two must agree exactly: any difference is a bug, not rounding (tolerance 0).
 """
 import math
 
 import numpy as np
 import pymunk
+import pytest
 
 from components.body.kinematics import FOREARM, SHOULDER, UPPER_ARM
+from components.body import plant as plant_module
 from components.body.plant import CELL_ARM, ArmPlant
 from components.component import Status
 
@@ -65,7 +68,12 @@ class OneTrial:
                 hand.x, hand.y, force[0], force[1])
 
 
-def test_batched_plant_equals_one_space_per_trial_to_the_last_bit():
+@pytest.mark.parametrize("loop", ["c", "numpy"])
+def test_batched_plant_equals_one_space_per_trial_to_the_last_bit(loop, monkeypatch):
+    if loop == "numpy":
+        monkeypatch.setattr(plant_module, "C_LOOP", None)
+    elif plant_module.C_LOOP is None:
+        pytest.skip("components.body._servo is not built (tests/test_body_cloop.py says so)")
     # Five trials that differ in everything a trial may: held or free, pose, masses, gain, limit, load cell,
     # and one held trial let go mid-run; commands that saturate the torque limit in one trial.
     parameters = {"held": [True, False, True, True, False], "q0_shoulder": [57.0, 40.0, 70.0, 57.0, 90.0],

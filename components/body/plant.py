@@ -24,6 +24,11 @@ smallest eigenvalue of the arm's joint-space inertia at the current elbow angle 
 every step). At 0.02 s with the defaults that needs 8 sub-steps at rest, 17 at the
 straightest elbow of the decoder training range (rest + 50 deg) and 27 with the arm
 straight; the default is 20. Too few fail the step with a message naming ``substeps``.
+
+The sub-steps run in C (``components/body/_servo.c``, built by the package's install, calling Chipmunk's
+functions through pymunk's cffi module) or, where that is not built, in numpy (``ArmPlant._substeps_numpy``):
+two implementations of the law above with the same IEEE operations in the same order, so the same bits
+(``tests/test_body_cloop.py``).
 """
 from __future__ import annotations
 
@@ -33,13 +38,49 @@ import numpy as np
 import pymunk
 import pymunk.batch
 from pymunk.batch import BodyFields
-from pymunk._chipmunk import lib as chipmunk  # the C call behind a constraint's impulse (see step)
+from pymunk._chipmunk import ffi, lib as chipmunk  # Chipmunk's own calls (see _substeps_numpy, c_loop)
 
 from components.body.kinematics import FOREARM, REST_HAND, REST_POSE, SHOULDER, UPPER_ARM, forward
 from components.component import Component, ComponentError, StepFailure
 from components.variables import Variable
 
 CELL_ARM = 1.0  # m, length of each load-cell spring (long, so a sideways deflection barely loads it)
+
+# The Chipmunk functions the C loop calls, with the C types it calls them with (cpFloat a double).
+C_FUNCTIONS = {"cpSpaceStep": "void(*)(struct cpSpace *, double)",
+               "cpBodyGetAngularVelocity": "double(*)(struct cpBody *)",
+               "cpBodySetTorque": "void(*)(struct cpBody *, double)",
+               "cpConstraintGetImpulse": "double(*)(struct cpConstraint *)"}
+
+
+def address(cdata) -> int:
+    """A cffi pointer's address, as the C loop takes it."""
+    return int(ffi.cast("uintptr_t", cdata))
+
+
+def c_loop():
+    """``components.body._servo`` bound to pymunk's Chipmunk, or None (the numpy loop) where it is not built,
+    pymunk's functions are not of the types it calls, or numpy's maximum and minimum here choose otherwise than
+    it does between equal operands (+0 and -0) or a NaN (it follows numpy's x86-64 kernels)."""
+    try:
+        from components.body import _servo
+    except ImportError:
+        return None
+    functions = [ffi.addressof(chipmunk, name) for name in C_FUNCTIONS]
+    if [ffi.typeof(f).cname for f in functions] != list(C_FUNCTIONS.values()):
+        return None
+    a = np.array([[0.0, -0.0], [-0.0, 0.0], [np.nan, 1.0], [1.0, 2.0]])  # the step's shapes: (B, 2) and (B, 1)
+    b = np.array([[-0.0], [0.0], [1.0], [np.nan]])
+    for numpy_op, chooses in ((np.maximum, lambda x, y: x > y), (np.minimum, lambda x, y: x < y)):
+        like_c = [[x if math.isnan(x) or chooses(x, y) else y for x in row]
+                  for row, (y,) in zip(a.tolist(), b.tolist())]
+        if numpy_op(a, b).tobytes() != np.array(like_c).tobytes():
+            return None
+    _servo.bind(*map(address, functions))
+    return _servo
+
+
+C_LOOP = c_loop()
 
 
 def state_output(name, unit, description, start):
@@ -115,6 +156,8 @@ class ArmPlant(Component):
         self._cells: list[tuple[pymunk.DampedSpring, pymunk.DampedSpring] | None] = []
         self._pins: list[tuple[pymunk.PivotJoint, pymunk.PivotJoint]] = []  # (shoulder, elbow) per trial
         self._held, self._springs = np.zeros(0, int), []  # see _held_springs
+        self._spring_addresses = np.zeros(0, np.uint64)  # the springs as the C loop takes them (_held_springs)
+        self._addresses = np.zeros(0, np.uint64)  # (upper arm, forearm) per trial as Chipmunk bodies, for the C loop
         self._order, self._regular, self._bodies = np.zeros(0, int), True, 0  # the space's bodies (initialize)
 
     # -- set-up ------------------------------------------------------------------------------
@@ -157,6 +200,7 @@ class ArmPlant(Component):
         # when the batch buffers are (B, 2) views.
         self._order = np.stack([upper, forearm], axis=1).reshape(-1)
         self._regular = bool(np.array_equal(self._order, np.arange(2 * self.batch_size)))
+        self._addresses = np.array([address(body._body) for arm in self._arms for body in arm], dtype=np.uint64)
         self._held_springs()
         self._publish(np.zeros((self.batch_size, 2)))
 
@@ -213,11 +257,30 @@ class ArmPlant(Component):
             raise StepFailure(f"{self.name}.substeps = {substeps} is too few for servo_gain: a sub-step of "
                               f"{dt:.3g} s exceeds the servo time constant {1 / rate.max():.3g} s; "
                               f"use substeps >= {math.ceil(h * rate.max())}")
+        if C_LOOP is None:
+            impulses = self._substeps_numpy(command, substeps, dt)
+        else:  # pymunk's Space.step adds to cpSpaceStep only a check of new bodies' masses (positive here by
+            # construction) and what callbacks add or remove (this space has none)
+            impulses = np.zeros(len(self._springs))
+            want_gain_cap = [np.ascontiguousarray(x, float) for x in (command, v["servo_gain"], v["torque_limit"])]
+            C_LOOP.substeps(address(self.space._space), address(self.space.static_body._body), self._addresses,
+                            *want_gain_cap, self._spring_addresses, impulses, substeps, dt)
+        force = np.zeros((self.batch_size, 2))
+        force[self._held] = impulses.reshape(-1, 2)
+        # The springs' impulse is what the clamp does to the arm; the arm exerts the opposite.
+        self._publish(-force / h)
+
+    def _substeps_numpy(self, want, substeps, dt):
+        """The sub-steps in numpy: ``substeps`` pymunk steps of ``dt`` under the servo (the module docstring's law)
+        for commanded joint velocities ``want`` (rad/s, (B, 2)); returns the held springs' impulses summed over
+        them, in ``_springs``' order. The reference the C loop (``_servo.c``) is checked against bit for bit.
+        """
+        v = self.values
         # The hot loop runs substeps times over the whole batch: the bodies' angular velocities read and their
         # torques written by pymunk's batch calls, one C call each for all trials, the servo law in numpy on
         # (B, 2) views (element-wise IEEE arithmetic in the order of the per-trial formula: the same numbers bit
         # for bit as a per-trial loop, without its Python calls), into arrays made once per step.
-        want, gain, cap = command, v["servo_gain"][:, None], v["torque_limit"][:, None]
+        gain, cap = v["servo_gain"][:, None], v["torque_limit"][:, None]
         floor, order, regular = -cap, self._order, self._regular
         speeds, torques = pymunk.batch.Buffer(), pymunk.batch.Buffer()
         torque = np.zeros(self._bodies)  # every body the batch call walks (the space's static one too) gets one
@@ -225,8 +288,7 @@ class ArmPlant(Component):
         arms = 2 * self.batch_size
         joint = torque[:arms].reshape(-1, 2) if regular else np.zeros((self.batch_size, 2))  # (upper, forearm) each
         relative, tau = np.empty((self.batch_size, 2)), np.empty((self.batch_size, 2))
-        held, springs = self._held, self._springs
-        get_impulse = chipmunk.cpConstraintGetImpulse
+        springs, get_impulse = self._springs, chipmunk.cpConstraintGetImpulse
         impulses = np.zeros(len(springs))
         get_bodies, set_bodies, angular, torque_field = (pymunk.batch.get_space_bodies, pymunk.batch.set_space_bodies,
                                                          BodyFields.ANGULAR_VELOCITY, BodyFields.TORQUE)
@@ -250,10 +312,7 @@ class ArmPlant(Component):
             set_bodies(space, torque_field, torques)
             space.step(dt)
             impulses += np.fromiter(map(get_impulse, springs), float, count)
-        force = np.zeros((self.batch_size, 2))
-        force[held] = impulses.reshape(-1, 2)
-        # The springs' impulse is what the clamp does to the arm; the arm exerts the opposite.
-        self._publish(-force / h)
+        return impulses
 
     def _release(self, t):
         """Remove the load cell of every held trial whose ``release_time`` has come (the arm is free from now).
@@ -274,9 +333,11 @@ class ArmPlant(Component):
         self._held_springs()
 
     def _held_springs(self):
-        """The held trials, and their load cells' springs (x, y per trial) as Chipmunk constraints, in that order."""
+        """The held trials, and their load cells' springs (x, y per trial) as Chipmunk constraints and their addresses,
+        in that order."""
         self._held = np.array([trial for trial, cell in enumerate(self._cells) if cell is not None], dtype=int)
         self._springs = [spring._constraint for trial in self._held for spring in self._cells[trial]]
+        self._spring_addresses = np.array([address(spring) for spring in self._springs], dtype=np.uint64)
 
     def _publish(self, force):
         """Replace every output array from the bodies' current state (never mutate in place).
