@@ -39,6 +39,8 @@ def test_the_defaults_use_the_shipped_decoders_and_their_shipped_verdicts(empty_
     causal = configuration.load(model_name="causal")
     names |= {f"fast-check-{kind}-{fast_check.verdict_key(path, causal)}.json" for kind, path in checkpoints.items()}
     names |= {f"pose-{kind}-r{config['experiment']['resolution']}.pt" for kind in checkpoints}
+    # and the ownership model's own pose encoders, over the rubber arm's whole reach
+    names |= {f"pose-ownership-{kind}-r{config['experiment']['resolution']}.pt" for kind in checkpoints}
     assert {path.name for path in SHIPPED.iterdir()} == names
 
 

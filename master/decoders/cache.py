@@ -67,21 +67,26 @@ def checkpoint_path(kind: str, config: dict, must_exist: bool = False, device: s
     return str(path)
 
 
-def shipped_pose_encoder(kind: str, resolution: int) -> Path:
-    """The shipped pose encoder of decoder slot ``kind`` at ``resolution`` px: ``checkpoints/pose-KIND-rRES.pt``."""
-    return SHIPPED / f"pose-{kind}-r{resolution}.pt"
+def shipped_pose_encoder(kind: str, resolution: int, stem: str = "pose-{kind}") -> Path:
+    """The shipped pose encoder of decoder slot ``kind`` at ``resolution`` px: ``checkpoints/STEM-rRES.pt``, the
+    stem a model's :attr:`~master.models.base.Model.pose_encoder_stem` (default ``pose-KIND``)."""
+    return SHIPPED / f"{stem.format(kind=kind)}-r{resolution}.pt"
 
 
 def pose_encoder_path(kind: str, config: dict) -> str:
-    """The pose encoder of decoder slot ``kind``: the model's own (``causal.<kind>_pose_encoder``, say), or the
-    shipped one at this resolution; ConfigError when there is none."""
-    given = models.of(config).pose_encoder_file(kind, config)
-    path = Path(given) if given else shipped_pose_encoder(kind, config["experiment"]["resolution"])
+    """The pose encoder of decoder slot ``kind``: the one the configuration names (``causal.<kind>_pose_encoder``,
+    say), or else the model's shipped one at this resolution; ConfigError when there is none."""
+    model = models.of(config)
+    given = model.pose_encoder_file(kind, config)
+    resolution = config["experiment"]["resolution"]
+    path = Path(given) if given else shipped_pose_encoder(kind, resolution, model.pose_encoder_stem)
     if not path.is_file():
         what = f"no pose encoder at {path}" if given else \
-            f"no shipped {kind} pose encoder at {config['experiment']['resolution']} px ({path})"
-        raise ConfigError(f"{what}: the brain or the reach's goal reads the seen arm's pose (make one with "
-                          "`python -m master.decoders.pose_encoders FOLDER`)")
+            f"no shipped {kind} pose encoder at {resolution} px for the {model.name} model ({path})"
+        key = model.pose_encoder_key.format(kind=kind)
+        raise ConfigError(f"{what}: the brain or the reach's goal reads the seen arm's pose ("
+                          + (f"name one in {key}, or " if key else "") + "make the shipped ones with "
+                          "`python -m master.decoders.pose_encoders [--ownership] FOLDER`)")
     return str(path)
 
 

@@ -116,6 +116,10 @@ class Model:
     pose_encoder_key : str
         The configuration key naming the pose encoder checkpoint of decoder slot ``{kind}`` (e.g.
         ``"causal.{kind}_pose_encoder"``); "" or an empty value: the shipped one.
+    pose_encoder_stem : str
+        The shipped pose encoder's name of decoder slot ``{kind}`` without ``-rRES.pt``, in
+        master/decoders/checkpoints (:func:`master.decoders.cache.shipped_pose_encoder`): ``"pose-{kind}"``, the
+        causal model's; a model trained over other poses names its own.
     source : str
         Set by the registry: "" for a built-in model, else the spec it was loaded from.
     """
@@ -131,6 +135,7 @@ class Model:
     measures: dict = {}
     sees_pose: bool = False
     pose_encoder_key: str = ""
+    pose_encoder_stem: str = "pose-{kind}"
     source: str = ""
 
     def brain(self) -> Component:

@@ -70,6 +70,7 @@ class OwnershipModel(Model):
     settings_file = "ownership.toml"
     sees_pose = True
     pose_encoder_key = "ownership.{kind}_pose_encoder"
+    pose_encoder_stem = "pose-ownership-{kind}"  # its own, over the rubber arm's whole reach (pose_encoders.py)
     batchable = tuple(DERIVED_FROM.values())
     links = (("camera.image", "pose_encoder.image"), ("pose_encoder.pose", "brain.seen_pose"))
     record = ("brain.coupling", "brain.realignment", "brain.ownership_onset")
