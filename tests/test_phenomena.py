@@ -59,7 +59,7 @@ def test_shipped_files_load_and_span_the_human_ranges():
         xs = sorted({phenomenon.x_of(sweep.configs[t.point], t.condition, t.stimulation) for t in sweep.trials})
         spans[name] = (xs[0], xs[-1], len(xs))
         assert all(config["decoder"]["fast"] for config in sweep.configs)  # fast mode, as docs/phenomena.md says
-    assert spans == {"temporal-window": (0.0, 1.0, 13), "distance": (5.0, 45.0, 9), "time-course": (5.0, 30.0, 6),
+    assert spans == {"temporal-window": (0.0, 1.0, 13), "distance": (5.0, 60.0, 12), "time-course": (5.0, 30.0, 6),
                      "persistence": (30.0, 90.0, 5), "vision-only": (0.0, 2.0, 3)}
     # the fixed delay: delay_min = delay_max at every point
     for config in sweeps.load(sweep_file("temporal-window")).configs:
