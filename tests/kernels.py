@@ -18,9 +18,11 @@ import subprocess
 import sys
 
 # The numeric tests whose numbers come through float32 kernels: the decoders, their contracts with the
-# brain, fast mode, batching, training, and the published numbers' reference table.
+# brain, fast mode, batching, training, the published numbers' reference table, the pose encoders; and the
+# arm's C sub-steps against numpy's element-wise kernels (whose choice between +0 and -0 the C copies).
 NUMERIC = ("tests/test_reproducibility.py", "tests/test_contracts.py", "tests/test_fast.py", "tests/test_batching.py",
-           "tests/test_vision.py", "tests/test_training.py", "tests/test_brain.py", "tests/test_fast_grouped.py")
+           "tests/test_vision.py", "tests/test_training.py", "tests/test_brain.py", "tests/test_fast_grouped.py",
+           "tests/test_body_cloop.py", "tests/test_ownership_pose.py")
 
 # Each tier: torch's capability, oneDNN's ISA, MKL's (torch's matrix products), and numpy's feature groups
 # above it (disabled where present).
