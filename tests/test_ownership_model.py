@@ -259,7 +259,8 @@ def test_the_model_takes_its_prior_and_period_from_one_source_each():
     ("ownership.realignment_weight", 1.5, "ownership.realignment_weight"),
     ("ownership.peripersonal_boundary", -0.3, "ownership.peripersonal_boundary must be a positive, finite distance"),
     # L = 0.729 m < 0.5 m sqrt(e): no spread makes a touch 50 cm away neutral
-    ("ownership.peripersonal_boundary", 0.5, r"ownership.peripersonal_boundary: no peripersonal sd .* reach > boundary"),
+    ("ownership.peripersonal_boundary", 0.5,
+     r"ownership.peripersonal_boundary: no peripersonal sd .* reach > boundary"),
 ])
 def test_bad_settings_are_one_line_before_any_work(key, value, message):
     from master.config.sources import check_parameters

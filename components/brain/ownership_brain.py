@@ -9,7 +9,8 @@ Each step, for each of the B trials (docs/model.md, "The ownership model"; the e
    touch's evidence: the log likelihood ratio of the perceived asynchrony
    (:func:`~components.brain.ownership_inference.asynchrony_log_likelihood_ratio`; the delay plus this
    trial's perceptual noise) plus that of the distance between the seen and the felt hand
-   (:func:`~components.brain.ownership_inference.spatial_log_likelihood_ratio`), by Bayes' rule (:func:`~components.brain.body_inference.posterior`). They differ
+   (:func:`~components.brain.ownership_inference.spatial_log_likelihood_ratio`), by Bayes' rule
+   (:func:`~components.brain.body_inference.posterior`). They differ
    only in their priors: ownership starts from the paper's gamma0 and needs evidence; the coupling starts high
    and needs none, but asynchronous touches take it away;
 2. the ownership onset: the first time gamma reaches 1/2;

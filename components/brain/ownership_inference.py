@@ -122,7 +122,8 @@ def spatial_log_likelihood_ratio(separation, peripersonal_sd, reach):
         The log likelihood ratio, nats (positive: evidence for one cause).
     """
     variance = np.asarray(peripersonal_sd, float) ** 2
-    return np.log(np.asarray(reach, float) ** 2 / (2.0 * variance)) - np.asarray(separation, float) ** 2 / (2.0 * variance)
+    separation = np.asarray(separation, float)
+    return np.log(np.asarray(reach, float) ** 2 / (2.0 * variance)) - separation ** 2 / (2.0 * variance)
 
 
 def peripersonal_sd_from_boundary(boundary, reach):
