@@ -60,7 +60,8 @@ def test_shipped_files_load_and_span_the_human_ranges():
         spans[name] = (xs[0], xs[-1], len(xs))
         assert all(config["decoder"]["fast"] for config in sweep.configs)  # fast mode, as docs/phenomena.md says
     assert spans == {"temporal-window": (0.0, 1.0, 13), "distance": (5.0, 60.0, 12), "time-course": (5.0, 30.0, 6),
-                     "persistence": (30.0, 90.0, 5), "vision-only": (0.0, 2.0, 3)}
+                     "persistence": (30.0, 90.0, 5), "vision-only": (0.0, 2.0, 3),
+                     "blocks": (10.0, 120.0, 3)}
     # the fixed delay: delay_min = delay_max at every point
     for config in sweeps.load(sweep_file("temporal-window")).configs:
         assert config["stimulations"]["fixed"]["delay_min"] == config["stimulations"]["fixed"]["delay_max"]
@@ -130,7 +131,11 @@ def quick_copy(name: str, folder: Path) -> Path:
     base = shipped(name)
     base["experiment"]["decoders"] = ["conv"]
     base["sweep"].update(quick=True, workers=1, trials=1)
-    if "points" in base["sweep"]:
+    if name == "blocks":  # two points that fit the quick trial of 6 s: blocks of 2 s, and one block
+        del base["experiment"]["steps"]  # the file's 120 s would override the quick size
+        base["sweep"]["points"] = [{f"stimulations.{s}.blocks": blocks for s in ("sync", "async", "vision")}
+                                   for blocks in ([[0, 2], [3, 5]], [])]
+    elif "points" in base["sweep"]:
         base["sweep"]["points"] = delays(base, 0.0, 0.4)
     elif name == "vision-only":
         pass  # one point: its x is the stimulation
@@ -154,7 +159,7 @@ def test_each_protocol_end_to_end_at_quick_size(name, quick_cache, one_worker, t
     assert (out / f"{stem}.png").stat().st_size > 10_000 and (out / "paper" / "sweep.json").exists()
     rows = list(csv.DictReader(open(out / f"{stem}.csv")))
     assert len(rows) == {"temporal-window": 4, "distance": 2, "time-course": 4, "persistence": 2,
-                         "vision-only": 6}[name]
+                         "vision-only": 6, "blocks": 6}[name]
     for row in rows:
         assert row["n_trials"] == "1" and np.isfinite(float(row["drift_cm_mean"]))
         assert float(row["gamma_final_mean"]) > 0

@@ -8,7 +8,9 @@ and a figure with the human reference (``human.toml``, one source per number) be
 - ``distance``: drift and force against the rubber hand's lateral distance, 5 to 60 cm;
 - ``time-course``: when the drift reaches half its final value under synchronous touch;
 - ``persistence``: the stroking stops at 30 s; drift and gamma followed to 90 s;
-- ``vision-only``: the drift under synchronous and asynchronous touch and under vision alone.
+- ``vision-only``: the drift under synchronous and asynchronous touch and under vision alone;
+- ``blocks``: the drift after 120 s of stroking in blocks with pauses, against the blocks' length, under
+  synchronous and asynchronous touch and vision alone.
 
 Each protocol runs for both models (``--model``, docs/model.md) side by side: the causal model with
 ``causal.participants`` simulated participants per point, reported as the population's median and spread.
@@ -23,7 +25,7 @@ from importlib import resources
 from pathlib import Path
 
 FILES = {"temporal-window": "temporal_window.toml", "distance": "distance.toml", "time-course": "time_course.toml",
-         "persistence": "persistence.toml", "vision-only": "vision_only.toml"}
+         "persistence": "persistence.toml", "vision-only": "vision_only.toml", "blocks": "blocks.toml"}
 NAMES = tuple(FILES)
 
 

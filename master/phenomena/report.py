@@ -33,6 +33,7 @@ OUTCOMES = {"drift_cm": True, "force_n": True, "gamma_final": False, "action_acc
             "drift_half_time_s": True, "drift_half_decay_s": True}
 POPULATION = ("drift_cm", "drift_half_time_s", "drift_half_decay_s")  # also as median, 25th and 75th percentile
 STIMULATION_CODES = {"sync": 0.0, "async": 1.0, "vision": 2.0}  # the vision-only protocol's x
+STIMULATION_COLOURS = {"sync": "tab:red", "async": "tab:blue", "vision": "tab:green"}
 
 
 @dataclass(frozen=True)
@@ -85,7 +86,18 @@ PHENOMENA = {p.name: p for p in (
     Phenomenon("vision-only", FILES["vision-only"], "vision_only", "stimulation_code",
                "stimulation: 0 synchronous, 1 asynchronous, 2 vision only (no touch)",
                lambda config, condition, stimulation: STIMULATION_CODES.get(stimulation, 3.0), "first"),
+    Phenomenon("blocks", FILES["blocks"], "blocks", "block_s",
+               "length of each stroking block (s; 5 s pauses between blocks, the drift read at 120 s)",
+               lambda config, condition, stimulation: block_length(config, stimulation), "largest"),
 )}
+
+
+def block_length(config: dict, stimulation: str) -> float:
+    """s: the first stroking block's length of ``stimulation``, or the trial's length where it has one block."""
+    blocks = config["stimulations"][stimulation]["blocks"]
+    if blocks:
+        return round(float(blocks[0][1] - blocks[0][0]), 9)
+    return round(config["experiment"]["steps"] * config["experiment"]["step_size"], 9)
 
 
 def human_references(table: str) -> list[dict]:
@@ -190,15 +202,17 @@ def plot_lines(axis, phenomenon, found, value, sd=None):
     """Draw the column ``value`` against x on ``axis``, a line per decoder x condition x stimulation, and the
     column ``sd`` as a band around it when given."""
     for (_, decoder, condition, stimulation), line in lines(found).items():
+        # a condition of its own (not left/center/right): coloured by the stimulation
+        colour = COLOURS.get(condition, STIMULATION_COLOURS.get(stimulation, "k"))
         xs = [r["x"] for r in line]
         ys = np.array([r[value] for r in line])
         if phenomenon.name in ("time-course",):  # no drift before the first step
             xs, ys = [0.0, *xs], np.concatenate([[0.0], ys])
-        axis.plot(xs, ys, STYLES.get(decoder, ":"), marker="o", ms=3, color=COLOURS.get(condition, "k"),
+        axis.plot(xs, ys, STYLES.get(decoder, ":"), marker="o", ms=3, color=colour,
                   label=f"{decoder} {condition} {stimulation}")
         if sd:
             spread = np.array([0.0] * (len(xs) - len(line)) + [r[sd] for r in line])
-            axis.fill_between(xs, ys - spread, ys + spread, color=COLOURS.get(condition, "k"), alpha=0.12)
+            axis.fill_between(xs, ys - spread, ys + spread, color=colour, alpha=0.12)
     axis.axhline(0, color="k", lw=0.8)
     axis.set_xlabel(phenomenon.x_label)
     axis.grid(alpha=0.3)
@@ -218,7 +232,9 @@ PANELS = {"temporal-window": [("drift_relative", None, "drift / drift at the sho
                           ("gamma_final_mean", None, "gamma (belief in a common cause)")],
           "vision-only": [("drift_cm_mean", "drift_cm_sd", "final drift (cm)"),
                           ("drift_relative", None, "drift / synchronous drift"),
-                          ("gamma_final_mean", None, "final gamma")]}
+                          ("gamma_final_mean", None, "final gamma")],
+          "blocks": [("drift_cm_mean", "drift_cm_sd", "drift at 120 s (cm)"),
+                     ("gamma_final_mean", None, "gamma at 120 s")]}
 
 
 def figure(phenomenon: Phenomenon, found: list[dict], path: Path, descriptions: dict[str, str]) -> None:
