@@ -11,13 +11,13 @@ own numbering (registration order) is replaced by them. The body FMU carries a c
 """
 from __future__ import annotations
 
-import traceback
 from xml.etree import ElementTree as ET
 
 import numpy as np
 from pythonfmu3 import Boolean, Dimension, Fmi3Causality, Fmi3Slave, Fmi3Variability, Float64, Int32
 from pythonfmu3.enums import Fmi3Status
 
+from components.fmu_calls import exit_initialization, step
 from components.model_description3 import layout, to_xml3
 
 FMI_TYPES = {"Real": Float64, "Integer": Int32, "Boolean": Boolean}
@@ -40,24 +40,12 @@ class Fmi3Lifecycle:
 
     def exit_initialization_mode(self):
         """fmi3ExitInitializationMode: the component initializes; a failure is logged as one line and raised."""
-        try:
-            self.component.exit_initialization_mode()
-            if self.component.last_reason:
-                raise RuntimeError(self.component.last_reason)
-        except Exception as error:  # the reason as one line in the log (pythonfmu3's own is the exception's repr)
-            self.log(str(error), Fmi3Status.error)
-            raise
+        exit_initialization(self.component, self.log, Fmi3Status.error)
 
     def do_step(self, current_time, step_size):
         """fmi3DoStep: one step of the component; False (discard) when it failed, its reason logged. ``time`` is
         then the step's end, ``current_time + step_size`` (as the C body sums it)."""
-        try:
-            status = self.component.do_step(current_time, step_size)
-        except Exception as error:  # raised, it would be fmi3Fatal: log the cause, discard the step
-            self.log("".join(traceback.format_exception_only(error)).strip(), Fmi3Status.error)
-            return False
-        if status >= 2:  # discard, error or fatal
-            self.log(self.component.last_reason or f"status {status}", Fmi3Status.error)
+        if not step(self.component, current_time, step_size, self.log, Fmi3Status.error):
             return False
         self.time = current_time + step_size
         return True

@@ -11,12 +11,12 @@ of ``components``.
 """
 from __future__ import annotations
 
-import traceback
 
 import numpy as np
 from pythonfmu import Boolean, Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real
 from pythonfmu.enums import Fmi2Status
 
+from components.fmu_calls import exit_initialization, step
 from components.model_description import model_structure, typed_attributes, unit_definitions
 
 FMI_TYPES = {"Real": Real, "Integer": Integer, "Boolean": Boolean}
@@ -60,13 +60,7 @@ class ComponentSlaveBase(Fmi2Slave):
 
     def exit_initialization_mode(self):
         """fmi2ExitInitializationMode: the component initializes; a failure is logged as one line and raised."""
-        try:
-            self.component.exit_initialization_mode()
-            if self.component.last_reason:
-                raise RuntimeError(self.component.last_reason)
-        except Exception as error:  # the reason as one line in the log (pythonfmu's own is the exception's repr)
-            self.log(str(error), Fmi2Status.error)
-            raise
+        exit_initialization(self.component, self.log, Fmi2Status.error)
 
     def do_step(self, current_time, step_size):
         """fmi2DoStep: one step of the component.
@@ -81,15 +75,7 @@ class ComponentSlaveBase(Fmi2Slave):
         bool
             False when the step failed (an exception, or a status of discard or worse), its reason logged.
         """
-        try:
-            status = self.component.do_step(current_time, step_size)
-        except Exception as error:  # pythonfmu would only say "unknown error": log the cause, fail the step
-            self.log("".join(traceback.format_exception_only(error)).strip(), Fmi2Status.error)
-            return False
-        if status >= 2:  # discard, error or fatal
-            self.log(self.component.last_reason or f"status {status}", Fmi2Status.error)
-            return False
-        return True
+        return step(self.component, current_time, step_size, self.log, Fmi2Status.error)
 
     def terminate(self):
         """fmi2Terminate: the component terminates."""

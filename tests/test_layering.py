@@ -31,7 +31,7 @@ COSIM_FORBIDDEN_WORDS = ("decoder", "drift", "gamma", "rubber", "brain")
 # The body FMUs' slaves load the bundle and the slave bases from their bundled copy.
 COMPONENT_CORE = ("components.component", "components.variables", "components.model_description",
                   "components.model_description3", "components.archives", "components.fmu_bundle",
-                  "components.fmu_slave_base", "components.fmu_slave3_base")
+                  "components.fmu_calls", "components.fmu_slave_base", "components.fmu_slave3_base")
 COMPONENT_FOLDERS = ("body", "vision", "brain", "fmu")
 PROJECT = ("master", "components")  # top-level packages whose imports are checked
 
