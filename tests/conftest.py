@@ -37,6 +37,14 @@ def pytest_collection_modifyitems(items):
     items.sort(key=lambda item: rank.get(item.path.name, len(FIRST)))  # stable: file order kept otherwise
 
 
+@pytest.fixture(autouse=True)
+def own_decoder_cache(tmp_path_factory, monkeypatch):
+    """Every test's $RHI_CACHE is an empty folder of its own, never the user's ~/.cache/rhi: no test reads what
+    the machine or an earlier test left there, and none writes into the home folder. A test that needs trained
+    decoders asks for :func:`quick_cache` and points RHI_CACHE at it."""
+    monkeypatch.setenv("RHI_CACHE", str(tmp_path_factory.mktemp("rhi-cache")))
+
+
 def train_quick_decoders(folder: Path) -> None:
     code = ("from master import config; from master.decoders.cache import ensure_checkpoints; "
             "ensure_checkpoints(config.load(quick=True), progress=False)")

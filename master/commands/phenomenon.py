@@ -46,11 +46,11 @@ def run(args) -> int:
     from master.sweeps.folder import check_folder
     from master.sweeps.runner import check_decoders
 
-    started, out = time.perf_counter(), Path(args.out)
+    started, out, context = time.perf_counter(), Path(args.out), RunContext.of(args)  # its address checked first
     if args.name in OWN_PROTOCOLS:
         protocol = __import__(f"master.phenomena.{args.name.replace('-', '_')}", fromlist=["_"])
         config = protocol.load(args.config, "paper" if args.model == "both" else args.model)
-        written = protocol.run_into(out, config, RunContext.of(args))
+        written = protocol.run_into(out, config, context)
         print(f"rhi phenomenon {args.name}: wrote {', '.join(str(out / name) for name in written)} "
               f"({time.perf_counter() - started:.0f} s)")
         print((out / written[0]).read_text(), end="")
@@ -70,7 +70,7 @@ def run(args) -> int:
         folders, status = {}, 0
         for model in chosen:
             folders[model] = out / registry.get(model).name
-            status = max(status, sweep_and_report(path, folders[model], RunContext.of(args), model, trials.get(model)))
+            status = max(status, sweep_and_report(path, folders[model], context, model, trials.get(model)))
         written = report(args.name, path, out, folders, trials)
         for name in written:
             own.add(name)

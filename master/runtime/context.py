@@ -31,9 +31,31 @@ class RunContext:
     scheduler: str | None = None
     debug: bool = False
 
+    def __post_init__(self):
+        if self.scheduler is not None:
+            check_scheduler_address(self.scheduler)
+
     @classmethod
     def of(cls, args, **settings) -> "RunContext":
         """The settings a command's parsed arguments give (``--force``, ``--scheduler``, ``--debug``, those it has),
         and ``settings`` (e.g. ``progress=True``, a resolved ``device``)."""
         return cls(force=getattr(args, "force", False), scheduler=getattr(args, "scheduler", None),
                    debug=getattr(args, "debug", False), **settings)
+
+
+# The address forms a Dask client takes (distributed.comm.addressing): SCHEME://HOST:PORT, or HOST:PORT for tcp.
+SCHEMES = ("tcp", "tls", "ucx", "ws", "wss")
+
+
+def check_scheduler_address(address: str) -> None:
+    """Refuse a Dask scheduler address that no client could use, before any work: a ConfigError naming it.
+
+    Only its form is checked here (scheme, host, a port in 1..65535); whether a scheduler answers there is
+    checked when the run connects (:func:`master.sweeps.runner.connect`)."""
+    from master.cosim.errors import ConfigError
+
+    scheme, _, location = address.rpartition("://")
+    host, _, port = location.rpartition(":")
+    if (scheme or "tcp") not in SCHEMES or not host.strip("[]") or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ConfigError(f"--scheduler {address!r} is not a Dask scheduler address: give SCHEME://HOST:PORT "
+                          f"(SCHEME one of {', '.join(SCHEMES)}), e.g. tcp://127.0.0.1:8786")
