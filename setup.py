@@ -1,10 +1,17 @@
-"""The package's C part; everything else is in pyproject.toml.
+"""The package's layout and its C part; everything else is in pyproject.toml.
 
-``components.body._servo``, the arm plant's sub-step loop (components/body/_servo.c): built without FMA contraction or
-fast math, so its arithmetic is numpy's to the bit, and optional: where it does not build (no C compiler) the install
-goes on with a warning and the plant runs its numpy loop.
+The distribution installs one top-level name, ``rhi``. The repository keeps the design's layout: ``components/``
+and ``master/`` at the top, installed as ``rhi.components`` and ``rhi.master``; ``rhi/`` holds the public API.
+
+``rhi.components.body._servo``, the arm plant's sub-step loop (components/body/_servo.c): built without FMA
+contraction or fast math, so its arithmetic is numpy's to the bit, and optional: where it does not build (no C
+compiler) the install goes on with a warning and the plant runs its numpy loop.
 """
-from setuptools import Extension, setup
+from setuptools import Extension, find_packages, setup
 
-setup(ext_modules=[Extension("components.body._servo", ["components/body/_servo.c"], optional=True,
+FOLDERS = ("components", "master")  # installed under rhi
+PACKAGES = ["rhi"] + [f"rhi.{name}" for name in find_packages(include=[f"{folder}*" for folder in FOLDERS])]
+
+setup(packages=PACKAGES, package_dir={"rhi": "rhi", **{f"rhi.{folder}": folder for folder in FOLDERS}},
+      ext_modules=[Extension("rhi.components.body._servo", ["components/body/_servo.c"], optional=True,
                              extra_compile_args=["-ffp-contract=off", "-fno-fast-math"])])

@@ -21,7 +21,7 @@ import zipfile
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 
-from components.component import ComponentError
+from .component import ComponentError
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,6 @@
 """The component model: FMI 2.0 co-simulation semantics, in Python.
 
-A component declares its variables (:class:`~components.variables.Variable`) and
+A component declares its variables (:class:`~rhi.components.variables.Variable`) and
 implements the hooks it needs; the base class owns the lifecycle, the checked
 get/set by name, and the step status, so that every component, and an FMU wrapped
 by an adapter, looks the same to the master:
@@ -48,7 +48,7 @@ import enum
 
 import numpy as np
 
-from components.variables import Variable
+from .variables import Variable
 
 
 class Status(enum.IntEnum):
@@ -116,7 +116,7 @@ class Component:
     """Base class of every co-simulation component.
 
     name: instance name, unique in a system.
-    variables: the declared variables (see :mod:`components.variables`).
+    variables: the declared variables (see :mod:`rhi.components.variables`).
     """
 
     def __init__(self, name: str, variables: list[Variable]):
@@ -229,7 +229,7 @@ class Component:
 
     def model_description(self) -> str:
         """This component as a ``modelDescription.xml`` (FMI 2.0 co-simulation) string."""
-        from components.model_description import to_xml  # keeps XML out of the hot import path
+        from .model_description import to_xml  # keeps XML out of the hot import path
         return to_xml(self)
 
     # -- helpers -------------------------------------------------------------------

@@ -1,8 +1,8 @@
 """The FMI co-simulation calls both slave bases make on a component, with a failure logged as one line.
 
-:mod:`components.fmu_slave_base` (pythonfmu, FMI 2.0) and :mod:`components.fmu_slave3_base` (pythonfmu3, FMI 3.0)
+:mod:`rhi.components.fmu_slave_base` (pythonfmu, FMI 2.0) and :mod:`rhi.components.fmu_slave3_base` (pythonfmu3, FMI 3.0)
 differ in their status enums and packages, not in what a call does to the component (one trial of
-:mod:`components.component`): each passes its ``log`` and its error status. Imports no pythonfmu package, so
+:mod:`rhi.components.component`): each passes its ``log`` and its error status. Imports no pythonfmu package, so
 either base can use it (the body FMUs carry it in their copy of ``components``).
 """
 from __future__ import annotations
@@ -15,7 +15,7 @@ def exit_initialization(component, log, error_status) -> None:
 
     Parameters
     ----------
-    component : components.component.Component
+    component : rhi.components.component.Component
         One trial.
     log : callable
         The slave's ``log(message, status)``.
@@ -37,7 +37,7 @@ def step(component, current_time: float, step_size: float, log, error_status) ->
 
     Parameters
     ----------
-    component : components.component.Component
+    component : rhi.components.component.Component
         One trial.
     current_time, step_size : float
         The step's start and size, s.

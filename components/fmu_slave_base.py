@@ -1,5 +1,5 @@
 """The pythonfmu slave base: one trial of a component (the fixed-step protocol of
-:mod:`components.component`) behind the FMI 2.0 co-simulation API.
+:mod:`rhi.components.component`) behind the FMI 2.0 co-simulation API.
 
 The body FMU's slave (``components/body/fmu_slave.py``) and the agent FMU's
 (``master/export/agent_slave.py``) extend :class:`ComponentSlaveBase`: each makes
@@ -16,8 +16,8 @@ import numpy as np
 from pythonfmu import Boolean, Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real
 from pythonfmu.enums import Fmi2Status
 
-from components.fmu_calls import exit_initialization, step
-from components.model_description import model_structure, typed_attributes, unit_definitions
+from .fmu_calls import exit_initialization, step
+from .model_description import model_structure, typed_attributes, unit_definitions
 
 FMI_TYPES = {"Real": Real, "Integer": Integer, "Boolean": Boolean}
 PYTHON_TYPES = {"Real": float, "Integer": int, "Boolean": bool}

@@ -1,6 +1,6 @@
 """The model-description view for FMI 3.0: a component as an FMI 3.0 co-simulation ``modelDescription.xml``.
 
-Written from the same declarations as the FMI 2.0 description (:mod:`components.model_description`), with
+Written from the same declarations as the FMI 2.0 description (:mod:`rhi.components.model_description`), with
 the same units, ranges, starts and dependencies; what differs is the grouping: ``arrays`` names runs of
 scalars (consecutive in declaration order, alike in causality, unit and range) that FMI 3.0 carries as one
 ``Float64`` array each, with ``<Dimension start="n"/>``. Value references stay the FMI 2.0 ones: an array's is
@@ -16,7 +16,7 @@ from __future__ import annotations
 import uuid
 from xml.etree import ElementTree as ET
 
-from components.model_description import VARIABILITY, unit_definitions, xml_value
+from .model_description import VARIABILITY, unit_definitions, xml_value
 
 TYPES = {"Real": "Float64", "Integer": "Int32", "Boolean": "Boolean"}  # FMI 2.0 type -> FMI 3.0 element
 

@@ -23,8 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from components.component import Component, ComponentError
-from components.variables import Variable
+from .component import Component, ComponentError
+from .variables import Variable
 
 TOLERANCE = 1e-9  # s: an event at 2.0 is observed at a step ending at 2.0 - 1e-12 (float ticks)
 CHUNK = 64        # delays drawn per trial at a time

@@ -2,7 +2,7 @@
 
 A component lists its variables once, as class data. The master reads the
 declarations to validate a system before it runs; the model-description view
-(:mod:`components.model_description`) turns them into a ``modelDescription.xml``.
+(:mod:`rhi.components.model_description`) turns them into a ``modelDescription.xml``.
 
 Every value carries a leading batch dimension B (independent trials advancing
 together): a scalar holds an array of shape ``(B,)``. ``Array`` is the port

@@ -1,7 +1,8 @@
 """mkdocs hook: one API reference page per module of ``components`` and ``master``, made at build time.
 
-The pages follow the package tree by themselves: ``master/cosim/loop.py`` becomes ``api/master/cosim/loop.md``
-(``::: master.cosim.loop``), a package's ``__init__.py`` its folder's ``index.md``, and the nav entry
+The pages follow the package tree by themselves: ``master/cosim/loop.py`` (``rhi.master.cosim.loop`` once installed) becomes
+``api/master/cosim/loop.md`` (``::: master.cosim.loop``: griffe reads the source tree, where the folders are
+``master`` and ``components``), a package's ``__init__.py`` its folder's ``index.md``, and the nav entry
 ``api/index.md`` in mkdocs.yml is replaced by the tree. ``__main__`` and private (``_name``) modules are left out.
 Nothing is imported: mkdocstrings reads the source with griffe.
 """
@@ -84,8 +85,8 @@ def on_files(files, config):
     lines = ["# API reference", "",
              "Generated from the docstrings at build time (`make docs`); one page per module.", ""]
     for name, page, source in modules:
-        lines.append(f"- [`{name}`]({Path(page).relative_to('api').as_posix()}) {_summary(source)}".rstrip())
-        files.append(File.generated(config, page, content=f"# `{name}`\n\n::: {name}\n"))
+        lines.append(f"- [`rhi.{name}`]({Path(page).relative_to('api').as_posix()}) {_summary(source)}".rstrip())
+        files.append(File.generated(config, page, content=f"# `rhi.{name}`\n\n::: {name}\n"))
     files.append(File.generated(config, INDEX, content="\n".join(lines) + "\n"))
     if config.nav is not None:
         _replace(config.nav, modules)

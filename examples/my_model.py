@@ -10,8 +10,8 @@ longer tells the two apart. Run it as any built-in model::
 
 and ``fixed_gamma.gamma`` is a configuration key like any other (``--config``, a sweep's grid, a fit's prior).
 """
-from components.brain.integrator import Brain
-from master.models.paper import PaperModel
+from rhi.components.brain.integrator import Brain
+from rhi.master.models.paper import PaperModel
 
 
 class FixedGammaBrain(Brain):

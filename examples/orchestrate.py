@@ -12,18 +12,18 @@ from pathlib import Path
 
 import numpy as np
 
-from components.body import kinematics
-from components.body.camera import Camera, render
-from components.body.plant import ArmPlant
-from components.body.rubber_arm import RubberArm
-from components.brain.integrator import Brain
-from components.body.contract import BODY_CONTRACT
-from components.fmu import FMUComponent
-from components.stimulus import Stimulus
-from components.vision import checkpoint, training
-from components.vision.component import Decoder
-from master.cosim import System, simulate
-from master.export.body import build_fmu
+from rhi.components.body import kinematics
+from rhi.components.body.camera import Camera, render
+from rhi.components.body.plant import ArmPlant
+from rhi.components.body.rubber_arm import RubberArm
+from rhi.components.brain.integrator import Brain
+from rhi.components.body.contract import BODY_CONTRACT
+from rhi.components.fmu import FMUComponent
+from rhi.components.stimulus import Stimulus
+from rhi.components.vision import checkpoint, training
+from rhi.components.vision.component import Decoder
+from rhi.master.cosim import System, simulate
+from rhi.master.export.body import build_fmu
 
 # Output -> input. simulate steps the components in the order the System lists them (Gauss-Seidel):
 # the decoder reads this step's image and the belief mu of time t, the brain then integrates,

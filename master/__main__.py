@@ -1,6 +1,6 @@
 """``python -m master`` is the ``rhi`` command."""
 import sys
 
-from master.commands.cli import main
+from rhi.master.commands.cli import main
 
 sys.exit(main())

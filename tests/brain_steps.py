@@ -4,9 +4,9 @@ from pathlib import Path
 
 import numpy as np
 
-from components.brain import Brain
-from components.component import Status
-from master import models
+from rhi.components.brain import Brain
+from rhi.components.component import Status
+from rhi.master import models
 
 H = 0.02
 EXAMPLE_MODEL = f"{Path(__file__).resolve().parents[1] / 'examples' / 'my_model.py'}:FixedGamma"

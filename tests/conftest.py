@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 from filelock import FileLock
 
-# Passive OpenMP waiting, as `rhi` sets it in master.commands.cli.main (see the reason there): the tests
+# Passive OpenMP waiting, as `rhi` sets it in rhi.master.commands.cli.main (see the reason there): the tests
 # load torch themselves, not through main(), and conftest runs before any test module imports it.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
@@ -46,7 +46,7 @@ def own_decoder_cache(tmp_path_factory, monkeypatch):
 
 
 def train_quick_decoders(folder: Path) -> None:
-    code = ("from master import config; from master.decoders.cache import ensure_checkpoints; "
+    code = ("from rhi.master import config; from rhi.master.decoders.cache import ensure_checkpoints; "
             "ensure_checkpoints(config.load(quick=True), progress=False)")
     done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env={**os.environ, "RHI_CACHE": str(folder)},
                           capture_output=True, text=True, timeout=600)

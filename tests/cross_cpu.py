@@ -28,11 +28,11 @@ def outcomes() -> list[dict]:
 
 
 def mode_outcomes(mode: str) -> list[dict]:
-    from master import config as configuration
-    from master.tasks.illusion import runner
-    from master.decoders.cache import checkpoint_path
-    from master.runtime.context import RunContext
-    from master.tasks.illusion.measures import end_of_trial
+    from rhi.master import config as configuration
+    from rhi.master.tasks.illusion import runner
+    from rhi.master.decoders.cache import checkpoint_path
+    from rhi.master.runtime.context import RunContext
+    from rhi.master.tasks.illusion.measures import end_of_trial
 
     config = configuration.load(overrides={"experiment.trials": 1, "experiment.steps": STEPS[mode]})
     kinds = config["experiment"]["decoders"]
@@ -47,7 +47,7 @@ def mode_outcomes(mode: str) -> list[dict]:
 
 def table(rows: list[dict]) -> str:
     """The CSV text: a comment naming the CPU, then KEYS + COLUMNS, floats in full (repr) precision."""
-    from master.outputs.provenance import cpu_description
+    from rhi.master.outputs.provenance import cpu_description
 
     cpu = cpu_description()
     text = io.StringIO()

@@ -17,7 +17,7 @@ ENV = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("P
 FAULTY_PLANTS = '''
 import itertools, os, signal, time
 import numpy as np
-from components.body.plant import ArmPlant
+from rhi.components.body.plant import ArmPlant
 
 _made = itertools.count()  # instances made in this process, across FMU instances of one FMU
 
@@ -79,9 +79,9 @@ def resources_at(folder: Path) -> Resources:
 
 def make_resources(folder: Path) -> Resources:
     """Tiny conv and VAE checkpoints at 32 px and the FMUs above, made in ``folder``."""
-    from components.vision.training import TrainSettings
-    from master.decoders.training import train_decoder
-    from master.export.body import build_fmu
+    from rhi.components.vision.training import TrainSettings
+    from rhi.master.decoders.training import train_decoder
+    from rhi.master.export.body import build_fmu
 
     made = resources_at(folder)
     settings = TrainSettings(preset="tiny", samples=40, epochs=1, batch_size=20, resolution=32, quality_poses=0,
@@ -131,7 +131,7 @@ def rhi(root: Path, *args, timeout=60, own_process=False):
                               timeout=timeout)
         return subprocess.CompletedProcess(["rhi", *arguments], done.status, done.stdout, done.stderr)
     env = {**ENV, "TMPDIR": str(root / "tmp"), "RHI_CACHE": str(root / "cache")}
-    return subprocess.run([sys.executable, "-m", "master", *arguments], cwd=root / "work", env=env,
+    return subprocess.run([sys.executable, "-m", "rhi", *arguments], cwd=root / "work", env=env,
                           capture_output=True, text=True, timeout=timeout)
 
 
@@ -145,8 +145,8 @@ def refused(done, says: str) -> None:
 
 def tiny_checkpoint(path: Path, **changes) -> Path:
     """A decoder checkpoint of the tiny preset at 16 px, untrained (weights as built), metadata ``changes``d."""
-    from components.vision import checkpoint
-    from components.vision.networks import build, preset, sizes_dict
+    from rhi.components.vision import checkpoint
+    from rhi.components.vision.networks import build, preset, sizes_dict
 
     model = build("conv", "tiny", 16)
     metadata = {"kind": "conv", "preset": "tiny", "sizes": sizes_dict(preset("tiny")), "resolution": 16,

@@ -29,7 +29,7 @@ def _show(message, category, filename, lineno, file=None, line=None):
 
 
 def _fresh_interpreter_filters() -> None:
-    """Python's default warning filters (those of ``python -m master``, not the test session's)."""
+    """Python's default warning filters (those of ``python -m rhi``, not the test session's)."""
     warnings.resetwarnings()
     for category in (DeprecationWarning, PendingDeprecationWarning, ImportWarning, ResourceWarning):
         warnings.simplefilter("ignore", category)
@@ -45,7 +45,7 @@ def _overran(signum, frame):
 
 
 def rhi_in_process(args: list[str], cwd: Path, environment: dict[str, str], timeout: float | None = None) -> Done:
-    """``rhi ARGS`` via master.commands.cli.main in ``cwd`` with ``environment`` added to os.environ; this process's
+    """``rhi ARGS`` via rhi.master.commands.cli.main in ``cwd`` with ``environment`` added to os.environ; this process's
     working folder, environment, standard streams, warning filters, torch thread count, tempfile's folder, signal
     handlers and mask, and the random generators' states are restored after (a run seeds torch's: the tests after it
     must not see that). An exception that escapes main() is the traceback a fresh interpreter would print, with
@@ -53,7 +53,7 @@ def rhi_in_process(args: list[str], cwd: Path, environment: dict[str, str], time
     import numpy
     import torch
 
-    from master.commands.cli import main
+    from rhi.master.commands.cli import main
 
     saved_environment, saved_cwd = dict(os.environ), os.getcwd()
     saved_streams = sys.stdout, sys.stderr

@@ -6,8 +6,8 @@ the fixed point of the brain with this decoder has a closed form.
 """
 import numpy as np
 
-from components.component import Component
-from components.variables import Variable
+from rhi.components.component import Component
+from rhi.components.variables import Variable
 
 
 class LinearDecoder(Component):

@@ -45,7 +45,7 @@ def expected(sweep):
 
 
 def command(*arguments):
-    return [sys.executable, "-m", "master", "sweep", *map(str, arguments)]
+    return [sys.executable, "-m", "rhi", "sweep", *map(str, arguments)]
 
 
 def batched_file(path, checkpoints, grid=None, batch=None, workers=2, conditions=("left", "right"), trials=2):
@@ -63,9 +63,9 @@ def batched_file(path, checkpoints, grid=None, batch=None, workers=2, conditions
 
 def lockstep_truth(sweep) -> dict:
     """Every ok trial's drift, force and gamma from run_batch on its chunk's trials, here, on one core."""
-    from master.tasks.illusion import make_trial, measures, run_batch
-    from master.decoders.cache import checkpoint_path, decoder_component
-    from master.tasks.illusion.measures import end_of_trial
+    from rhi.master.tasks.illusion import make_trial, measures, run_batch
+    from rhi.master.decoders.cache import checkpoint_path, decoder_component
+    from rhi.master.tasks.illusion.measures import end_of_trial
 
     truth = {}
     for chunk in sweep.chunks:
@@ -98,8 +98,8 @@ def single_core(function, *arguments):
 def one_trial_sweep_folder(work):
     """A sweep folder of one trial, as rhi sweep prepares it before running, and the path of that trial's record:
     (the sweep, work/out/trials/ID.json, not written yet)."""
-    from master.sweeps import plan as sweeps
-    from master.sweeps.folder import sweep_folder
+    from rhi.master.sweeps import plan as sweeps
+    from rhi.master.sweeps.folder import sweep_folder
 
     sweep = sweeps.load(sweep_file(work / "s.toml", grid={"conditions.left": [-0.1]}, trials=1, conditions=("left",),
                                    workers=1))

@@ -1,4 +1,4 @@
-"""Fast stand-ins for master.tasks.illusion.trial_outcome, importable by Dask workers (repo root on PYTHONPATH).
+"""Fast stand-ins for rhi.master.tasks.illusion.trial_outcome, importable by Dask workers (repo root on PYTHONPATH).
 
 ``fake_outcome`` is a closed-form function of the configuration and the trial's seed, so a test can
 compute every trial's exact result itself. It places the rubber hand by inverse kinematics, so an
@@ -10,8 +10,8 @@ import time
 
 import numpy as np
 
-from components.body import kinematics
-from master.tasks.illusion import trial_seed
+from rhi.components.body import kinematics
+from rhi.master.tasks.illusion import trial_seed
 
 SLOW_TRIAL_S = 0.4
 

@@ -15,19 +15,19 @@ from fmpy import read_model_description
 from fmpy.fmi2 import FMU2Slave
 from fmpy.validation import validate_fmu
 
-from components.body.plant import ArmPlant
-from components.body.contract import BODY_CONTRACT
-from components.fmu import extracted, guard_library
-from master.cosim import System, simulate
-from master.cosim.loop import tick_times
-from master import config as configuration
-from master.config import sources
-from master.tasks.illusion import wiring
-from master.decoders.cache import decoder_component
-from master.config.protocol import make_trial, plan
-from master.export.agent import (OBSERVED, SEED, Agent, agent_connections, exposed, join_seed, parameter_paths,
+from rhi.components.body.plant import ArmPlant
+from rhi.components.body.contract import BODY_CONTRACT
+from rhi.components.fmu import extracted, guard_library
+from rhi.master.cosim import System, simulate
+from rhi.master.cosim.loop import tick_times
+from rhi.master import config as configuration
+from rhi.master.config import sources
+from rhi.master.tasks.illusion import wiring
+from rhi.master.decoders.cache import decoder_component
+from rhi.master.config.protocol import make_trial, plan
+from rhi.master.export.agent import (OBSERVED, SEED, Agent, agent_connections, exposed, join_seed, parameter_paths,
                                  split_seed)
-from master.export.agent_fmu import MANIFEST, agent_from_resources, build_agent_fmu
+from rhi.master.export.agent_fmu import MANIFEST, agent_from_resources, build_agent_fmu
 from tests.in_process import rhi_in_process
 
 STEPS = 30
@@ -226,7 +226,7 @@ def test_an_agent_fmu_of_another_rhi_is_refused(agent_fmu, tmp_path):
 
 
 def rhi(*args):
-    return subprocess.run([sys.executable, "-m", "master", *args], capture_output=True, text=True, timeout=600)
+    return subprocess.run([sys.executable, "-m", "rhi", *args], capture_output=True, text=True, timeout=600)
 
 
 def test_rhi_export_agent_writes_a_valid_fmu_and_refuses_in_one_line(quick, tmp_path):
@@ -302,7 +302,7 @@ ILLUSION_PORTS = (
 
 
 def test_the_illusion_agent_keeps_its_ports_and_its_connections(agent_fmu, quick):
-    from master.export.agent_fmu import ports
+    from rhi.master.export.agent_fmu import ports
 
     agent = Agent(quick["decoder"]["conv_checkpoint"], "conv", quick)
     assert ports(agent) == ILLUSION_PORTS
@@ -316,8 +316,8 @@ def test_the_illusion_agent_keeps_its_ports_and_its_connections(agent_fmu, quick
 
 
 def test_an_agent_without_a_body_or_with_a_bad_delay_law_fails_naming_why(quick):
-    from components.component import ComponentError
-    from master.cosim import SimulationError
+    from rhi.components.component import ComponentError
+    from rhi.master.cosim import SimulationError
 
     checkpoint = quick["decoder"]["conv_checkpoint"]
     with pytest.raises(SimulationError, match=r"agent failed the step at t = 0 s .*q_shoulder is not finite \(nan\)"):

@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 import torch
 
-from components.body import kinematics
-from components.vision.component import Decoder, GenerativeModel
-from components.vision.networks import build
-from master import config as configuration
-from master.tasks import illusion as experiment
-from master.decoders.training_data import HALF_RANGES
+from rhi.components.body import kinematics
+from rhi.components.vision.component import Decoder, GenerativeModel
+from rhi.components.vision.networks import build
+from rhi.master import config as configuration
+from rhi.master.tasks import illusion as experiment
+from rhi.master.decoders.training_data import HALF_RANGES
 
 STEPS = 60
 FLOAT32_SUM = 32 * 32 * 2.0 ** -24  # worst relative error of a float32 sum of the 32^2 pixels' terms

@@ -14,13 +14,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from master.bench import suite as bench
-from master.bench.settings import QUICK
-from master.bench.report import table
-from master.commands.bench import run as run_bench
-from master.commands.cli import build_parser
-from master.cosim import ConfigError
-from master.bench.baseline import PaperStyleAgent
+from rhi.master.bench import suite as bench
+from rhi.master.bench.settings import QUICK
+from rhi.master.bench.report import table
+from rhi.master.commands.bench import run as run_bench
+from rhi.master.commands.cli import build_parser
+from rhi.master.cosim import ConfigError
+from rhi.master.bench.baseline import PaperStyleAgent
 from tests.test_batching import STEPS, reference_runs, tiny_config, tiny_model
 
 MODES = ("baseline", "exact_single", "exact_batched", "exact_batched_optimised", "fast")
@@ -159,7 +159,7 @@ def test_table_names_every_mode_and_target(report):
 
 def test_default_run_is_timed_whole(quick_cache):
     """The default-run measure at --quick size: wall and CPU seconds of the child, and the run's own account."""
-    from master.bench.default_run import default_run
+    from rhi.master.bench.default_run import default_run
 
     run = default_run(quick=True, cache=str(quick_cache))
     assert run["cpu_utilisation"] == run["cpu_s"] / run["wall_s"] and run["cpu_s"] > 0
@@ -210,5 +210,5 @@ def test_the_baseline_takes_nothing_from_the_integrator_or_the_experiment():
         elif isinstance(node, ast.ImportFrom):
             imported.add(node.module)
     project = {name for name in imported if name.split(".")[0] in ("components", "master", "tests")}
-    assert project == {"components.body.camera", "components.body.kinematics", "components.body.plant",
-                       "components.body.rubber_arm", "components.stimulus"}, project
+    assert project == {"rhi.components.body.camera", "rhi.components.body.kinematics", "rhi.components.body.plant",
+                       "rhi.components.body.rubber_arm", "rhi.components.stimulus"}, project

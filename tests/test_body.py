@@ -4,11 +4,11 @@ import math
 import numpy as np
 import pytest
 
-from components.body.kinematics import FOREARM, REST_HAND, REST_POSE, SHOULDER, UPPER_ARM, forward, inverse, jacobian
-from components.body.plant import ArmPlant
-from components.body.rubber_arm import RubberArm
-from components.component import ComponentError, Status
-from master.config import defaults
+from rhi.components.body.kinematics import FOREARM, REST_HAND, REST_POSE, SHOULDER, UPPER_ARM, forward, inverse, jacobian
+from rhi.components.body.plant import ArmPlant
+from rhi.components.body.rubber_arm import RubberArm
+from rhi.components.component import ComponentError, Status
+from rhi.master.config import defaults
 
 # Poses whose hand positions are sums of the segment lengths, worked out by hand.
 HAND_COMPUTED = [

@@ -14,10 +14,10 @@ import numpy as np
 import pymunk
 import pytest
 
-from components.body.kinematics import FOREARM, SHOULDER, UPPER_ARM
-from components.body import plant as plant_module
-from components.body.plant import CELL_ARM, ArmPlant
-from components.component import Status
+from rhi.components.body.kinematics import FOREARM, SHOULDER, UPPER_ARM
+from rhi.components.body import plant as plant_module
+from rhi.components.body.plant import CELL_ARM, ArmPlant
+from rhi.components.component import Status
 
 NAMES = ("q_shoulder", "q_elbow", "hand_x", "hand_y", "force_x", "force_y")
 
@@ -73,7 +73,7 @@ def test_batched_plant_equals_one_space_per_trial_to_the_last_bit(loop, monkeypa
     if loop == "numpy":
         monkeypatch.setattr(plant_module, "C_LOOP", None)
     elif plant_module.C_LOOP is None:
-        pytest.skip("components.body._servo is not built (tests/test_body_cloop.py says so)")
+        pytest.skip("rhi.components.body._servo is not built (tests/test_body_cloop.py says so)")
     # Five trials that differ in everything a trial may: held or free, pose, masses, gain, limit, load cell,
     # and one held trial let go mid-run; commands that saturate the torque limit in one trial.
     parameters = {"held": [True, False, True, True, False], "q0_shoulder": [57.0, 40.0, 70.0, 57.0, 90.0],

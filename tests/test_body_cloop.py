@@ -14,9 +14,9 @@ import pymunk.batch
 import pytest
 from pymunk._chipmunk import ffi, lib as chipmunk
 
-from components.body import plant as plant_module
-from components.body.plant import ArmPlant, address
-from components.component import Status
+from rhi.components.body import plant as plant_module
+from rhi.components.body.plant import ArmPlant, address
+from rhi.components.component import Status
 
 NAMES = ("q_shoulder", "q_elbow", "hand_x", "hand_y", "force_x", "force_y")
 STATE = (pymunk.batch.BodyFields.POSITION | pymunk.batch.BodyFields.ANGLE | pymunk.batch.BodyFields.VELOCITY
@@ -110,13 +110,13 @@ class Torques(list):
 
 
 def test_the_install_built_the_c_loop():
-    assert plant_module.C_LOOP is not None, "components.body._servo is not built: pip install -e . builds it"
+    assert plant_module.C_LOOP is not None, "rhi.components.body._servo is not built: pip install -e . builds it"
 
 
 def test_c_loop_equals_numpy_loop_to_the_bit(monkeypatch):
     loop = plant_module.C_LOOP
     if loop is None:
-        pytest.skip("components.body._servo is not built")
+        pytest.skip("rhi.components.body._servo is not built")
     numpy_torques, c_torques = Torques(), Torques()
     numpy_torques.numpy_spy(monkeypatch)
     reference = run(None, monkeypatch, numpy_torques)
@@ -138,10 +138,10 @@ def test_c_loop_equals_numpy_loop_to_the_bit(monkeypatch):
 
 
 def test_numpy_loop_when_the_c_module_is_absent(monkeypatch):
-    import components.body
+    import rhi.components.body
 
-    monkeypatch.setitem(sys.modules, "components.body._servo", None)  # so its import raises ImportError
-    monkeypatch.delattr(components.body, "_servo", raising=False)
+    monkeypatch.setitem(sys.modules, "rhi.components.body._servo", None)  # so its import raises ImportError
+    monkeypatch.delattr(rhi.components.body, "_servo", raising=False)
     assert plant_module.c_loop() is None
     monkeypatch.setattr(plant_module, "C_LOOP", plant_module.c_loop())
     calls = []

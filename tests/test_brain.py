@@ -5,10 +5,10 @@ import math
 import numpy as np
 import pytest
 
-from components.brain import Brain
-from components.brain.touch_timing import decayed, posterior_common_cause, update_gamma
-from components.component import ComponentError, Status
-from master import System, simulate
+from rhi.components.brain import Brain
+from rhi.components.brain.touch_timing import decayed, posterior_common_cause, update_gamma
+from rhi.components.component import ComponentError, Status
+from rhi.master import System, simulate
 from tests.linear_decoder import LinearDecoder
 from tests.toys import Constant
 
@@ -226,7 +226,7 @@ def test_a_batch_gives_the_numbers_of_single_runs():
 # -- the extension: causal inference over space ---------------------------------------------------
 
 def test_spatial_likelihood_by_hand_and_off_by_default():
-    from components.brain.touch_timing import spatial_likelihood
+    from rhi.components.brain.touch_timing import spatial_likelihood
 
     seen = np.array([[-0.45, 0.5], [0.0, 0.0], [np.nan, np.nan]])
     felt = np.array([[-0.30, 0.5], [0.3, 0.4], [np.nan, 1.0]])

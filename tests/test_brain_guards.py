@@ -3,12 +3,12 @@ brain class through the same cases, and the two action laws (the paper's integra
 import numpy as np
 import pytest
 
-from components.brain import Brain
-from components.brain.base import action_update, euler_step
-from components.brain.touch_timing import observe_events
-from components.brain.integrator import belief_rate
-from components.component import ComponentError, Status
-from master import SimulationError, System, simulate
+from rhi.components.brain import Brain
+from rhi.components.brain.base import action_update, euler_step
+from rhi.components.brain.touch_timing import observe_events
+from rhi.components.brain.integrator import belief_rate
+from rhi.components.component import ComponentError, Status
+from rhi.master import SimulationError, System, simulate
 from tests.linear_decoder import LinearDecoder
 from tests.toys import Constant
 

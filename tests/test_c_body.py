@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 from fmpy.validation import validate_fmu
 
-from components.body.variants import KinematicArm
-from components.body.contract import BODY_CONTRACT
-from components.fmu import FMUComponent
-from master import ConfigError
-from master.export.body import build_fmu
-from master.export.c_body import build_c_fmu
+from rhi.components.body.variants import KinematicArm
+from rhi.components.body.contract import BODY_CONTRACT
+from rhi.components.fmu import FMUComponent
+from rhi.master import ConfigError
+from rhi.master.export.body import build_fmu
+from rhi.master.export.c_body import build_c_fmu
 from tests.in_process import rhi_in_process
 from tests.test_fmu import OUTPUTS, run, under_fmpy
 

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from components.body import camera
-from components.body.camera import Camera, render
-from components.body.kinematics import REST_HAND, REST_POSE, SHOULDER, UPPER_ARM, forward, inverse
-from components.component import ComponentError
+from rhi.components.body import camera
+from rhi.components.body.camera import Camera, render
+from rhi.components.body.kinematics import REST_HAND, REST_POSE, SHOULDER, UPPER_ARM, forward, inverse
+from rhi.components.component import ComponentError
 
 PICTURES = Path(__file__).parent / "pictures"
 OFFSETS = {"left": -0.15, "center": 0.0, "right": 0.15}
@@ -160,9 +160,9 @@ def test_bad_poses_and_balls_name_the_argument():
 
 
 def test_stimulus_rubber_arm_and_camera_run_together_under_the_master():
-    from components.body.rubber_arm import RubberArm
-    from components.stimulus import Stimulus
-    from master import System, simulate
+    from rhi.components.body.rubber_arm import RubberArm
+    from rhi.components.stimulus import Stimulus
+    from rhi.master import System, simulate
     system = System([Stimulus(), RubberArm(), Camera(resolution=32)],
                     [("rubber_arm.hand", "stimulus.target"), ("rubber_arm.pose", "camera.arm_pose"),
                      ("stimulus.ball", "camera.ball")])

@@ -7,17 +7,17 @@ import pytest
 import scipy.linalg
 import torch
 
-from components.brain import body_inference as bi
-from components.brain.causal_brain import CausalBrain
-from components.stimulus import Stimulus
-from components.vision import pose_encoder as pe
-from components.vision.networks import Encoder, preset
+from rhi.components.brain import body_inference as bi
+from rhi.components.brain.causal_brain import CausalBrain
+from rhi.components.stimulus import Stimulus
+from rhi.components.vision import pose_encoder as pe
+from rhi.components.vision.networks import Encoder, preset
 from tests.toys import assert_reads_no_simulator_position
-from master.cosim import ConfigError
-from master import models
-from master import config as configuration
-from master.config import protocol
-from master.tasks.illusion import wiring
+from rhi.master.cosim import ConfigError
+from rhi.master import models
+from rhi.master import config as configuration
+from rhi.master.config import protocol
+from rhi.master.tasks.illusion import wiring
 
 
 def normal_log_pdf(x, mean, sd):
@@ -103,22 +103,22 @@ def tiny_causal(tmp_path_factory):
 
 
 def test_the_causal_brain_never_reads_a_simulator_position(tiny_causal):
-    from components.vision.component import Decoder, GenerativeModel
-    from components.body import kinematics
-    from components.vision.networks import build
+    from rhi.components.vision.component import Decoder, GenerativeModel
+    from rhi.components.body import kinematics
+    from rhi.components.vision.networks import build
 
     model = GenerativeModel(build("conv", "tiny", 16).decoder, kinematics.REST_POSE, (40.0, 50.0), {"kind": "conv"})
     assert_reads_no_simulator_position(wiring.build_system(Decoder(model, threads=1), tiny_causal), CausalBrain())
 
 
 def test_a_tiny_causal_run_and_its_gamma(tiny_causal):
-    from master.tasks.illusion.runner import batch_outcomes
+    from rhi.master.tasks.illusion.runner import batch_outcomes
 
     config = tiny_causal
     trials = protocol.plan(configuration.merge(config, {"experiment": {"decoders": ["conv"]}}))
-    from components.vision.component import GenerativeModel, Decoder
-    from components.body import kinematics
-    from components.vision.networks import build
+    from rhi.components.vision.component import GenerativeModel, Decoder
+    from rhi.components.body import kinematics
+    from rhi.components.vision.networks import build
     model = GenerativeModel(build("conv", "tiny", 16).decoder, kinematics.REST_POSE, (40.0, 50.0), {"kind": "conv"})
     result = wiring.run_batch(Decoder(model, threads=1), trials, config)
     gamma, timing = result.values["brain.gamma"], result.values["brain.gamma_timing"]
@@ -169,7 +169,7 @@ def test_models_in_the_configuration():
 
 
 def test_a_sweep_file_names_its_model(tmp_path):
-    from master.sweeps import plan as sweeps
+    from rhi.master.sweeps import plan as sweeps
 
     path = tmp_path / "s.toml"
     path.write_text('[experiment]\ndecoders = ["conv"]\n[sweep]\nmodel = "causal"\n[sweep.grid]\n'

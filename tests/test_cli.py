@@ -31,13 +31,13 @@ def test_unknown_command_is_a_usage_error():
 
 def test_passive_openmp_waiting_is_set_before_torch_loads():
     """main() sets OMP_WAIT_POLICY before a command runs, and importing the command line loads no torch, so
-    OpenMP reads the setting; importing components.vision sets nothing (no import-time side effect)."""
+    OpenMP reads the setting; importing rhi.components.vision sets nothing (no import-time side effect)."""
     environment = {key: value for key, value in os.environ.items() if key != "OMP_WAIT_POLICY"}
     python = lambda code: subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,  # noqa: E731
                                          env=environment)
-    result = python("import os, components.vision; print(os.environ.get('OMP_WAIT_POLICY'))")
+    result = python("import os, rhi.components.vision; print(os.environ.get('OMP_WAIT_POLICY'))")
     assert result.stdout.split() == ["None"], result.stderr
-    result = python("import contextlib, io, os, sys; from master.commands.cli import main; print('torch' in sys.modules)\n"
+    result = python("import contextlib, io, os, sys; from rhi.master.commands.cli import main; print('torch' in sys.modules)\n"
                     "with contextlib.suppress(SystemExit), contextlib.redirect_stdout(io.StringIO()): main(['bench', '--help'])\n"
                     "print(os.environ.get('OMP_WAIT_POLICY'))")
     assert result.stdout.split() == ["False", "PASSIVE"], result.stderr
@@ -81,13 +81,13 @@ def test_every_command_is_one_module_of_the_table():
     master/commands but cli.py is one of them, and `rhi --help` lists exactly the table's commands."""
     import importlib
 
-    from master.commands.cli import COMMANDS, build_parser
+    from rhi.master.commands.cli import COMMANDS, build_parser
 
-    folder = Path(importlib.import_module("master.commands").__file__).parent
+    folder = Path(importlib.import_module("rhi.master.commands").__file__).parent
     modules = {path.stem for path in folder.glob("*.py")} - {"__init__", "cli"}
     assert modules == set(COMMANDS.values())
     for module_name in COMMANDS.values():
-        module = importlib.import_module(f"master.commands.{module_name}")
+        module = importlib.import_module(f"rhi.master.commands.{module_name}")
         assert isinstance(module.HELP, str) and callable(module.add_arguments) and callable(module.run)
     listed = build_parser()._subparsers._group_actions[0].choices
     assert list(listed) == list(COMMANDS)

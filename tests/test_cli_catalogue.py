@@ -38,14 +38,14 @@ SWEEP_HEAD = ('[experiment]\ndecoders = ["conv"]\nconditions = ["left"]\nstimula
 FULL_DISK_RUN = """
 import errno, os, sys
 os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})  # one core: the files are written here, where the patch is
-import master.tasks.illusion.publish as publish
+import rhi.master.tasks.illusion.publish as publish
 written = publish.atomic_write
 def atomic_write(path, data):  # the disk fills up while the results are written
     if str(path).endswith("trials.csv"):
         raise OSError(errno.ENOSPC, "No space left on device", str(path))
     return written(path, data)
 publish.atomic_write = atomic_write
-from master.commands.cli import main
+from rhi.master.commands.cli import main
 sys.exit(main(sys.argv[1:]))
 """
 FULL_DISK_EXPORT = """
@@ -56,13 +56,13 @@ def full(self, *args, **kwargs):  # the disk fills up after a few files of the F
         raise OSError(errno.ENOSPC, "No space left on device", self.filename)
     return write(self, *args, **kwargs)
 zipfile.ZipFile.write = full
-from master.commands.cli import main
+from rhi.master.commands.cli import main
 sys.exit(main(sys.argv[1:]))
 """
 
 
 def old_fmu() -> bytes:
-    """An FMU as rhi writes one, by what --force checks (master.export.own_files): the old file a full disk keeps."""
+    """An FMU as rhi writes one, by what --force checks (rhi.master.export.own_files): the old file a full disk keeps."""
     import io
     import zipfile
 
@@ -89,7 +89,7 @@ class Case:
     files: dict = field(default_factory=dict)  # made in work first: name -> text, bytes or None (a folder)
     stdout: str = "pipe"        # "pipe", "closed" (a pipe nobody reads) or "full" (/dev/full)
     interrupt: int | None = None  # sent when the hanging FMU blocks
-    python: str | None = None   # run ``python -c`` this (a fault injected) instead of ``python -m master``
+    python: str | None = None   # run ``python -c`` this (a fault injected) instead of ``python -m rhi``
     cache_is_file: bool = False
     check: Callable | None = None  # more: check(work, result)
 

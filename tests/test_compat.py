@@ -5,7 +5,7 @@ gives the same cells.
 
 Truth: the measurement itself, repeated (the C body's FMI 3.0 row, whose masters start in a second without
 torch; the agent's static checks and package schema, on the FMU the session builds), the FMI 2.0 twins under
-FMPy, the body's resting pose (components.body.kinematics), and the band fmpy.util.validate_result draws
+FMPy, the body's resting pose (rhi.components.body.kinematics), and the band fmpy.util.validate_result draws
 (10 % of a constant signal's value).
 """
 import importlib.util
@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 from fmpy.util import read_csv
 
-from components.body.kinematics import REST_POSE
-from master.export import compat, ssp_ecos
-from master.export.compat_checks import package, reference_problems, schema_problems, twice_problems
-from master.export.fmi_checks import CHECKS
+from rhi.components.body.kinematics import REST_POSE
+from rhi.master.export import compat, ssp_ecos
+from rhi.master.export.compat_checks import package, reference_problems, schema_problems, twice_problems
+from rhi.master.export.fmi_checks import CHECKS
 from tests.docs_tables import block
 from tests.test_agent import agent_fmu, quick  # noqa: F401 (fixtures)
 

@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 from fmpy import read_model_description
 
-from components.component import Component, ComponentError, Status
-from components.variables import Variable
+from rhi.components.component import Component, ComponentError, Status
+from rhi.components.variables import Variable
 from tests.toys import FailsAt, FirstOrder, Gain, ImageSink
 
 

@@ -1,8 +1,8 @@
 """Configuration: shipped defaults, user TOML, overrides; bad keys and values named."""
 import pytest
 
-from master import config
-from master.cosim import ConfigError
+from rhi.master import config
+from rhi.master.cosim import ConfigError
 
 
 def test_defaults_are_the_paper_protocol():
@@ -90,7 +90,7 @@ def test_typos_inside_open_tables_are_named(tmp_path):
 
 
 def test_shipped_train_defaults_are_the_training_code_defaults():
-    from components.vision.training import TrainSettings
+    from rhi.components.vision.training import TrainSettings
 
     defaults = TrainSettings().as_dict()
     defaults.pop("resolution")  # taken from experiment.resolution

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 import torch
 
-from components.body import kinematics
-from components.component import ComponentError
-from components.brain import Brain
-from components.vision.component import Decoder, GenerativeModel, jacobian_images, resolution_weight
-from components.vision.networks import build, normalise
+from rhi.components.body import kinematics
+from rhi.components.component import ComponentError
+from rhi.components.brain import Brain
+from rhi.components.vision.component import Decoder, GenerativeModel, jacobian_images, resolution_weight
+from rhi.components.vision.networks import build, normalise
 from tests.linear_decoder import LinearDecoder
 from tests.sweep_tasks import fake_outcome
 
@@ -242,9 +242,9 @@ def test_the_linear_double_means_what_the_real_decoder_means():
 # -- the sweep's stand-in trial against the real one ----------------------------------------------------------
 @pytest.fixture(scope="module")
 def real_outcomes(quick_cache):
-    """master.tasks.illusion.trial_outcome on the --quick protocol with the session's conv decoder, three cells."""
-    from master import config as configuration
-    from master.tasks.illusion import trial_outcome
+    """rhi.master.tasks.illusion.trial_outcome on the --quick protocol with the session's conv decoder, three cells."""
+    from rhi.master import config as configuration
+    from rhi.master.tasks.illusion import trial_outcome
 
     config = configuration.load(quick=True)
     checkpoint = str(next(quick_cache.glob("conv-*.pt")))
@@ -257,7 +257,7 @@ def test_the_fake_sweep_outcome_means_what_the_real_trial_outcome_means(real_out
     same keys (a subset), plain floats, and the same meaning on a case both run: drift and force toward the
     rubber hand (negative Left, positive Right) under synchronous touch, gamma in [gamma0, 1] and higher for
     synchronous than asynchronous touch."""
-    from master.tasks.illusion import trial_outcome
+    from rhi.master.tasks.illusion import trial_outcome
 
     config, _, real = real_outcomes
     parameters = list(inspect.signature(fake_outcome).parameters)
@@ -277,15 +277,15 @@ def test_the_fake_sweep_outcome_means_what_the_real_trial_outcome_means(real_out
 
 def test_the_fake_and_the_real_trial_fail_alike_out_of_reach(real_outcomes):
     """A rubber hand out of the arm's reach fails the trial with a ComponentError saying so, in both."""
-    from master import config as configuration
-    from master.tasks.illusion import trial_outcome
+    from rhi.master import config as configuration
+    from rhi.master.tasks.illusion import trial_outcome
 
     _, checkpoint, _ = real_outcomes
     # merged past the configuration's checks, which refuse it before any trial runs (tests/test_hostile_inputs.py)
     config = configuration.merge(configuration.load(quick=True), {"conditions": {"left": 1.0}})
     with pytest.raises(ComponentError, match="out of reach"):
         fake_outcome(config, "conv", "left", "sync", 0)
-    # The real trial is a batch of one whose failure is a record (master.tasks.illusion.runner.batch_outcomes), raised
+    # The real trial is a batch of one whose failure is a record (rhi.master.tasks.illusion.runner.batch_outcomes), raised
     # as a RuntimeError carrying the record's "Type: message".
     with pytest.raises(RuntimeError, match="^ComponentError: .*out of reach"):
         trial_outcome(config, "conv", "left", "sync", 0, checkpoint=checkpoint)
@@ -300,8 +300,8 @@ def port(variable):
 def test_the_image_toys_have_the_camera_and_decoder_image_ports_and_run_with_them():
     """tests/toys.py's Image stands for the camera (an image output) and ImageSink for the decoder (an image input)
     in the master's tests: each declares the real port, and each runs under the master with the real other side."""
-    from master import System, simulate
-    from components.body.camera import Camera
+    from rhi.master import System, simulate
+    from rhi.components.body.camera import Camera
     from tests.toys import Image, ImageSink
 
     model = tiny_model()
@@ -320,7 +320,7 @@ def test_the_image_toys_have_the_camera_and_decoder_image_ports_and_run_with_the
 def test_the_linear_double_and_the_constant_command_have_the_real_ports():
     """LinearDecoder stands for the Decoder in the brain's tests, and Constant for the brain's commands in the body's:
     the brain-facing ports are the real ones (the prediction is flat in the double: its 'image' is a vector)."""
-    from components.brain import Brain
+    from rhi.components.brain import Brain
     from tests.toys import Constant
 
     real, double = Decoder(tiny_model(), threads=1), LinearDecoder(np.zeros((4, 2)), np.zeros(4), np.zeros(4))

@@ -13,17 +13,17 @@ import re
 import numpy as np
 import pytest
 
-from components.body import camera, kinematics
-from components.body.camera import Camera
-from components.stimulus import block_rows
-from components.vision.component import Decoder, GenerativeModel
-from components.vision.fast import DEFAULT_TOLERANCE, LinearisedDecoder
-from components.vision.networks import build
-from components.vision.training import TrainSettings
-from master import config as configuration
-from master.config import protocol
-from master.config import sources
-from master.tasks.illusion import wiring
+from rhi.components.body import camera, kinematics
+from rhi.components.body.camera import Camera
+from rhi.components.stimulus import block_rows
+from rhi.components.vision.component import Decoder, GenerativeModel
+from rhi.components.vision.fast import DEFAULT_TOLERANCE, LinearisedDecoder
+from rhi.components.vision.networks import build
+from rhi.components.vision.training import TrainSettings
+from rhi.master import config as configuration
+from rhi.master.config import protocol
+from rhi.master.config import sources
+from rhi.master.tasks.illusion import wiring
 
 RESOLUTION = 16
 SOURCES = sources.PARAMETER_SOURCES
@@ -75,7 +75,7 @@ def test_every_component_parameter_has_exactly_one_source(systems, declared):
     stale = sorted(set(SOURCES) - set(declared))
     assert not stale, f"sources.PARAMETER_SOURCES names parameters no component declares: {stale}"
     # A dict literal keeps the last of two equal keys silently: read the tables' sources for duplicates.
-    from master.models import paper
+    from rhi.master.models import paper
     keys = []
     for module, name in ((sources, "TASK_SOURCES"), (paper, "BRAIN_SOURCES")):
         tree = ast.parse(inspect.getsource(module))
@@ -163,7 +163,7 @@ def test_constructed_sources_name_a_key_whose_default_is_the_constructor_s(syste
 def test_relinearise_tolerance_is_the_fast_decoder_s_default():
     value = toml_value("decoder.relinearise_tolerance")
     assert same(value, DEFAULT_TOLERANCE), \
-        f"defaults.toml decoder.relinearise_tolerance = {value!r}, components.vision.fast.DEFAULT_TOLERANCE = " \
+        f"defaults.toml decoder.relinearise_tolerance = {value!r}, rhi.components.vision.fast.DEFAULT_TOLERANCE = " \
         f"{DEFAULT_TOLERANCE!r}"
 
 

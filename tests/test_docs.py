@@ -1,4 +1,4 @@
-"""docs/ against the code: every generated table is what `python -m master.reference` writes now, and the
+"""docs/ against the code: every generated table is what `python -m rhi.master.reference` writes now, and the
 tables' keys, defaults, ports and columns are read back and compared with what the code uses and writes."""
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ from pathlib import Path
 import pytest
 
 from docs_tables import DOCS, block, names, rows
-from master import config as configuration
-from master.reference.__main__ import blocks, regenerate
-from master.reference.tables import TABLES
+from rhi.master import config as configuration
+from rhi.master.reference.__main__ import blocks, regenerate
+from rhi.master.reference.tables import TABLES
 
 ROOT = DOCS.parent
 
@@ -30,7 +30,7 @@ def test_every_generated_table_in_docs_is_what_the_code_writes_now():
     for page in pages:
         text = page.read_text()
         for name, shown in blocks(text).items():
-            assert shown == tables[name], f"docs/{page.name}, table {name}: stale (run python -m master.reference)"
+            assert shown == tables[name], f"docs/{page.name}, table {name}: stale (run python -m rhi.master.reference)"
         assert regenerate(text, tables) == text
 
 
@@ -83,7 +83,7 @@ def test_the_output_column_tables_are_the_shipped_files_headers():
 
 
 def test_the_body_table_marks_exactly_the_body_contract():
-    from components.body.contract import BODY_CONTRACT
+    from rhi.components.body.contract import BODY_CONTRACT
     contract = {v.name: v for v in BODY_CONTRACT}
     shown = {row[0].strip("`"): row for row in rows("fmi.md", "body-ports")}
     assert {name for name, row in shown.items() if row[6] == "yes"} == set(contract)
@@ -92,15 +92,15 @@ def test_the_body_table_marks_exactly_the_body_contract():
 
 
 def test_an_unknown_output_column_is_refused_until_it_is_documented(monkeypatch):
-    from master.outputs import tables
-    from master.reference import tables as reference
+    from rhi.master.outputs import tables
+    from rhi.master.reference import tables as reference
     monkeypatch.setattr(tables, "SUMMARY_COLUMNS", [*tables.SUMMARY_COLUMNS, "new_thing_kg"])
     with pytest.raises(KeyError, match="new_thing_kg"):
         reference.summary_columns()
 
 
 def test_the_fit_pages_tables_are_made_from_the_shipped_fits():
-    from master.fit.report import results_markdown
+    from rhi.master.fit.report import results_markdown
 
     page = (DOCS / "fit.md").read_text()
     variants = ("recovery_zscore", "recovery_bounded", "recovery_ensemble")
@@ -129,8 +129,8 @@ def test_the_noisy_recovery_s_noise_is_derived_as_its_comments_say():
     """1.13 cm (van Beers et al. 1998's upper end, one lateral localisation): the drift's sd is that of a
     difference of two, the force's one localisation through default_run.csv's synchronous force per drift."""
     import math
-    from master.fit.data import read_data
-    from master.fit.plan import read_plan
+    from rhi.master.fit.data import read_data
+    from rhi.master.fit.plan import read_plan
 
     data = read_data(DOCS / "fit" / "default_run.csv")
     plan = read_plan(DOCS / "fit" / "recovery_noise.toml", data)
@@ -148,8 +148,8 @@ def test_the_noisy_recovery_s_held_out_arithmetic_is_as_the_page_says():
     (the prior draws of seeds 0, 1 and 2, read again with draw_prior)."""
     import numpy as np
     from scipy import stats
-    from master.fit.data import read_data
-    from master.fit.plan import draw_prior, read_plan
+    from rhi.master.fit.data import read_data
+    from rhi.master.fit.plan import draw_prior, read_plan
 
     page = " ".join((DOCS / "fit.md").read_text().split())
     binomial = stats.binom

@@ -20,12 +20,12 @@ import os
 import numpy as np
 import pytest
 
-from components.body import kinematics
-from master.cosim import ConfigError
-from master.export import ssp_ecos
-from master.export.body import export_body
-from master.export.ssp_package import build_ssp
-from master.export.system import run_ssp
+from rhi.components.body import kinematics
+from rhi.master.cosim import ConfigError
+from rhi.master.export import ssp_ecos
+from rhi.master.export.body import export_body
+from rhi.master.export.ssp_package import build_ssp
+from rhi.master.export.system import run_ssp
 from tests.in_process import rhi_in_process
 from tests.test_agent import agent_fmu, quick  # noqa: F401 (fixtures)
 
@@ -67,7 +67,7 @@ def test_ecos_gives_libcosims_trajectory_bitwise_with_the_parameter_set_applied(
 
 @needs_ecos
 def test_what_the_machine_lacks_for_ecos_is_named_in_one_line(dyadic, tmp_path, monkeypatch):
-    from master.export import ssp_ecos
+    from rhi.master.export import ssp_ecos
 
     monkeypatch.setattr(ssp_ecos, "TBB", "libtbb-not-here.so.99")
     done = rhi_in_process(["run-system", str(dyadic), "--master", "ecos", "--out", str(tmp_path / "o.csv")],

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from components.component import Status
-from master import ConfigError, SimulationError, System, simulate
-from master.cosim.loop import step_count
+from rhi.components.component import Status
+from rhi.master import ConfigError, SimulationError, System, simulate
+from rhi.master.cosim.loop import step_count
 from tests.toys import Constant, FailsAt, FirstOrder, Gain, Image, ImageSink
 
 

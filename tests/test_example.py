@@ -10,11 +10,11 @@ from pathlib import Path
 
 import torch
 
-from master import config as configuration
-from master.decoders.cache import decoder_component
-from master.tasks.illusion.measures import measures
-from master.config.protocol import Trial
-from master.tasks.illusion.wiring import run_batch
+from rhi.master import config as configuration
+from rhi.master.decoders.cache import decoder_component
+from rhi.master.tasks.illusion.measures import measures
+from rhi.master.config.protocol import Trial
+from rhi.master.tasks.illusion.wiring import run_batch
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "examples" / "orchestrate.py"
@@ -26,7 +26,7 @@ def test_example_uses_only_the_engine_the_export_and_the_components():
                for node in ast.walk(ast.parse(SCRIPT.read_text())) if isinstance(node, (ast.Import, ast.ImportFrom))
                for alias in node.names]
     project = sorted({m for m in modules if m.split(".")[0] in ("master", "components")})
-    assert project and all(m.startswith(("components.", "master.cosim", "master.export")) for m in project), project
+    assert project and all(m.startswith(("components.", "rhi.master.cosim", "rhi.master.export")) for m in project), project
 
 
 def test_example_runs_and_its_drift_is_the_experiments(tmp_path):

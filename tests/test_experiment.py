@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from docs_tables import names
 
-from master.outputs.tables import SCHEMA_VERSION, SUMMARY_COLUMNS
+from rhi.master.outputs.tables import SCHEMA_VERSION, SUMMARY_COLUMNS
 from tests.in_process import rhi_in_process
 
 
@@ -127,7 +127,7 @@ def test_unwritable_parent_is_refused_without_traces(tmp_path, cache):
 def test_body_fmu_reproduces_the_native_summary(quick_run, cache, tmp_path):
     """The exported pymunk body, swapped in as an FMU, gives the native run's summary (its conv decoder's rows: a
     trial's numbers do not depend on the other decoder's trials)."""
-    from master.export.body import build_fmu
+    from rhi.master.export.body import build_fmu
 
     fmu = build_fmu(tmp_path / "Body.fmu", "native")
     (tmp_path / "conv.toml").write_text('[experiment]\ndecoders = ["conv"]\n')
@@ -198,7 +198,7 @@ import os
 
 import numpy as np
 
-from components.body.plant import ArmPlant
+from rhi.components.body.plant import ArmPlant
 
 
 class NanSecondInstance(ArmPlant):
@@ -226,7 +226,7 @@ def test_a_failing_trial_is_left_out_and_the_rest_are_written(quick_run, cache, 
     trial 1). The run exits 1 naming it, run.json lists it under failed_trials, its cell counts one trial less, and
     every other trial is written with the numbers it has without the failure (trial 0 of each cell: those of the
     native quick run, whose first 21 rows this run repeats)."""
-    from master.export.body import build_fmu
+    from rhi.master.export.body import build_fmu
 
     plants = tmp_path / "rhi_test_counted_plants.py"
     plants.write_text(COUNTED_PLANTS)

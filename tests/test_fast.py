@@ -5,18 +5,18 @@ import numpy as np
 import pytest
 import torch
 
-from components.body import kinematics
-from components.component import ComponentError
-from components.vision.component import Decoder, GenerativeModel, resolution_weight, visual_drive
-from components.vision import optimised as optimisation
-from components.vision.fast import DEFAULT_TOLERANCE, LinearisedDecoder
-from master.tasks.illusion.fast_check import DRIFT_BOUND
-from components.vision.optimised import SubPixelTransposedConv, TangentModel, optimised
-from components.vision.networks import normalise
-from master.tasks import illusion as experiment
-from master import config as configuration
-from master.bench.suite import counted_flops
-from master.decoders.training_data import HALF_RANGES
+from rhi.components.body import kinematics
+from rhi.components.component import ComponentError
+from rhi.components.vision.component import Decoder, GenerativeModel, resolution_weight, visual_drive
+from rhi.components.vision import optimised as optimisation
+from rhi.components.vision.fast import DEFAULT_TOLERANCE, LinearisedDecoder
+from rhi.master.tasks.illusion.fast_check import DRIFT_BOUND
+from rhi.components.vision.optimised import SubPixelTransposedConv, TangentModel, optimised
+from rhi.components.vision.networks import normalise
+from rhi.master.tasks import illusion as experiment
+from rhi.master import config as configuration
+from rhi.master.bench.suite import counted_flops
+from rhi.master.decoders.training_data import HALF_RANGES
 from tests.test_batching import STEPS, reference_runs, three_trials, tiny_config, tiny_model
 
 COMPARED = ("brain.mu", "brain.u_shoulder", "brain.u_elbow", "body.force_x", "decoder.visual_error")
@@ -303,7 +303,7 @@ def test_the_squared_error_has_its_d_G_d_term():
 @pytest.fixture(scope="module")
 def quick_conv(quick_cache):
     """The --quick conv decoder the session trained (tests/conftest.py)."""
-    from master.decoders.training import load_decoder
+    from rhi.master.decoders.training import load_decoder
     return load_decoder(next(quick_cache.glob("conv-*.pt")), 32)
 
 
@@ -317,7 +317,7 @@ def test_fast_drift_is_the_exact_drift_to_the_first_order_error_of_its_drive(qui
     gamma * visual_stiffness, checked here to stay below 20 % of the proprioceptive rate 1/Sigma_p; hence the
     factor 1.25. Measured: |e_N| / E from 0.93 to 3.6 over tolerances 0.0025-0.08 deg and both quick decoders
     (0.97-3.0 here). The final drift error is then within the hand's Jacobian times 1.25 E, and within the fast
-    check's bound (master.tasks.illusion.fast_check.DRIFT_BOUND) of the largest drift; the final error does not fall
+    check's bound (rhi.master.tasks.illusion.fast_check.DRIFT_BOUND) of the largest drift; the final error does not fall
     monotonically with the tolerance (docs/decoders.md, "Fast mode")."""
     config = configuration.load(quick=True)
     trials = [t for t in experiment.plan(config) if t.decoder == "conv"]

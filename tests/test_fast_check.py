@@ -1,4 +1,4 @@
-"""The fast mode's check (master.tasks.illusion.fast_check): its verdict's numbers, where it is kept, when it is redone."""
+"""The fast mode's check (rhi.master.tasks.illusion.fast_check): its verdict's numbers, where it is kept, when it is redone."""
 import contextlib
 import io
 import json
@@ -6,13 +6,13 @@ import json
 import numpy as np
 import pytest
 
-from master import config as configuration
-from master.tasks.illusion import fast_check
-from master.tasks.illusion import runner
-from master.decoders.cache import checkpoint_path
-from master.tasks.illusion.measures import end_of_trial
-from master.config.protocol import make_trial
-from master.runtime.context import RunContext
+from rhi.master import config as configuration
+from rhi.master.tasks.illusion import fast_check
+from rhi.master.tasks.illusion import runner
+from rhi.master.decoders.cache import checkpoint_path
+from rhi.master.tasks.illusion.measures import end_of_trial
+from rhi.master.config.protocol import make_trial
+from rhi.master.runtime.context import RunContext
 
 
 def quick_config(quick_cache, folder, monkeypatch):

@@ -1,5 +1,5 @@
 """The fast decoder's products per point batched by the number of trials a point holds
-(components.vision.fast.grouped_point_products) against one product per point (point_products).
+(rhi.components.vision.fast.grouped_point_products) against one product per point (point_products).
 
 Truth: float64 sums in numpy, within Higham's bound for a float32 sum of P terms, |fl(sum) - sum| <= gamma_P sum|x|,
 gamma_P = P u / (1 - P u), u = 2^-24; and the decoder with the grouped products turned off, to the bit.
@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import torch
 
-from components.body import kinematics
-from components.vision import fast
-from components.vision.fast import LinearisedDecoder, grouped_point_products, point_products
+from rhi.components.body import kinematics
+from rhi.components.vision import fast
+from rhi.components.vision.fast import LinearisedDecoder, grouped_point_products, point_products
 from tests.test_batching import tiny_model
 from tests.test_fast import start
 

@@ -1,11 +1,11 @@
-"""The fast decoder's search for a stored linearisation point (components.vision.fast.nearest_within) against the
+"""The fast decoder's search for a stored linearisation point (rhi.components.vision.fast.nearest_within) against the
 comparison of every target with every point that it replaces: the same slot and distance wherever the nearest point
 lies within the tolerance, none elsewhere. Truth: numpy's argmin over the full table of max-norm distances (the
 first of equal distances), written out here."""
 import numpy as np
 import pytest
 
-from components.vision.fast import nearest_within
+from rhi.components.vision.fast import nearest_within
 
 
 def brute_force(points, slots, targets, tolerance):

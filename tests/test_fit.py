@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from master.cosim import ConfigError
-from master.fit.calibration import (coverage, rank_bins, rank_histogram, rank_tests_verdict, sbc_ranks,
+from rhi.master.cosim import ConfigError
+from rhi.master.fit.calibration import (coverage, rank_bins, rank_histogram, rank_tests_verdict, sbc_ranks,
                                     uniformity)
-from master.fit.data import read_data
+from rhi.master.fit.data import read_data
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -186,7 +186,7 @@ def test_bad_data_and_fit_files_are_one_line_exit_2_nothing_written(tmp_path, ca
             result = rhi("fit", *arguments, "--out", "out", cwd=tmp_path)
             status, stderr = result.returncode, result.stderr
         else:  # the same entry point in this process (a subprocess costs seconds of imports)
-            from master.commands.cli import main
+            from rhi.master.commands.cli import main
 
             status = main(["fit", *(str(tmp_path / a) if a.endswith((".csv", ".toml")) else a for a in arguments),
                            "--out", str(tmp_path / "out")])
@@ -203,9 +203,9 @@ def test_a_batch_of_several_configurations_equals_each_alone(quick_cache, monkey
     trial equals the same trial run in a batch of its point alone (the exact mode: no shared linearisations;
     a batch's float32 sums depend on its size, so the reference batch has the same size: the other point's
     trials as partners with its own values)."""
-    from master import config as configuration
-    from master.sweeps import plan as sweeps
-    from master.sweeps.runner import run_chunk
+    from rhi.master import config as configuration
+    from rhi.master.sweeps import plan as sweeps
+    from rhi.master.sweeps.runner import run_chunk
 
     monkeypatch.setenv("RHI_CACHE", str(quick_cache))
     base = configuration.load(quick=True, overrides={"experiment.steps": 30, "experiment.decoders": ["conv"],
@@ -230,7 +230,7 @@ def test_a_batch_of_several_configurations_equals_each_alone(quick_cache, monkey
 
 
 def test_a_tiny_fit_end_to_end_killed_and_resumed(quick_cache, tmp_path, monkeypatch, capsys):
-    from master.commands.cli import main
+    from rhi.master.commands.cli import main
 
     monkeypatch.setenv("RHI_CACHE", str(quick_cache))
     write(tmp_path / "fit.toml", FIT.format(steps=8, simulations=20, calibration=10))
@@ -274,7 +274,7 @@ def test_a_tiny_fit_end_to_end_killed_and_resumed(quick_cache, tmp_path, monkeyp
 def test_a_fit_of_some_of_the_data_s_measures_checks_its_posterior_on_those(quick_cache, tmp_path, monkeypatch):
     """fit.measures = ["drift_cm"] of data with drift and force: the estimator and the posterior predictive check
     see the two cells' drifts only."""
-    from master.commands.cli import main
+    from rhi.master.commands.cli import main
 
     monkeypatch.setenv("RHI_CACHE", str(quick_cache))
     write(tmp_path / "fit.toml", FIT.format(steps=8, simulations=10, calibration=0).replace(
@@ -289,7 +289,7 @@ def test_a_fit_of_some_of_the_data_s_measures_checks_its_posterior_on_those(quic
 
 
 def test_fit_file_refusals(tmp_path):
-    from master.fit.plan import read_plan
+    from rhi.master.fit.plan import read_plan
 
     data = read_data(write(tmp_path / "d.csv", DATA))
     good = FIT.format(steps=5, simulations=20, calibration=0)
@@ -324,8 +324,8 @@ def test_a_latin_hypercube_holds_one_held_out_truth_in_each_stratum_of_every_pri
     """fit.calibration_design = "latin-hypercube": the training rows are the random design's; the held-out rows'
     prior distribution function values, F(v), fall one in each [k/n, (k+1)/n) (F by scipy, independently of the
     quantile functions the draws went through). An explicit "random" is the fit of no key at all."""
-    from master.fit.plan import Parameter, draw_participants, read_plan
-    from master.fit.run import fingerprint
+    from rhi.master.fit.plan import Parameter, draw_participants, read_plan
+    from rhi.master.fit.run import fingerprint
 
     parameters = [Parameter("a", "log-uniform", 5.0, 80.0), Parameter("b", "uniform", 0.05, 0.5),
                   Parameter("c", "normal", 0.0, 3.0, mean=1.0, sd=2.0), Parameter("d", "normal", mean=-1.0, sd=0.5)]
@@ -352,10 +352,10 @@ def test_a_latin_hypercube_holds_one_held_out_truth_in_each_stratum_of_every_pri
 def test_per_trial_parameters_of_a_batch_of_configurations():
     """wiring.parameters (the task's and the model's) give each trial its own values where trials carry them, and
     the configuration's own (a scalar, as before) where none differs; brain.coupling_sd is derived per trial."""
-    from master.tasks.illusion import make_trial
-    from master import config as configuration
-    from master.models import causal
-    from master.config.sources import batchable_keys, parameters
+    from rhi.master.tasks.illusion import make_trial
+    from rhi.master import config as configuration
+    from rhi.master.models import causal
+    from rhi.master.config.sources import batchable_keys, parameters
 
     base = configuration.load(quick=True, model_name="causal")
     assert {"decoder.visual_variance", "brain.sync_sd", "causal.peripersonal_sd",
@@ -381,9 +381,9 @@ def test_an_ensemble_is_the_equal_mixture_of_its_members_and_reloads_as_saved(tm
 
     import torch
 
-    from master.fit import inference
-    from master.fit.plan import ESTIMATOR_DEFAULTS, Parameter
-    from master.fit.run import load_or_train
+    from rhi.master.fit import inference
+    from rhi.master.fit.plan import ESTIMATOR_DEFAULTS, Parameter
+    from rhi.master.fit.run import load_or_train
 
     parameters = [Parameter("a", "uniform", -3.0, 3.0), Parameter("b", "uniform", -3.0, 3.0)]
     rng = np.random.default_rng(1)
@@ -418,8 +418,8 @@ def test_the_unconstrained_space_by_hand():
     N(v) e^z / (1 - Phi(low)); an unbounded normal is unchanged. Samples come back in the inference space."""
     import torch
 
-    from master.fit import inference
-    from master.fit.plan import ESTIMATOR_DEFAULTS, Parameter
+    from rhi.master.fit import inference
+    from rhi.master.fit.plan import ESTIMATOR_DEFAULTS, Parameter
 
     parameters = [Parameter("a", "uniform", 0.05, 0.5), Parameter("b", "log-uniform", 5.0, 80.0),
                   Parameter("c", "normal", 0.0, np.inf, 1.0, 0.5), Parameter("d", "normal", mean=0.0, sd=2.0)]
@@ -452,8 +452,8 @@ def test_the_normal_scores_by_hand():
     """fit.estimator.statistics = "normal-scores": the k-th smallest of n training values goes to Phi^-1((k - 1/2)/n),
     a value between two of them linearly between their scores, one beyond them to the end's score; "z-score"
     leaves the statistics as they are. The posterior's samples are those of the scaled statistics."""
-    from master.fit import inference
-    from master.fit.plan import ESTIMATOR_DEFAULTS, Parameter
+    from rhi.master.fit import inference
+    from rhi.master.fit.plan import ESTIMATOR_DEFAULTS, Parameter
 
     training = np.array([[3.0, 0.5], [1.0, -1.0], [2.0, 0.0], [10.0, 7.0]])
     scores = stats.norm.ppf([1 / 8, 3 / 8, 5 / 8, 7 / 8])  # n = 4
@@ -484,14 +484,14 @@ def test_the_normal_scores_by_hand():
 
 def test_the_fit_in_memory_gives_rhi_fit_s_simulations_and_a_posterior_within_the_prior(quick_cache, tmp_path,
                                                                                          monkeypatch):
-    """master.fit.memory: simulate the training participants of a tiny fit here, nothing written; their statistics
+    """rhi.master.fit.memory: simulate the training participants of a tiny fit here, nothing written; their statistics
     are the ones `rhi fit` computed from its simulations/ folder, bit for bit (the same lockstep batches and
     seeds); train and sample give (count, parameters) draws inside the priors' supports."""
-    from master.commands.cli import main
-    from master.fit import memory
-    from master.fit.plan import draw_participants, read_plan
-    from master.fit.simulate import participants_sweep, statistics, with_noise
-    from master.sweeps.folder import read_records
+    from rhi.master.commands.cli import main
+    from rhi.master.fit import memory
+    from rhi.master.fit.plan import draw_participants, read_plan
+    from rhi.master.fit.simulate import participants_sweep, statistics, with_noise
+    from rhi.master.sweeps.folder import read_records
 
     monkeypatch.setenv("RHI_CACHE", str(quick_cache))
     write(tmp_path / "fit.toml", FIT.format(steps=8, simulations=20, calibration=0))

@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from master.cosim import ConfigError
-from master.fit.data import read_data
-from master.fit.plan import read_plan
-from master.fit.simulate import with_noise
-from master.models.ownership import FREE_PARAMETERS
+from rhi.master.cosim import ConfigError
+from rhi.master.fit.data import read_data
+from rhi.master.fit.plan import read_plan
+from rhi.master.fit.simulate import with_noise
+from rhi.master.models.ownership import FREE_PARAMETERS
 
 ROOT = Path(__file__).resolve().parents[1]
 HUMAN = ROOT / "docs" / "fit" / "human"
@@ -98,7 +98,7 @@ def test_the_ownership_fit_file_fits_the_free_parameters_on_their_priors_over_ro
 def test_every_default_given_again_as_a_value_is_accepted(model):
     """A batch's per-trial values are merged over its configuration (a fit's draws, a stimulation's own keys): each
     default, the infinite ones included (stimulus.stop_time = inf: the stroking never stops), is a valid value."""
-    from master import config as configuration
+    from rhi.master import config as configuration
 
     defaults = configuration.load(model_name=model)
     assert configuration.merge(defaults, defaults) == defaults
@@ -125,12 +125,12 @@ def test_a_tiny_ownership_fit_runs_and_adds_each_cell_s_sem(quick_cache, tmp_pat
     """The whole pipeline on the shipped files, shrunk: the posterior inside the priors; run.json and held_out.csv
     carry each cell's SEM, and the held-out statistics are the simulations' cell means plus numpy's draw of the
     fit's seed times that SEM (to the CSV's 6 significant digits: rtol 1e-5)."""
-    from components.vision import pose_encoder as pe
-    from components.vision.networks import Encoder, preset
-    from master.commands.cli import main
-    from master.fit.plan import draw_participants
-    from master.fit.simulate import participants_sweep, statistics
-    from master.sweeps.folder import read_records
+    from rhi.components.vision import pose_encoder as pe
+    from rhi.components.vision.networks import Encoder, preset
+    from rhi.master.commands.cli import main
+    from rhi.master.fit.plan import draw_participants
+    from rhi.master.fit.simulate import participants_sweep, statistics
+    from rhi.master.sweeps.folder import read_records
 
     monkeypatch.setenv("RHI_CACHE", str(quick_cache))
     encoder = tmp_path / "pose.pt"

@@ -20,8 +20,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from master.fit.calibration import calibrate
-from master.fit.report import calibration_csv, recovery_csv
+from rhi.master.fit.calibration import calibrate
+from rhi.master.fit.report import calibration_csv, recovery_csv
 
 L = 5
 RANKS = np.array([  # the chosen SBC rank of each of 24 participants, per parameter: every value 0..5 used
@@ -144,7 +144,7 @@ def test_calibration_csv_carries_each_statistic_in_its_column():
                  "coverage_90": 1.0, "sbc_chisquare": chi.statistic, "sbc_chisquare_p": chi.pvalue,
                  "sbc_ks": ks.statistic, "sbc_ks_p": ks.pvalue}
         for column, value in truth.items():
-            # the tables write 6 significant digits (master.outputs.tables.number, %.6g): a relative 5e-6
+            # the tables write 6 significant digits (rhi.master.outputs.tables.number, %.6g): a relative 5e-6
             assert float(row[column]) == pytest.approx(value, rel=5e-6, abs=1e-12), column
 
 

@@ -2,7 +2,7 @@
 agent's numbers to the last bit under FMPy, and the camera's image as a Float64 array output.
 
 Truth: the FMI 2.0 agent FMU (tests/test_agent.py holds it against the native trial), and for the image, which
-the FMI 2.0 agent does not show, the native agent component (master.export.agent.Agent) stepped alike.
+the FMI 2.0 agent does not show, the native agent component (rhi.master.export.agent.Agent) stepped alike.
 """
 import importlib.util
 import sys
@@ -13,13 +13,13 @@ from fmpy import read_model_description
 from fmpy.fmi2 import FMU2Slave
 from fmpy.fmi3 import FMU3Slave
 
-from components.body.plant import ArmPlant
-from components.fmu import extracted, guard_library
-from master.config.protocol import make_trial
-from master.cosim import ConfigError
-from master.export.agent import Agent, split_seed
-from master.export.agent_fmu import build_agent_fmu, check_fmi
-from master.export.fmi_checks import CHECKS
+from rhi.components.body.plant import ArmPlant
+from rhi.components.fmu import extracted, guard_library
+from rhi.master.config.protocol import make_trial
+from rhi.master.cosim import ConfigError
+from rhi.master.export.agent import Agent, split_seed
+from rhi.master.export.agent_fmu import build_agent_fmu, check_fmi
+from rhi.master.export.fmi_checks import CHECKS
 from tests.test_agent import agent_fmu, quick, with_steps  # noqa: F401 (fixtures)
 
 pytestmark = pytest.mark.skipif(importlib.util.find_spec("pythonfmu3") is None,
@@ -156,11 +156,11 @@ def test_fmi3_is_refused_for_the_reach_and_an_unknown_version():
 
 
 def test_force_knows_the_fmi3_agent_as_rhi_s_own_and_nothing_else_with_its_layout(agent3, tmp_path):
-    """--force replaces an FMU rhi wrote (master.export.own_files): the FMI 3.0 agent's slave script is
+    """--force replaces an FMU rhi wrote (rhi.master.export.own_files): the FMI 3.0 agent's slave script is
     rhi_agent_slave3_*; the same archive without rhi's agent metadata is not rhi's."""
     import zipfile
 
-    from master.export.own_files import fmu_problem
+    from rhi.master.export.own_files import fmu_problem
 
     assert fmu_problem(agent3) is None
     stripped = tmp_path / "Other.fmu"

@@ -14,9 +14,9 @@ from fmpy.fmi2 import FMU2Slave
 from fmpy.fmi3 import FMU3Slave
 from fmpy.validation import validate_fmu
 
-from components.body.variants import KinematicArm
-from components.model_description3 import to_xml3
-from master.export.c_body import ARRAYS, build_c_fmu
+from rhi.components.body.variants import KinematicArm
+from rhi.components.model_description3 import to_xml3
+from rhi.master.export.c_body import ARRAYS, build_c_fmu
 
 FMUTOOL = Path(sys.executable).with_name("fmutool")  # fmu-manipulation-toolbox, in the test extra
 # The FMI 2.0 outputs, in the order the FMI 3.0 arrays q, hand, force carry them.
@@ -183,6 +183,6 @@ def test_an_array_of_unlike_ports_is_refused(members, says):
 
 
 def test_an_fmi3_body_where_an_fmi2_body_belongs_is_one_line_naming_the_version(twins):
-    from components.fmu.contract import check_contract
+    from rhi.components.fmu.contract import check_contract
 
     assert check_contract(str(twins["3.0"])) == ["FMI version '3.0', need 2.0 (export the body with --fmi 2.0)"]

@@ -17,11 +17,11 @@ from fmpy import read_model_description, simulate_fmu
 from fmpy.fmi2 import FMU2Slave
 from fmpy.fmi3 import FMU3Slave
 
-from components.body.contract import FMI3_ARRAYS
-from components.fmu import extracted, guard_library
-from master.cosim import ConfigError
-from master.export.body import check_fmi, export_body
-from master.export.fmi_checks import CHECKS
+from rhi.components.body.contract import FMI3_ARRAYS
+from rhi.components.fmu import extracted, guard_library
+from rhi.master.cosim import ConfigError
+from rhi.master.export.body import check_fmi, export_body
+from rhi.master.export.fmi_checks import CHECKS
 
 pytestmark = pytest.mark.skipif(importlib.util.find_spec("pythonfmu3") is None,
                                 reason="pythonfmu3 is not installed (the test extra: pip install pythonfmu3==0.3.4)")

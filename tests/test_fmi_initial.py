@@ -9,8 +9,8 @@ import zipfile
 
 import pytest
 
-from master.export.body import build_fmu
-from master.export.fmi_checks import fmutool_problems, initial_problems, validate_problems, variables
+from rhi.master.export.body import build_fmu
+from rhi.master.export.fmi_checks import fmutool_problems, initial_problems, validate_problems, variables
 from tests.test_agent import agent_fmu, quick  # noqa: F401 (fixtures)
 
 

@@ -16,21 +16,21 @@ import pytest
 from fmpy import read_model_description, simulate_fmu
 from fmpy.validation import validate_fmu
 
-from components.body.kinematics import REST_POSE, forward, jacobian
-from components.body.plant import ArmPlant
-from components.component import ComponentError
-from components.body.contract import BODY_CONTRACT
-from components.fmu import FMUComponent, check_contract, extracted, guard_library
-from components.vision.component import Decoder
-from master import ConfigError, SimulationError, System, simulate
-from master.commands.export_body import run as run_export
-from master.export.body import build_fmu
+from rhi.components.body.kinematics import REST_POSE, forward, jacobian
+from rhi.components.body.plant import ArmPlant
+from rhi.components.component import ComponentError
+from rhi.components.body.contract import BODY_CONTRACT
+from rhi.components.fmu import FMUComponent, check_contract, extracted, guard_library
+from rhi.components.vision.component import Decoder
+from rhi.master import ConfigError, SimulationError, System, simulate
+from rhi.master.commands.export_body import run as run_export
+from rhi.master.export.body import build_fmu
 from tests.toys import Constant
 
 OUTPUTS = ("q_shoulder", "q_elbow", "hand_x", "hand_y", "force_x", "force_y")
 BROKEN_PLANTS = '''
 import numpy as np
-from components.body.plant import ArmPlant
+from rhi.components.body.plant import ArmPlant
 
 class NanArmPlant(ArmPlant):
     """Puts NaN into hand_y from t = 0.1 s on, only where q0_shoulder > 150 deg."""
@@ -223,7 +223,7 @@ def test_a_raising_fmu_stops_the_run_with_its_reason_and_runs_its_own_code(fmus)
     # Even in this process, which imported the checkout's plant, the FMU ran the copy it carries.
     plant_file = str(caught.value).rsplit("gear stripped in ", 1)[1].rstrip(")")
     assert plant_file.endswith("resources/components/body/plant.py") and plant_file != sys.modules[
-        "components.body.plant"].__file__ == ArmPlant.step.__code__.co_filename
+        "rhi.components.body.plant"].__file__ == ArmPlant.step.__code__.co_filename
 
 
 def test_fmu_runs_without_this_checkout(fmus, tmp_path):
@@ -233,7 +233,7 @@ def test_fmu_runs_without_this_checkout(fmus, tmp_path):
         sys.meta_path = [f for f in sys.meta_path if not getattr(f, "__module__", "").startswith("__editable__")]
         sys.path = [p for p in sys.path if "__editable__" not in p and p not in ("", {os.getcwd()!r})]
         try:
-            import components
+            import rhi
             raise SystemExit("the checkout is still importable")
         except ImportError:
             pass
@@ -241,7 +241,7 @@ def test_fmu_runs_without_this_checkout(fmus, tmp_path):
         result = simulate_fmu({str(fmus["native"])!r}, stop_time=0.2, step_size=0.02, output_interval=0.02,
                               start_values={{"u_shoulder": 0.5, "held": False}}, output=["q_shoulder"])
         print(repr(float(result["q_shoulder"][-1])), flush=True)
-        os._exit(0)  # pythonfmu 0.7 may crash at interpreter exit (see components.fmu.library)
+        os._exit(0)  # pythonfmu 0.7 may crash at interpreter exit (see rhi.components.fmu.library)
         """)
     done = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True,
                           timeout=60, env={k: v for k, v in os.environ.items() if k != "PYTHONPATH"})
@@ -261,9 +261,9 @@ def test_export_command(tmp_path, capsys):
 def test_a_swapped_body_gets_the_body_keys_it_declares_and_the_rest_are_named(fmus):
     """The kinematic FMU meets the body contract but has no substeps, masses or load cell: the experiment runs
     it with the keys it declares (held, servo gain, torque limit: its held force is the statics of those)."""
-    from master.tasks import illusion as experiment
-    from master import config as configuration
-    from master.config.sources import undeclared
+    from rhi.master.tasks import illusion as experiment
+    from rhi.master import config as configuration
+    from rhi.master.config.sources import undeclared
     from tests.test_batching import tiny_config, tiny_model
 
     config = configuration.merge(tiny_config(steps=20), {"body": {"servo_gain": 10.0}})

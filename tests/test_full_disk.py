@@ -2,7 +2,7 @@
 the same command resumes or replaces what a run cut short left.
 
 The disk fills up by injection (a write raising ENOSPC as the kernel's does, ``OSError(28)`` naming no file), in
-the process that writes: a command run as ``python -c`` with the patch before ``master.commands.cli.main``, or a
+the process that writes: a command run as ``python -c`` with the patch before ``rhi.master.commands.cli.main``, or a
 unit called here.
 """
 from __future__ import annotations
@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from master.cosim import ConfigError
+from rhi.master.cosim import ConfigError
 from tests.faults import ENV, snapshot, tiny_checkpoint
 from tests.sweep_files import sweep_file
 
@@ -27,17 +27,17 @@ import errno, sys, zipfile
 def full(self, *args, **kwargs):
     raise OSError(errno.ENOSPC, "No space left on device")
 zipfile.ZipFile.write = full
-from master.commands.cli import main
+from rhi.master.commands.cli import main
 sys.exit(main(sys.argv[1:]))
 """
 # The disk fills up as a sweep writes its sweep.json, its first file.
 SWEEP_JSON_FULL = """
 import errno, sys
-import master.sweeps.folder as folder
+import rhi.master.sweeps.folder as folder
 def full(path, data):
     raise OSError(errno.ENOSPC, "No space left on device", str(path))
 folder.atomic_write = full
-from master.commands.cli import main
+from rhi.master.commands.cli import main
 sys.exit(main(sys.argv[1:]))
 """
 
@@ -58,8 +58,8 @@ def last_line(done) -> str:
 
 # -- export-agent: the FMU that could not be written is named ----------------------------------------------
 def test_export_agent_onto_a_full_disk_names_the_fmu_exit_1_and_leaves_nothing(tmp_path):
-    from components.body.kinematics import REST_POSE
-    from master.decoders.training_data import HALF_RANGES
+    from rhi.components.body.kinematics import REST_POSE
+    from rhi.master.decoders.training_data import HALF_RANGES
 
     work = tmp_path / "work"
     work.mkdir()
@@ -76,7 +76,7 @@ def test_export_agent_onto_a_full_disk_names_the_fmu_exit_1_and_leaves_nothing(t
 
 # -- reach, experiment, phenomena: the staging folder beside DIR -------------------------------------------
 def test_a_full_disk_as_the_staging_folder_is_made_is_the_machine_s_and_leaves_nothing(tmp_path, monkeypatch):
-    from master.outputs.files import STAGING_MARK, output_folder
+    from rhi.master.outputs.files import STAGING_MARK, output_folder
 
     write_text = pathlib.Path.write_text
 
@@ -97,7 +97,7 @@ def test_a_full_disk_as_the_staging_folder_is_made_is_the_machine_s_and_leaves_n
 def test_a_read_only_parent_stays_a_refusal(tmp_path, monkeypatch):
     import tempfile
 
-    from master.outputs.files import output_folder
+    from rhi.master.outputs.files import output_folder
 
     def denied(*args, **kwargs):
         raise PermissionError(errno.EACCES, "Permission denied")
@@ -113,8 +113,8 @@ def test_a_read_only_parent_stays_a_refusal(tmp_path, monkeypatch):
 def test_a_sweep_cut_short_by_a_full_disk_is_taken_again_by_the_same_command(tmp_path, existing):
     import shutil
 
-    from master.sweeps import plan as sweeps
-    from master.sweeps.folder import sweep_folder
+    from rhi.master.sweeps import plan as sweeps
+    from rhi.master.sweeps.folder import sweep_folder
 
     work = tmp_path / "work"
     work.mkdir()
@@ -137,7 +137,7 @@ def test_a_sweep_cut_short_by_a_full_disk_is_taken_again_by_the_same_command(tmp
 
 
 def test_a_fit_folder_holding_what_a_full_disk_left_is_taken_again(tmp_path):
-    from master.fit.run import prepare_folder
+    from rhi.master.fit.run import prepare_folder
 
     out = tmp_path / "out"
     (out / "figures").mkdir(parents=True)  # a fit cut short before fit.json: its one folder

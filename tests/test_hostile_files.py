@@ -22,7 +22,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from components.archives import LIMITS, ArchiveError, check_archive, extract
+from rhi.components.archives import LIMITS, ArchiveError, check_archive, extract
 from tests.faults import ENV, refused, rhi, snapshot, tiny_checkpoint
 
 ONE_BODY = """<?xml version="1.0" encoding="UTF-8"?>
@@ -72,7 +72,7 @@ def hostile_members(escape: Path) -> dict[str, list]:
 
 @pytest.fixture(scope="module")
 def body_fmu(tmp_path_factory):
-    from master.export.body import build_fmu
+    from rhi.master.export.body import build_fmu
 
     return build_fmu(tmp_path_factory.mktemp("body") / "Body.fmu", "kinematic")
 
@@ -104,7 +104,7 @@ def test_a_fair_archive_unpacks_whole_with_its_executable_bits(tmp_path):
 
 
 def test_the_member_count_and_the_total_size_are_bounded(tmp_path):
-    from components.archives import Limits
+    from rhi.components.archives import Limits
 
     archive = write_zip(tmp_path / "many.zip", [(f"m{i}", b"x" * 10) for i in range(11)])
     with pytest.raises(ArchiveError, match="11 members, over the limit of 10"):
@@ -153,7 +153,7 @@ def hostile_runs(body_fmu, tmp_path_factory):
 
 @pytest.mark.parametrize("master", ["libcosim", "fmpy", "ecos"])
 def test_a_fair_package_runs_from_its_checked_folder_under_every_master(body_fmu, tmp_path, master):
-    from master.export import ssp_ecos
+    from rhi.master.export import ssp_ecos
     if master == "ecos" and ssp_ecos.missing():
         pytest.skip(ssp_ecos.missing())
     (tmp_path / "work").mkdir()
@@ -196,8 +196,8 @@ def with_description(fmu: Path, out: Path, edit) -> Path:
 def test_two_contract_ports_sharing_a_value_reference_are_refused(body_fmu, tmp_path):
     from xml.etree import ElementTree as ET
 
-    from components.body.contract import BODY_CONTRACT
-    from components.fmu import check_contract
+    from rhi.components.body.contract import BODY_CONTRACT
+    from rhi.components.fmu import check_contract
 
     assert check_contract(body_fmu, BODY_CONTRACT) == []
     root = ET.fromstring(zipfile.ZipFile(body_fmu).read("modelDescription.xml"))
@@ -215,7 +215,7 @@ def test_two_contract_ports_sharing_a_value_reference_are_refused(body_fmu, tmp_
 
 
 def test_a_folder_or_a_device_as_body_is_named_as_such(tmp_path):
-    from components.fmu import check_contract
+    from rhi.components.fmu import check_contract
 
     assert check_contract(tmp_path) == [f"{tmp_path} is a folder, not an FMU file"]
     assert check_contract("/dev/zero") == ["/dev/zero is not a regular file"]
@@ -232,7 +232,7 @@ def test_a_folder_or_a_device_as_body_is_named_as_such(tmp_path):
     ({"sizes.hidden": 128}, "its weights do not fit a conv decoder, preset 'tiny' at 16 px (its metadata describes"),  # in bounds, but not the stored weights
 ])
 def test_a_checkpoint_s_network_sizes_are_bounded_before_anything_is_built(tmp_path, change, says):
-    from components.vision.checkpoint import CheckpointError, load
+    from rhi.components.vision.checkpoint import CheckpointError, load
 
     path = tiny_checkpoint(tmp_path / "c.pt", **change)
     with pytest.raises(CheckpointError, match=re.escape(says)):
@@ -245,7 +245,7 @@ def test_a_listener_that_is_not_a_dask_scheduler_is_refused_within_the_limit_and
     import socket
     import time
 
-    from master.sweeps.runner import CONNECT_TIMEOUT_S
+    from rhi.master.sweeps.runner import CONNECT_TIMEOUT_S
     from tests.sweep_files import sweep_file
 
     silent = socket.socket()
@@ -323,8 +323,8 @@ def test_run_system_s_child_dies_with_its_parent(body_fmu, tmp_path):
     ("[brain]\ngamma0 = inf\n", "must be a finite number"),
 ])
 def test_a_config_that_asks_for_the_unbounded_is_refused_naming_the_limit(tmp_path, text, says):
-    from master.cosim import ConfigError
-    from master import config
+    from rhi.master.cosim import ConfigError
+    from rhi.master import config
 
     (tmp_path / "c.toml").write_text(text)
     with pytest.raises(ConfigError, match=re.escape(says)):
@@ -332,8 +332,8 @@ def test_a_config_that_asks_for_the_unbounded_is_refused_naming_the_limit(tmp_pa
 
 
 def test_config_files_are_bounded_in_size_and_must_be_regular(tmp_path):
-    from master.cosim import ConfigError
-    from master import config
+    from rhi.master.cosim import ConfigError
+    from rhi.master import config
 
     with pytest.raises(ConfigError, match="/dev/zero is not a regular file"):
         config.load("/dev/zero")
@@ -343,7 +343,7 @@ def test_config_files_are_bounded_in_size_and_must_be_regular(tmp_path):
 
 
 def test_inf_is_taken_where_the_docs_give_it_a_meaning_and_quoted_dotted_keys_are_dotted_keys(tmp_path):
-    from master import config
+    from rhi.master import config
 
     (tmp_path / "c.toml").write_text('"experiment.trials" = 3\n[brain]\naction_time_constant = inf\n'
                                      "spatial_sd = inf\n")
@@ -354,8 +354,8 @@ def test_inf_is_taken_where_the_docs_give_it_a_meaning_and_quoted_dotted_keys_ar
 def test_a_grid_too_large_to_plan_is_refused_at_once(tmp_path):
     import time
 
-    from master.cosim import ConfigError
-    from master.sweeps import plan as sweeps
+    from rhi.master.cosim import ConfigError
+    from rhi.master.sweeps import plan as sweeps
     from tests.sweep_files import sweep_file
 
     values = [round(0.001 * i, 3) for i in range(1000)]
@@ -379,8 +379,8 @@ def test_a_grid_too_large_to_plan_is_refused_at_once(tmp_path):
     ("stopTime", "1e300", "steps, over the limit of 1000000"),
 ])
 def test_a_package_s_default_experiment_is_bounded_before_any_master_runs(body_fmu, tmp_path, attribute, text, says):
-    from master.cosim import ConfigError
-    from master.export.system import run_ssp
+    from rhi.master.cosim import ConfigError
+    from rhi.master.export.system import run_ssp
 
     original = {"stopTime": 'stopTime="0.05"', "baseStepSize": 'baseStepSize="0.01"'}[attribute]
     ssd = ONE_BODY.replace(original, f'{attribute}="{text}"')

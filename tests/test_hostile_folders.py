@@ -82,8 +82,8 @@ def prepared(root: Path) -> Path:
 # 1-2. A manifest entry is rhi's only at a path inside DIR reached through no link
 # ======================================================================================================
 def test_sweep_force_never_removes_a_listed_file_reached_through_a_link(tmp_path):
-    from master.sweeps import plan as sweeps
-    from master.sweeps.folder import sweep_folder
+    from rhi.master.sweeps import plan as sweeps
+    from rhi.master.sweeps.folder import sweep_folder
     from tests.sweep_files import sweep_file
 
     work, outside = prepared(tmp_path), outside_files(tmp_path)
@@ -138,14 +138,14 @@ def fit_folder(work: Path) -> Path:
     """work/out as an interrupted `rhi fit` left it: fit.json, every simulated participant's record (made up
     here: the fit only reads them back), and predictive/ an earlier posterior predictive sweep (another
     fingerprint, as after a change of the data), each with the manifest rhi sweep keeps."""
-    from master.fit.data import read_data
-    from master.fit.plan import draw_participants, read_plan
-    from master.fit.run import fingerprint, prepare_folder
-    from master.fit.simulate import participants_sweep
-    from master.sweeps.folder import sweep_folder
+    from rhi.master.fit.data import read_data
+    from rhi.master.fit.plan import draw_participants, read_plan
+    from rhi.master.fit.run import fingerprint, prepare_folder
+    from rhi.master.fit.simulate import participants_sweep
+    from rhi.master.sweeps.folder import sweep_folder
 
-    from components.body.kinematics import REST_POSE
-    from master.decoders.training_data import HALF_RANGES
+    from rhi.components.body.kinematics import REST_POSE
+    from rhi.master.decoders.training_data import HALF_RANGES
 
     checkpoint = tiny_checkpoint(work / "tiny.pt", rest_pose=list(REST_POSE), half_ranges=list(HALF_RANGES))
     (work / "fit.toml").write_text(FIT.format(checkpoint=checkpoint))
@@ -190,7 +190,7 @@ MINE = b"my own notes, in a file I happened to name like an output\n"
 @pytest.fixture(scope="module")
 def one_body_ssp(tmp_path_factory) -> Path:
     """A fair SSP package of the kinematic body alone (5 steps), for run-system."""
-    from master.export.body import build_fmu
+    from rhi.master.export.body import build_fmu
     from tests.test_hostile_files import one_body_package
 
     folder = tmp_path_factory.mktemp("ssp")
@@ -209,8 +209,8 @@ def out_file_commands(ssp: Path) -> dict:
 
 def agent_inputs(work: Path) -> None:
     """A 16 px tiny conv checkpoint and a configuration at 16 px with 2 steps, for the agent's exports."""
-    from components.body.kinematics import REST_POSE
-    from master.decoders.training_data import HALF_RANGES
+    from rhi.components.body.kinematics import REST_POSE
+    from rhi.master.decoders.training_data import HALF_RANGES
 
     tiny_checkpoint(work / "ckpt.pt", rest_pose=list(REST_POSE), half_ranges=list(HALF_RANGES))
     (work / "c.toml").write_text('[experiment]\ndecoders = ["conv"]\nresolution = 16\nsteps = 2\n'

@@ -14,12 +14,12 @@ import socketserver
 
 import pytest
 
-from master.cosim import ConfigError
+from rhi.master.cosim import ConfigError
 from tests.faults import ENV, REPO, refused, rhi, snapshot
 
 
 def load(overrides: dict, model: str = "paper"):
-    from master import config
+    from rhi.master import config
 
     return config.load(overrides=overrides, model_name=model)
 
@@ -39,7 +39,7 @@ def load(overrides: dict, model: str = "paper"):
     ("causal.pixel_weight", -1.0, "causal", "causal.pixel_weight: brain.pixel_weight = -1.0 is outside its range"),
 ])
 def test_a_parameter_a_component_would_refuse_is_refused_when_the_configuration_loads(key, value, model, says):
-    from master.cosim import ConfigError
+    from rhi.master.cosim import ConfigError
 
     with pytest.raises(ConfigError, match=re.escape(says)):
         load({key: value}, model)
@@ -69,7 +69,7 @@ def test_a_checkpoint_named_for_a_decoder_that_does_not_run_must_exist(tmp_path)
 @pytest.mark.parametrize("command", [["experiment", "--quick"], ["train", "--decoder", "conv"], ["sweep", "--config",
                                                                                                    "s.toml"]])
 def test_an_output_name_over_the_file_system_s_limit_is_refused_naming_it(tmp_path, command):
-    from master.outputs.files import NAME_MARGIN
+    from rhi.master.outputs.files import NAME_MARGIN
     from tests.sweep_files import sweep_file
 
     (tmp_path / "work").mkdir()
@@ -90,7 +90,7 @@ def test_an_output_name_over_the_file_system_s_limit_is_refused_naming_it(tmp_pa
      "must be below 2 x brain.proprioceptive_variance = 1 s"),
 ])
 def test_threads_and_the_step_size_are_bounded(overrides, says):
-    from master.cosim import ConfigError
+    from rhi.master.cosim import ConfigError
 
     with pytest.raises(ConfigError, match=re.escape(says)):
         load(overrides)
@@ -131,7 +131,7 @@ DAMAGED = {"not_json": "{not json", "not_an_object": "[1, 2]", "truncated": '{"f
 def verdict_setup(tmp_path, monkeypatch):
     """A quick configuration, a stand-in checkpoint (the key hashes its bytes), an empty shipped folder, and
     the check replaced by one that counts its calls and answers GOOD_VERDICT (no trial runs)."""
-    from master.tasks.illusion import fast_check
+    from rhi.master.tasks.illusion import fast_check
 
     (tmp_path / "cache").mkdir()
     (tmp_path / "shipped").mkdir()
@@ -148,7 +148,7 @@ def verdict_setup(tmp_path, monkeypatch):
 
 @pytest.mark.parametrize("damage", list(DAMAGED))
 def test_a_damaged_cached_verdict_is_checked_again_and_rewritten_with_one_note(verdict_setup, capsys, damage):
-    from master.tasks.illusion import fast_check
+    from rhi.master.tasks.illusion import fast_check
 
     config, checkpoints, cached, _, calls = verdict_setup
     cached.write_text(DAMAGED[damage])
@@ -163,8 +163,8 @@ def test_a_damaged_cached_verdict_is_checked_again_and_rewritten_with_one_note(v
 
 
 def test_a_damaged_shipped_verdict_is_a_clear_error_and_a_sound_one_is_used(verdict_setup):
-    from master.cosim import ConfigError
-    from master.tasks.illusion import fast_check
+    from rhi.master.cosim import ConfigError
+    from rhi.master.tasks.illusion import fast_check
 
     config, checkpoints, cached, shipped, calls = verdict_setup
     shipped.write_text(DAMAGED["not_an_object"])
@@ -176,7 +176,7 @@ def test_a_damaged_shipped_verdict_is_a_clear_error_and_a_sound_one_is_used(verd
 
 
 def test_every_shipped_verdict_is_sound():
-    from master.tasks.illusion import fast_check
+    from rhi.master.tasks.illusion import fast_check
 
     shipped = sorted(fast_check.SHIPPED.glob("fast-check-*.json"))
     assert shipped and all(fast_check.verdict_problem(path.read_text()) is None for path in shipped)
@@ -206,7 +206,7 @@ def test_an_http_listener_as_scheduler_is_refused_within_the_limit(tmp_path, ser
     import threading
     import time
 
-    from master.sweeps.runner import CONNECT_TIMEOUT_S
+    from rhi.master.sweeps.runner import CONNECT_TIMEOUT_S
     from tests.sweep_files import sweep_file
 
     handler = {"http.server": http.server.SimpleHTTPRequestHandler, "answers_at_once": AnswersAtOnce,
@@ -288,7 +288,7 @@ def test_the_local_pool_s_workers_die_with_a_killed_sweep(tmp_path):
 def test_an_experiment_output_is_published_with_a_manifest_of_every_file(tmp_path):
     import hashlib
 
-    from master.outputs import files
+    from rhi.master.outputs import files
 
     out = tmp_path / "run"
     with files.output_folder(out, force=False) as staging:
@@ -326,12 +326,12 @@ def test_a_phenomenon_report_file_rhi_did_not_write_is_never_written_over(tmp_pa
 
 # -- the docs page states the limits the code applies -------------------------------------------------
 def test_docs_safety_states_the_code_s_limits():
-    from components.archives import LIMITS
-    from components.vision import checkpoint
-    from master import config
-    from master.export import ssp_package
-    from master.outputs import files
-    from master.sweeps import plan, runner
+    from rhi.components.archives import LIMITS
+    from rhi.components.vision import checkpoint
+    from rhi.master import config
+    from rhi.master.export import ssp_package
+    from rhi.master.outputs import files
+    from rhi.master.sweeps import plan, runner
 
     page = (REPO / "docs" / "safety.md").read_text()
     table = page.partition("<!-- limits table")[2].split("\n\n")[0]
@@ -360,8 +360,8 @@ def test_rhi_version_prints_the_installed_version(tmp_path):
     ("stimulus.period", 0.0, r"stimulus\.period: stimulus\.period = 0\.0 is outside its range"),
 ])
 def test_settings_are_checked_before_the_staging_folder_and_training(tmp_path, monkeypatch, key, value, says):
-    from master import config as configuration
-    from master.tasks.illusion.publish import run_into
+    from rhi.master import config as configuration
+    from rhi.master.tasks.illusion.publish import run_into
 
     import tempfile
 
@@ -377,9 +377,9 @@ def test_settings_are_checked_before_the_staging_folder_and_training(tmp_path, m
 
 
 def test_a_bad_checkpoint_is_found_before_the_other_decoder_is_trained(tmp_path, monkeypatch):
-    from components.vision.checkpoint import CheckpointError
-    from master import config as configuration
-    from master.tasks.illusion.publish import run_into
+    from rhi.components.vision.checkpoint import CheckpointError
+    from rhi.master import config as configuration
+    from rhi.master.tasks.illusion.publish import run_into
 
     monkeypatch.setenv("RHI_CACHE", str(tmp_path / "cache"))
     monkeypatch.chdir(tmp_path)

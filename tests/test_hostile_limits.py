@@ -48,7 +48,7 @@ def test_a_checkpoint_that_is_a_fifo_or_a_device_is_refused_by_its_kind(tmp_path
 def test_a_checkpoint_loaded_directly_that_is_a_fifo_or_a_device_is_refused_without_opening_it(tmp_path, kind):
     import signal
 
-    from components.vision import checkpoint
+    from rhi.components.vision import checkpoint
 
     def hung(*_):
         raise TimeoutError("checkpoint.load opened the FIFO and waited for a writer")
@@ -70,7 +70,7 @@ def test_a_checkpoint_loaded_directly_that_is_a_fifo_or_a_device_is_refused_with
 def test_a_checkpoint_whose_metadata_nests_deep_is_refused_in_one_line(tmp_path):
     import torch
 
-    from components.vision.checkpoint import FORMAT
+    from rhi.components.vision.checkpoint import FORMAT
     from tests.test_hostile_folders import DEEP
 
     work = prepared(tmp_path)
@@ -97,8 +97,8 @@ def test_a_reach_with_too_many_goals_is_refused_with_the_memory_it_implies(tmp_p
 
 
 def test_the_reach_memory_bound_counts_every_reach_and_lets_the_shipped_reach_run():
-    from master.config import BYTES_PER_BATCH_PIXEL, BYTES_PER_TRIAL_STEP, physical_memory
-    from master.tasks.reach import task as reach
+    from rhi.master.config import BYTES_PER_BATCH_PIXEL, BYTES_PER_TRIAL_STEP, physical_memory
+    from rhi.master.tasks.reach import task as reach
 
     config = reach.load(quick=True, overrides={"reach.goals": 7})
     # 7 goals x 1 band x 2 decoders, 501 recorded steps, two cameras' 32 x 32 images each
@@ -134,7 +134,7 @@ def test_a_worker_count_over_four_per_core_is_refused_before_any_work(tmp_path, 
 
 
 def test_a_worker_count_of_four_per_core_is_accepted_and_one_more_is_not(tmp_path):
-    from master.sweeps import plan as sweeps
+    from rhi.master.sweeps import plan as sweeps
     from tests.sweep_files import sweep_file
 
     path = sweep_file(tmp_path / "s.toml", grid={"conditions.left": [-0.1]}, trials=1, workers=4 * cores())
@@ -169,8 +169,8 @@ def fit_files(work: Path, estimator: str = "", fit: str = "", checkpoint: str = 
 
 
 def read_fit(work: Path, **changes):
-    from master.fit.data import read_data
-    from master.fit.plan import read_plan
+    from rhi.master.fit.data import read_data
+    from rhi.master.fit.plan import read_plan
 
     plan_path, data_path = fit_files(work, **changes)
     return read_plan(str(plan_path), read_data(data_path))
@@ -195,14 +195,14 @@ def read_fit(work: Path, **changes):
 def test_an_estimator_key_out_of_its_range_is_refused_when_the_fit_file_is_read(tmp_path, line, says):
     import re
 
-    from master.cosim import ConfigError
+    from rhi.master.cosim import ConfigError
 
     with pytest.raises(ConfigError, match=re.escape(says)):
         read_fit(tmp_path, estimator=line)
 
 
 def test_each_estimator_key_at_its_limit_is_accepted(tmp_path, monkeypatch):
-    from master import config as configuration
+    from rhi.master import config as configuration
 
     monkeypatch.setattr(configuration, "physical_memory", lambda: 0)  # unknown: the memory is not checked
     plan = read_fit(tmp_path, estimator="hidden_features = 1024\ntransforms = 64\nthreads = 1024\nensemble = 32\n"
@@ -211,8 +211,8 @@ def test_each_estimator_key_at_its_limit_is_accepted(tmp_path, monkeypatch):
 
 
 def test_an_estimator_that_needs_more_memory_than_the_machine_has_is_refused_saying_how_much(tmp_path, monkeypatch):
-    from master import config as configuration
-    from master.cosim import ConfigError
+    from rhi.master import config as configuration
+    from rhi.master.cosim import ConfigError
 
     monkeypatch.setattr(configuration, "physical_memory", lambda: 2 * 2**30)  # a machine of 2 GiB
     # 1 parameter, 1 statistic (drift_cm in left/sync): 8 x 64 transforms x 1024 x (1024 + 3) weights of 16 bytes,
@@ -228,8 +228,8 @@ def test_an_estimator_that_needs_more_memory_than_the_machine_has_is_refused_say
 
 
 def test_fit_estimator_threads_over_the_limit_is_refused_by_the_command_before_any_simulation(tmp_path):
-    from components.body.kinematics import REST_POSE
-    from master.decoders.training_data import HALF_RANGES
+    from rhi.components.body.kinematics import REST_POSE
+    from rhi.master.decoders.training_data import HALF_RANGES
     from tests.faults import tiny_checkpoint
 
     work = prepared(tmp_path)
@@ -246,11 +246,11 @@ def test_fit_estimator_threads_over_the_limit_is_refused_by_the_command_before_a
 # 10. A loss that becomes NaN while the estimator trains: one line, exit status 1 (a failure during the work)
 # ======================================================================================================
 def test_a_loss_that_becomes_nan_in_training_is_one_line_and_exit_status_1(tmp_path, monkeypatch):
-    import master.fit.plan
+    import rhi.master.fit.plan
     import tests.test_hostile_folders as folders
 
     # the bound that refuses learning_rate = 1e30 before any work, lifted: here, where rhi runs (in this process)
-    monkeypatch.setattr(master.fit.plan, "MAX_LEARNING_RATE", float("inf"))
+    monkeypatch.setattr(rhi.master.fit.plan, "MAX_LEARNING_RATE", float("inf"))
     monkeypatch.setattr(folders, "FIT", folders.FIT.replace("threads = 1\n", "threads = 1\nlearning_rate = 1e30\n"))
     work = prepared(tmp_path)
     out = folders.fit_folder(work)  # every simulation made up: the fit goes straight to the training
@@ -279,8 +279,8 @@ def test_a_saved_estimator_with_nan_or_misshapen_weights_is_trained_again_with_a
     import numpy as np
     import torch
 
-    from master.fit import inference
-    from master.fit.run import load_or_train
+    from rhi.master.fit import inference
+    from rhi.master.fit.run import load_or_train
 
     plan = read_fit(tmp_path)
     generator = np.random.default_rng(0)
@@ -350,8 +350,8 @@ def test_a_phenomenon_protocol_s_bad_value_is_refused_in_one_line_before_any_wor
 def test_a_number_list_accepts_whole_and_decimal_numbers_and_refuses_anything_else():
     import math
 
-    from master import config as configuration
-    from master.cosim import ConfigError
+    from rhi.master import config as configuration
+    from rhi.master.cosim import ConfigError
 
     assert configuration.check_type("k", [0, 0.5, -2], [0.0, 1.0]) == [0, 0.5, -2]
     for value in ([math.nan], [math.inf], [-math.inf], [True], [None], [2**64], [[1.0]], ["1"]):
@@ -372,8 +372,8 @@ def test_a_number_list_accepts_whole_and_decimal_numbers_and_refuses_anything_el
     ("[fit.noise]\ndrift_cm = 1000.5", "fit.noise.drift_cm = 1000.5 is over the limit of 1000"),
 ])
 def test_a_fit_setting_over_its_limit_is_refused_saying_so_before_any_simulation(tmp_path, fit, says):
-    from components.body.kinematics import REST_POSE
-    from master.decoders.training_data import HALF_RANGES
+    from rhi.components.body.kinematics import REST_POSE
+    from rhi.master.decoders.training_data import HALF_RANGES
     from tests.faults import tiny_checkpoint
 
     work = prepared(tmp_path)
@@ -412,7 +412,7 @@ def test_a_precision_ratio_too_large_for_the_decoder_is_refused_in_words_before_
 
 
 def test_the_largest_precision_ratio_the_decoder_allows_is_accepted():
-    from master.tasks.reach import task as reach
+    from rhi.master.tasks.reach import task as reach
 
     assert reach.load(quick=True, overrides={"reach.precision_ratio": 2e13})["reach"]["precision_ratio"] == 2e13
 
@@ -436,8 +436,8 @@ UNBOUNDED_NORMAL = '[fit.parameters.brain.proprioceptive_variance]\nprior = "nor
 def test_a_prior_whose_support_leaves_the_parameter_s_range_is_refused_naming_both(tmp_path, spec, model, says):
     """The ranges are the components' own (components/brain/integrator.py and causal_brain.py declare
     proprioceptive_variance >= 0 and >= 1e-12, gamma0 in [0, 1], sync_sd >= 0)."""
-    from components.brain.causal_brain import CausalBrain
-    from components.brain.integrator import Brain
+    from rhi.components.brain.causal_brain import CausalBrain
+    from rhi.components.brain.integrator import Brain
 
     brain = (Brain if model == "paper" else CausalBrain)()
     name = spec.split("]")[0].rpartition(".")[2]
@@ -459,8 +459,8 @@ def test_a_normal_prior_truncated_inside_the_range_is_read(tmp_path):
     text = (work / "fit.toml").read_text()
     (work / "fit.toml").write_text(text.split('[fit.parameters."decoder.visual_variance"]')[0] + UNBOUNDED_NORMAL
                                    + "low = 0.1\n")
-    from master.fit.data import read_data
-    from master.fit.plan import read_plan
+    from rhi.master.fit.data import read_data
+    from rhi.master.fit.plan import read_plan
 
     (parameter,) = read_plan(str(work / "fit.toml"), read_data(work / "data.csv")).parameters
     assert (parameter.key, parameter.low, parameter.high) == ("brain.proprioceptive_variance", 0.1, float("inf"))
@@ -477,9 +477,9 @@ class Planned(Exception):
 def test_the_causal_participants_of_a_phenomenon_s_config_file_count(tmp_path, monkeypatch, participants):
     import argparse
 
-    import master.commands.sweep
-    from master.commands.phenomenon import run as run_phenomenon
-    from master.sweeps import plan
+    import rhi.master.commands.sweep
+    from rhi.master.commands.phenomenon import run as run_phenomenon
+    from rhi.master.sweeps import plan
     from tests.faults import REPO
 
     shipped = (REPO / "master" / "phenomena" / "distance.toml").read_text()
@@ -491,7 +491,7 @@ def test_the_causal_participants_of_a_phenomenon_s_config_file_count(tmp_path, m
         given.update(trials=trials)
         raise Planned
 
-    monkeypatch.setattr(master.commands.sweep, "sweep_and_report", sweep_and_report)
+    monkeypatch.setattr(rhi.master.commands.sweep, "sweep_and_report", sweep_and_report)
     with pytest.raises(Planned):
         run_phenomenon(argparse.Namespace(name="distance", config=str(path), scheduler=None, out=str(tmp_path / "out"),
                                           force=False, model="causal", debug=False))
@@ -520,12 +520,12 @@ def test_a_name_that_is_not_one_line_of_printable_text_is_refused_naming_its_lin
 
 
 def test_quoted_names_and_line_numbers_after_a_comment_are_read_as_written(tmp_path):
-    from master.fit.data import read_data
+    from rhi.master.fit.data import read_data
 
     path = tmp_path / "data.csv"
     path.write_text('# a study\nparticipant,condition,stimulation,drift_cm\n"twolines",left,sync,-0.3\n'
                     '"two, lines",left,sync,-0.1\n\n"Zoë",left,sync,x\n')
-    from master.cosim import ConfigError
+    from rhi.master.cosim import ConfigError
 
     with pytest.raises(ConfigError, match="data.csv line 6: column drift_cm = 'x' is not a number"):
         read_data(path)
@@ -576,10 +576,10 @@ def test_a_task_whose_drift_is_in_words_fails_its_trial_and_the_tables_keep_thei
 # ======================================================================================================
 def conv_checkpoint_at(path: Path, resolution: int) -> Path:
     """An untrained tiny conv decoder at ``resolution`` px, with the body's rest pose and ranges."""
-    from components.body.kinematics import REST_POSE
-    from components.vision import checkpoint
-    from components.vision.networks import build, preset, sizes_dict
-    from master.decoders.training_data import HALF_RANGES
+    from rhi.components.body.kinematics import REST_POSE
+    from rhi.components.vision import checkpoint
+    from rhi.components.vision.networks import build, preset, sizes_dict
+    from rhi.master.decoders.training_data import HALF_RANGES
 
     metadata = {"kind": "conv", "preset": "tiny", "sizes": sizes_dict(preset("tiny")), "resolution": resolution,
                 "rest_pose": list(REST_POSE), "half_ranges": list(HALF_RANGES), "data_hash": "x", "validation_mse": 0.1}
@@ -591,14 +591,14 @@ def conv_checkpoint_at(path: Path, resolution: int) -> Path:
 def test_bench_quick_measures_the_drift_error_on_the_checkpoint_given(tmp_path, monkeypatch):
     import argparse
 
-    import master.commands.bench as bench
-    from master import config as configuration
-    from master.bench.protocol import fast_error
+    import rhi.master.commands.bench as bench
+    from rhi.master import config as configuration
+    from rhi.master.bench.protocol import fast_error
 
     path = str(conv_checkpoint_at(tmp_path / "conv64.pt", configuration.load()["experiment"]["resolution"]))
     given = []
-    monkeypatch.setattr("master.bench.suite.run_suite", lambda settings: given.append(settings) or {})
-    monkeypatch.setattr("master.bench.report.table", lambda report: "")
+    monkeypatch.setattr("rhi.master.bench.suite.run_suite", lambda settings: given.append(settings) or {})
+    monkeypatch.setattr("rhi.master.bench.report.table", lambda report: "")
     bench.run(argparse.Namespace(quick=True, checkpoint=path, threads=1, json=False, training=False))
     (settings,) = given
     assert (settings.error_checkpoint, settings.error_model, settings.error_steps) == (path, "cached", 30)  # --quick's
@@ -623,8 +623,8 @@ def test_bench_refuses_a_checkpoint_it_would_not_use_before_measuring_anything(t
 # docs/safety.md states the limits of a run that the code applies
 # ======================================================================================================
 def test_docs_safety_states_the_code_s_run_limits():
-    from master.fit import plan
-    from master.runtime import pool
+    from rhi.master.fit import plan
+    from rhi.master.runtime import pool
     from tests.faults import REPO
 
     page = (REPO / "docs" / "safety.md").read_text()

@@ -12,14 +12,14 @@ from tests.faults import snapshot, tiny_checkpoint
 
 
 def sweep_of(tmp_path: Path, name: str, grid: dict):
-    from master.sweeps import plan as sweeps
+    from rhi.master.sweeps import plan as sweeps
     from tests.sweep_files import sweep_file
 
     return sweeps.load(sweep_file(tmp_path / f"{name}.toml", grid=grid))
 
 
 def prepare(out: Path, sweep, force: bool = False) -> None:
-    from master.sweeps.folder import sweep_folder
+    from rhi.master.sweeps.folder import sweep_folder
 
     with sweep_folder(out, sweep, force):
         pass
@@ -37,7 +37,7 @@ def user_files(out: Path) -> dict:
 
 @pytest.mark.parametrize("force", [False, True])
 def test_a_sweep_json_of_another_tool_is_never_replaced(tmp_path, force):
-    from master.cosim import ConfigError
+    from rhi.master.cosim import ConfigError
 
     out = tmp_path / "out"
     before = user_files(out)
@@ -48,7 +48,7 @@ def test_a_sweep_json_of_another_tool_is_never_replaced(tmp_path, force):
 
 @pytest.mark.parametrize("content", ['[1, 2]', '"text"', '{"fingerprint": 3}', "{not json"])
 def test_a_sweep_json_that_is_not_rhi_s_object_is_refused_in_one_line(tmp_path, content):
-    from master.cosim import ConfigError
+    from rhi.master.cosim import ConfigError
 
     (tmp_path / "out").mkdir()
     (tmp_path / "out" / "sweep.json").write_text(content)
@@ -59,8 +59,8 @@ def test_a_sweep_json_that_is_not_rhi_s_object_is_refused_in_one_line(tmp_path, 
 def test_force_removes_only_the_older_sweep_s_own_files(tmp_path):
     """Only what the older sweep's manifest lists, unchanged since: a file of yours, or one you edited, stays;
     one the new sweep would write over is refused, naming it, before anything is removed."""
-    from master.cosim import ConfigError
-    from master.sweeps.folder import sweep_folder
+    from rhi.master.cosim import ConfigError
+    from rhi.master.sweeps.folder import sweep_folder
 
     out = tmp_path / "out"
     first = sweep_of(tmp_path, "first", {"conditions.left": [-0.1, -0.2]})
@@ -93,7 +93,7 @@ def test_force_removes_only_the_older_sweep_s_own_files(tmp_path):
 
 @pytest.mark.parametrize("link", ["figures", "trials", "summary.csv"])
 def test_a_link_where_a_sweep_writes_is_refused_and_what_it_leads_to_is_untouched(tmp_path, link):
-    from master.cosim import ConfigError
+    from rhi.master.cosim import ConfigError
 
     out, elsewhere = tmp_path / "out", tmp_path / "elsewhere"
     first = sweep_of(tmp_path, "first", {"conditions.left": [-0.1, -0.2]})
@@ -109,9 +109,9 @@ def test_a_link_where_a_sweep_writes_is_refused_and_what_it_leads_to_is_untouche
 
 
 def test_experiment_force_never_removes_a_folder_where_an_output_file_belongs(tmp_path):
-    from master.cosim import ConfigError
-    from master.outputs.files import check_output
-    from master.outputs.manifest import Manifest
+    from rhi.master.cosim import ConfigError
+    from rhi.master.outputs.files import check_output
+    from rhi.master.outputs.manifest import Manifest
 
     out = tmp_path / "out"
     (out / "trials.csv").mkdir(parents=True)
@@ -126,8 +126,8 @@ def test_experiment_force_never_removes_a_folder_where_an_output_file_belongs(tm
 
 
 def test_train_never_replaces_a_file_that_is_not_a_checkpoint(tmp_path):
-    from master.cosim import ConfigError
-    from master.decoders.training import check_target
+    from rhi.master.cosim import ConfigError
+    from rhi.master.decoders.training import check_target
 
     (tmp_path / "notes.txt").write_text("mine")
     (tmp_path / "notes.pt").write_text("mine")
@@ -144,12 +144,12 @@ def test_an_output_folder_that_is_a_mount_point_is_written_in_place(tmp_path, mo
     """A mount point cannot be renamed onto (EBUSY, as the kernel answers): staging goes inside it."""
     import errno
 
-    from master.outputs import files
+    from rhi.master.outputs import files
 
     out = tmp_path / "volume"
     out.mkdir()
     if earlier:  # an earlier output of ours, replaced with --force
-        from master.outputs.manifest import Manifest
+        from rhi.master.outputs.manifest import Manifest
 
         (out / "run.json").write_text('{"command": "rhi experiment", "figures": []}')
         (out / "summary.csv").write_text("old")

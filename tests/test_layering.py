@@ -1,7 +1,9 @@
 """Imports go one way: the rule table below, checked on every .py file under master/ and components/.
 
 Every ``import x`` and ``from x import y`` counts, at any depth (a lazy import inside a function too);
-a relative import is resolved against the file's package. docs/architecture.md mirrors the table.
+a relative import is resolved against the file's package. The folders are installed as ``rhi.master`` and
+``rhi.components``: the rules speak of ``master.x`` and ``components.x``, and an import of ``rhi.master.x``
+counts as one of ``master.x``. docs/architecture.md mirrors the table.
 """
 import ast
 from pathlib import Path
@@ -41,6 +43,12 @@ def within(module: str, prefixes) -> bool:
     return any(module == p or module.startswith(p + ".") for p in prefixes)
 
 
+def folder_name(module: str) -> str:
+    """``rhi.master.x`` -> ``master.x``: the installed name of a module, as the folders name it."""
+    return module.removeprefix("rhi.") if module.split(".")[:2] in (["rhi", "master"], ["rhi", "components"]) \
+        else module
+
+
 def imports(relative: str, source: str):
     """(line, what the import names, the module path it reaches) for every project import in a file."""
     parts = relative[:-3].split("/")
@@ -48,7 +56,7 @@ def imports(relative: str, source: str):
     for node in ast.walk(ast.parse(source, relative)):
         if isinstance(node, ast.Import):
             for alias in node.names:
-                yield node.lineno, f"import {alias.name}", alias.name
+                yield node.lineno, f"import {alias.name}", folder_name(alias.name)
         elif isinstance(node, ast.ImportFrom):
             base = node.module or ""
             if node.level:  # relative: from the file's package, one level up per extra dot
@@ -56,7 +64,8 @@ def imports(relative: str, source: str):
                 base = ".".join(anchor + ([base] if base else []))
             for alias in node.names:
                 target = base if alias.name == "*" else f"{base}.{alias.name}"
-                yield node.lineno, f"from {'.' * node.level}{node.module or ''} import {alias.name}", target
+                yield (node.lineno, f"from {'.' * node.level}{node.module or ''} import {alias.name}",
+                       target if node.level else folder_name(target))
 
 
 def rank(layer: str) -> int:
@@ -132,6 +141,29 @@ def test_imports_follow_the_rule_table():
     files = python_files("master", "components")
     assert len(files) > 40 and any(p.parent.name == "cosim" for p in files)
     found = [v for path in files for v in violations(path.relative_to(ROOT).as_posix(), path.read_text())]
+    assert not found, "\n".join(found)
+
+
+def absolute_imports(path: Path):
+    """(line, module) of every absolute import in a file, at any depth."""
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            yield from ((node.lineno, alias.name) for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and not node.level:
+            yield node.lineno, node.module
+
+
+def test_imports_name_the_installed_package():
+    """The distribution installs ``rhi`` only: master/, tests/ and examples/ import ``rhi.master`` and
+    ``rhi.components``, never a bare ``master`` or ``components``; components/ imports itself relatively, so that
+    the copy a body FMU carries (as its own top-level ``components``) runs where rhi is not installed."""
+    found = []
+    for path in python_files("master", "components", "tests", "examples", "rhi"):
+        for line, module in absolute_imports(path):
+            top = module.split(".")[0]
+            inside_components = path.relative_to(ROOT).parts[0] == "components"
+            if top in PROJECT or (inside_components and within(module, ("rhi",))):
+                found.append(f"{path.relative_to(ROOT)}:{line}: import {module}")
     assert not found, "\n".join(found)
 
 

@@ -1,5 +1,5 @@
 """What a trial measures (docs/design.md, Measures), by hand on constructed recordings: measures() and the sweep's
-per-trial outcome (master.tasks.illusion.runner.trial_outcome).
+per-trial outcome (rhi.master.tasks.illusion.runner.trial_outcome).
 
 The truth is written here: hand positions by inverse kinematics, the Jacobian by central differences of the
 forward kinematics. Drift = x of the perceived hand (forward kinematics of mu) minus x of the real hand, the hand
@@ -10,12 +10,12 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from components.body.kinematics import REST_HAND, REST_POSE, SHOULDER, forward, inverse
-from components.vision.component import Decoder
-from master import config as configuration
-from master.tasks.illusion import measures, run_batch, trial_seed
-from master.tasks.illusion import runner
-from master.runtime.pool import JOB_THREADS
+from rhi.components.body.kinematics import REST_HAND, REST_POSE, SHOULDER, forward, inverse
+from rhi.components.vision.component import Decoder
+from rhi.master import config as configuration
+from rhi.master.tasks.illusion import measures, run_batch, trial_seed
+from rhi.master.tasks.illusion import runner
+from rhi.master.runtime.pool import JOB_THREADS
 from tests.test_batching import three_trials, tiny_config, tiny_model
 
 STEPS = 3  # rows per constructed recording: steps + 1 = 4
@@ -120,7 +120,7 @@ def test_trial_outcome_is_the_last_row_of_the_trials_measures(monkeypatch):
         return made
 
     monkeypatch.setattr(runner, "run_batch", run_batch)
-    monkeypatch.setattr("master.decoders.cache.decoder_component",
+    monkeypatch.setattr("rhi.master.decoders.cache.decoder_component",
                         lambda kind, path, given, threads=None: ("decoder", path, threads))
     outcome = runner.trial_outcome(config, "vae", "left", "async", 3, checkpoint="model.pt")
     (decoder, trials, given), = calls

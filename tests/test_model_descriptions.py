@@ -9,11 +9,11 @@ from xml.etree import ElementTree
 import pytest
 from fmpy import read_model_description
 
-from components.body.camera import Camera
-from components.body.plant import ArmPlant
-from components.body.rubber_arm import RubberArm
-from components.brain.integrator import Brain
-from components.stimulus import Stimulus
+from rhi.components.body.camera import Camera
+from rhi.components.body.plant import ArmPlant
+from rhi.components.body.rubber_arm import RubberArm
+from rhi.components.brain.integrator import Brain
+from rhi.components.stimulus import Stimulus
 
 CONTRACT = {"u_shoulder": ("input", "deg/s"), "u_elbow": ("input", "deg/s"), "q_shoulder": ("output", "deg"),
             "q_elbow": ("output", "deg"), "hand_x": ("output", "m"), "hand_y": ("output", "m"),

@@ -13,12 +13,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from master import models
-from master.commands.cli import main
-from master.cosim import ConfigError
-from master.models.paper import PaperModel
-from master.tasks import TASKS
-from master import config as configuration
+from rhi.master import models
+from rhi.master.commands.cli import main
+from rhi.master.cosim import ConfigError
+from rhi.master.models.paper import PaperModel
+from rhi.master.tasks import TASKS
+from rhi.master import config as configuration
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = f"{ROOT / 'examples' / 'my_model.py'}:FixedGamma"
@@ -38,7 +38,7 @@ def test_every_registered_task_has_a_tiny_size_here():
 
 
 def test_every_registered_task_names_the_function_describing_its_scenario():
-    from master.tasks.scene import Scenario
+    from rhi.master.tasks.scene import Scenario
 
     for task in TASKS.values():
         module, _, function = task.scenario.partition(":")
@@ -113,12 +113,12 @@ def test_the_registry_names_the_built_in_models_and_resolves_a_file():
 
 @pytest.mark.parametrize("body, message", [
     ("", "has no Mine"),
-    ("Mine = 3\n", "Mine is not a master.models.Model"),
-    ("from master.models import Model\nclass Mine(Model):\n    name = 'Bad Name'\n", "name must be lower-case"),
-    ("from master.models import Model\nclass Mine(Model):\n    name = 'mine'\n", "brain() failed: NotImplementedError"),
-    ("from master.models.paper import PaperModel\nclass Mine(PaperModel):\n    name = 'mine'\n"
+    ("Mine = 3\n", "Mine is not a rhi.master.models.Model"),
+    ("from rhi.master.models import Model\nclass Mine(Model):\n    name = 'Bad Name'\n", "name must be lower-case"),
+    ("from rhi.master.models import Model\nclass Mine(Model):\n    name = 'mine'\n", "brain() failed: NotImplementedError"),
+    ("from rhi.master.models.paper import PaperModel\nclass Mine(PaperModel):\n    name = 'mine'\n"
      "    parameter_sources = {'brain.nope': 'brain.gamma0'}\n", "names brain.nope, not a parameter its brain declares"),
-    ("from master.models.paper import PaperModel\nclass Mine(PaperModel):\n    name = 'mine'\n"
+    ("from rhi.master.models.paper import PaperModel\nclass Mine(PaperModel):\n    name = 'mine'\n"
      "    links = [('camera', 'brain.x')]\n", "links must be ('component.output', 'component.input') pairs"),
     ("raise RuntimeError('boom')\n", "RuntimeError: boom"),
 ])
@@ -149,9 +149,9 @@ def test_no_model_name_is_tested_outside_the_registry():
 
 def test_the_model_parameters_reach_the_brain_per_trial():
     """A batch whose trials carry their own fixed_gamma.gamma gives each its own brain.gamma0 (a fit's batch)."""
-    from master.tasks.illusion import make_trial
-    from master.config import sources
-    from master.tasks.illusion import wiring
+    from rhi.master.tasks.illusion import make_trial
+    from rhi.master.config import sources
+    from rhi.master.tasks.illusion import wiring
 
     base = configuration.load(quick=True, model_name=EXAMPLE)
     trials = [make_trial(base, "conv", "left", "sync", 0, (("fixed_gamma.gamma", value),)) for value in (0.2, 0.7)]

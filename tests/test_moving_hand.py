@@ -2,11 +2,11 @@
 import numpy as np
 import pytest
 
-from components.body import kinematics
-from components.body.movement import MirroredArm, Movement, periodic_step_velocity
-from components.brain.turning_points import TurningPoints, turned
-from master.cosim import ConfigError, System, simulate
-from master.phenomena import moving_hand
+from rhi.components.body import kinematics
+from rhi.components.body.movement import MirroredArm, Movement, periodic_step_velocity
+from rhi.components.brain.turning_points import TurningPoints, turned
+from rhi.master.cosim import ConfigError, System, simulate
+from rhi.master.phenomena import moving_hand
 
 
 def test_the_step_velocity_lands_on_the_sine_at_every_step():
@@ -54,8 +54,8 @@ class Integrator:
     """A stand-in body: q_shoulder integrates u_shoulder exactly (a perfect servo), the elbow at rest."""
 
     def __new__(cls):
-        from components.component import Component
-        from components.variables import Variable
+        from rhi.components.component import Component
+        from rhi.components.variables import Variable
 
         class Body(Component):
             def __init__(self):

@@ -2,11 +2,11 @@
 import numpy as np
 import pytest
 
-from master.outputs import files, tables as outputs
-from master.cosim import ConfigError
-from master.tasks.illusion import Trial, plan, trial_seed
-from master.config import load
-from master.tasks.illusion.measures import end_of_trial, half_time
+from rhi.master.outputs import files, tables as outputs
+from rhi.master.cosim import ConfigError
+from rhi.master.tasks.illusion import Trial, plan, trial_seed
+from rhi.master.config import load
+from rhi.master.tasks.illusion.measures import end_of_trial, half_time
 
 
 def test_plan_covers_the_protocol_with_stable_seeds():
@@ -93,7 +93,7 @@ def test_trials_csv_formats_every_number_as_csv_writer_and_format_would():
 
 def test_staging_refuses_foreign_content_and_publishes_whole(tmp_path):
     """--force replaces an earlier output of rhi experiment, never a folder holding anything else."""
-    from master.outputs.manifest import Manifest
+    from rhi.master.outputs.manifest import Manifest
 
     out = tmp_path / "run"
     out.mkdir()
@@ -126,8 +126,8 @@ def test_staging_needs_an_existing_parent(tmp_path):
 
 def test_a_failing_trial_is_dropped_and_the_rest_rerun():
     """The batch is rerun without the trials a component blames; a failure blaming none stops the run."""
-    from master.cosim import SimulationError
-    from master.tasks.illusion import without_failures
+    from rhi.master.cosim import SimulationError
+    from rhi.master.tasks.illusion import without_failures
 
     trials = plan(load())[:6]
     bad = {trials[1], trials[4]}

@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from master.commands.cli import main
+from rhi.master.commands.cli import main
 
 
 def tiny(path, table: str, protocol: str, checkpoint: str) -> str:

@@ -10,17 +10,17 @@ import numpy as np
 import pytest
 from scipy.stats import multivariate_normal, norm, uniform
 
-from components.body.kinematics import FOREARM, UPPER_ARM, forward
-from components.brain import ownership_inference as oi
-from components.brain.ownership_brain import NOISE_STREAM, OwnershipBrain
-from components.vision import pose_encoder as pe
-from components.vision.networks import Encoder, preset
+from rhi.components.body.kinematics import FOREARM, UPPER_ARM, forward
+from rhi.components.brain import ownership_inference as oi
+from rhi.components.brain.ownership_brain import NOISE_STREAM, OwnershipBrain
+from rhi.components.vision import pose_encoder as pe
+from rhi.components.vision.networks import Encoder, preset
 from tests.toys import assert_reads_no_simulator_position
-from master import config as configuration
-from master import models
-from master.cosim import ConfigError
-from master.models.ownership import FREE_PARAMETERS
-from master.tasks.illusion import wiring
+from rhi.master import config as configuration
+from rhi.master import models
+from rhi.master.cosim import ConfigError
+from rhi.master.models.ownership import FREE_PARAMETERS
+from rhi.master.tasks.illusion import wiring
 
 STEP = 0.02
 ROOT = Path(__file__).resolve().parents[1]
@@ -81,7 +81,7 @@ def bayes_by_hand(gamma, log_ratio):
 
 
 def test_gamma_after_n_touches_is_the_closed_form_without_switching():
-    from components.brain.body_inference import hazard_predict, posterior
+    from rhi.components.brain.body_inference import hazard_predict, posterior
 
     prior, evidence = 0.01, np.array([1.3, 2.1, -0.4, 1.9, 0.7])
     gamma = np.array([prior])
@@ -94,7 +94,7 @@ def test_gamma_after_n_touches_is_the_closed_form_without_switching():
 
 
 def test_gamma_with_switching_is_the_recursion_written_out():
-    from components.brain.body_inference import hazard_predict, posterior
+    from rhi.components.brain.body_inference import hazard_predict, posterior
 
     prior, rate, period, evidence = 0.01, 0.05, 2.0, [2.0, 2.0, 2.0, 2.0]
     gamma, hand = np.array([prior]), prior
@@ -224,9 +224,9 @@ def tiny_ownership(tmp_path_factory):
 
 
 def test_the_ownership_brain_never_reads_a_simulator_position(tiny_ownership):
-    from components.body import kinematics
-    from components.vision.component import Decoder, GenerativeModel
-    from components.vision.networks import build
+    from rhi.components.body import kinematics
+    from rhi.components.vision.component import Decoder, GenerativeModel
+    from rhi.components.vision.networks import build
 
     model = GenerativeModel(build("conv", "tiny", 16).decoder, kinematics.REST_POSE, (40.0, 50.0), {"kind": "conv"})
     assert_reads_no_simulator_position(wiring.build_system(Decoder(model, threads=1), tiny_ownership), OwnershipBrain())
@@ -263,7 +263,7 @@ def test_the_model_takes_its_prior_and_period_from_one_source_each():
      r"ownership.peripersonal_boundary: no peripersonal sd .* reach > boundary"),
 ])
 def test_bad_settings_are_one_line_before_any_work(key, value, message):
-    from master.config.sources import check_parameters
+    from rhi.master.config.sources import check_parameters
 
     with pytest.raises(ConfigError, match=message) as caught:
         check_parameters(configuration.load(overrides={key: value}, model_name="ownership"))
@@ -274,11 +274,11 @@ def test_trials_record_the_onset_as_the_first_time_gamma_reaches_one_half(tiny_o
     """The model's own measures (Model.measures) reach the per-step table: ``ownership_onset_s`` is NaN until the
     step at which the recorded gamma first reaches 1/2, and that step's time from then on (truth: the gamma column
     read here); ``coupling`` is the brain's output as recorded."""
-    from components.body import kinematics
-    from components.vision.component import Decoder, GenerativeModel
-    from components.vision.networks import build
-    from master.config.protocol import make_trial
-    from master.tasks.illusion.measures import measures
+    from rhi.components.body import kinematics
+    from rhi.components.vision.component import Decoder, GenerativeModel
+    from rhi.components.vision.networks import build
+    from rhi.master.config.protocol import make_trial
+    from rhi.master.tasks.illusion.measures import measures
 
     config = configuration.merge(tiny_ownership, {"experiment": {"steps": 400},
                                                   "stimulations": {"sync": {"delay_min": 0.0, "delay_max": 0.0}}})

@@ -2,18 +2,18 @@
 overridden by a given file, a box that holds the rubber arm over the arm's whole reach, and a reading of the rubber
 arm at 60 cm, where the decoders' encoders saturate.
 
-Truth: the arm's inverse kinematics (:func:`components.body.kinematics.inverse`) and the camera's image of the
-rubber arm there (:func:`components.body.camera.render`, the ball on its path)."""
+Truth: the arm's inverse kinematics (:func:`rhi.components.body.kinematics.inverse`) and the camera's image of the
+rubber arm there (:func:`rhi.components.body.camera.render`, the ball on its path)."""
 import numpy as np
 import pytest
 
-from components.body import camera, kinematics
-from components.vision import pose_encoder as pe
-from master import config as configuration
-from master.config.protocol import HALF_RANGES, rubber_pose
-from master.cosim import ConfigError
-from master.decoders import pose_encoders
-from master.decoders.cache import SHIPPED, pose_encoder_path, train_settings
+from rhi.components.body import camera, kinematics
+from rhi.components.vision import pose_encoder as pe
+from rhi.master import config as configuration
+from rhi.master.config.protocol import HALF_RANGES, rubber_pose
+from rhi.master.cosim import ConfigError
+from rhi.master.decoders import pose_encoders
+from rhi.master.decoders.cache import SHIPPED, pose_encoder_path, train_settings
 
 KINDS = ("conv", "vae")
 FAR = 0.60  # m, the farthest rubber hand of the distance study, shoulder at rest - 88.5 deg

@@ -15,23 +15,23 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from components.body import kinematics
-from components.component import ComponentError
-from components.vision import checkpoint
-from components.vision.component import DEVICES, Decoder, GenerativeModel, resolve_device
-from components.vision.fast import LinearisedDecoder
-from components.vision.networks import build
-from components.vision.training import LATER_FIELDS, TrainSettings, checkpoint_metadata, train
-from master.bench import protocol as bench_protocol
-from master.bench.settings import QUICK
-from master.bench import training as training_bench
-from master.commands import experiment as experiment_command
-from master.commands.cli import build_parser, main
-from master.cosim import ConfigError
-from master import config as configuration
-from master.decoders import training_data
-from master.decoders.cache import checkpoint_path, ensure_checkpoints
-from master.decoders.training import train_settings
+from rhi.components.body import kinematics
+from rhi.components.component import ComponentError
+from rhi.components.vision import checkpoint
+from rhi.components.vision.component import DEVICES, Decoder, GenerativeModel, resolve_device
+from rhi.components.vision.fast import LinearisedDecoder
+from rhi.components.vision.networks import build
+from rhi.components.vision.training import LATER_FIELDS, TrainSettings, checkpoint_metadata, train
+from rhi.master.bench import protocol as bench_protocol
+from rhi.master.bench.settings import QUICK
+from rhi.master.bench import training as training_bench
+from rhi.master.commands import experiment as experiment_command
+from rhi.master.commands.cli import build_parser, main
+from rhi.master.cosim import ConfigError
+from rhi.master import config as configuration
+from rhi.master.decoders import training_data
+from rhi.master.decoders.cache import checkpoint_path, ensure_checkpoints
+from rhi.master.decoders.training import train_settings
 
 ROOT = Path(__file__).resolve().parents[1]
 # The TrainSettings fields a cached decoder's name was a hash of before the paper preset's keys existed.
@@ -319,7 +319,7 @@ def test_the_training_bench_times_both_paths_of_both_decoders():
 
 # -- the visual variance at the paper's scale ------------------------------------------------------------
 def test_the_shipped_paper_calibration_sweep_runs_the_paper_preset(tmp_path):
-    from master.sweeps import plan
+    from rhi.master.sweeps import plan
     sweep = plan.load(ROOT / "docs" / "sweeps" / "paper_visual_variance.toml")
     paper = configuration.load(preset_name="paper")
     assert [point["decoder.visual_variance"] for point in sweep.points] == [1.0, 10.0, 20.0, 30.0, 60.0]
@@ -335,8 +335,8 @@ def test_the_shipped_paper_calibration_sweep_runs_the_paper_preset(tmp_path):
 
 
 def test_the_trial_gif_is_enlarged_only_up_to_64_px():
-    from master.outputs.animation import frames
-    from master.config.protocol import rubber_pose
+    from rhi.master.outputs.animation import frames
+    from rhi.master.config.protocol import rubber_pose
     mu = np.tile(kinematics.REST_POSE, (21, 1))
     balls = np.tile([-0.45, 0.6], (21, 1))
     assert [frames(mu, rubber_pose(-0.15), balls, side)[0].size for side in (32, 64, 128)] == [(96, 96), (192, 192),
@@ -348,7 +348,7 @@ def test_the_documented_table_of_the_preset_is_the_shipped_file_and_the_defaults
     """docs/configuration.md's generated table (key | paper | default | why) against master/paper.toml."""
     from docs_tables import rows
 
-    from master.decoders.training import STOP_POSES
+    from rhi.master.decoders.training import STOP_POSES
     shown = {row[0].strip("`"): [cell.strip("`") for cell in row[1:3]] for row in rows("configuration.md", "paper-preset")}
     with open(ROOT / "master" / "paper.toml", "rb") as file:
         shipped = dict(flatten(tomllib.load(file)))

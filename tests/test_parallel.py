@@ -1,10 +1,10 @@
-"""master.runtime.pool: jobs side by side in spawned processes give what they give one after the other."""
+"""rhi.master.runtime.pool: jobs side by side in spawned processes give what they give one after the other."""
 import errno
 
 import pytest
 
-from master.cosim import SimulationError
-from master.runtime import pool as parallel
+from rhi.master.cosim import SimulationError
+from rhi.master.runtime import pool as parallel
 
 
 def job(seed: int, fail: bool | str = False):

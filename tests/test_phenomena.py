@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from master.commands.cli import main
-from master.cosim import ConfigError
-from master.phenomena import FILES, NAMES, human_file, sweep_file
-from master.phenomena import report as reports
-from master.sweeps import plan as sweeps
+from rhi.master.commands.cli import main
+from rhi.master.cosim import ConfigError
+from rhi.master.phenomena import FILES, NAMES, human_file, sweep_file
+from rhi.master.phenomena import report as reports
+from rhi.master.sweeps import plan as sweeps
 from tests.sweep_files import ENV, dask_cluster_at
 
 
@@ -79,7 +79,7 @@ def test_the_spatial_variant_of_the_distance_protocol():
 def test_human_file_has_a_source_per_number():
     with open(human_file(), "rb") as file:
         human = tomllib.load(file)
-    from master.phenomena import moving_hand  # a protocol of its own, not a sweep
+    from rhi.master.phenomena import moving_hand  # a protocol of its own, not a sweep
 
     assert set(human) == {reports.PHENOMENA[name].human for name in NAMES} | {moving_hand.HUMAN_TABLE}
     for table in human.values():

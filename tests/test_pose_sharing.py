@@ -5,15 +5,15 @@ import numpy as np
 import pytest
 import torch
 
-from components.body import kinematics
-from components.body.camera import render
-from components.vision import pose_encoder as pe
-from components.vision.image_sharing import FeatureStore, distinct
-from components.vision.networks import Encoder, preset
-from master import config as configuration
-from master.config import protocol
-from master.tasks import scene
-from master.tasks.illusion import wiring
+from rhi.components.body import kinematics
+from rhi.components.body.camera import render
+from rhi.components.vision import pose_encoder as pe
+from rhi.components.vision.image_sharing import FeatureStore, distinct
+from rhi.components.vision.networks import Encoder, preset
+from rhi.master import config as configuration
+from rhi.master.config import protocol
+from rhi.master.tasks import scene
+from rhi.master.tasks.illusion import wiring
 
 RESOLUTION = 16
 HALF_RANGES = (40.0, 50.0)
@@ -111,8 +111,8 @@ def participants_batch(config: dict, count: int) -> list:
 
 
 def test_a_causal_batch_with_sharing_is_the_unshared_one_bit_for_bit(tiny_causal, monkeypatch):
-    from components.vision.component import Decoder, GenerativeModel
-    from components.vision.networks import build
+    from rhi.components.vision.component import Decoder, GenerativeModel
+    from rhi.components.vision.networks import build
 
     pe.STORE.clear()
     made = []
@@ -153,8 +153,8 @@ def test_a_causal_batch_runs_no_decoder_unless_a_trial_reads_its_pixel_term(tiny
     brain's numbers are those of the batch that runs it (the same bits); a trial of its own weight > 0 needs it."""
     import dataclasses
 
-    from components.vision.component import Decoder, GenerativeModel
-    from components.vision.networks import build
+    from rhi.components.vision.component import Decoder, GenerativeModel
+    from rhi.components.vision.networks import build
 
     def decoder():
         torch.manual_seed(0)

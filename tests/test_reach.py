@@ -6,16 +6,16 @@ import os
 import numpy as np
 import pytest
 
-from components.body import camera, kinematics
-from components.body.arm_pose import PosedArm
-from components.body.camera import Camera
-from components.body.plant import ArmPlant
-from components.brain.goal import GoalAttractor, GoalOnset, body_space_attraction, body_space_goal_error
-from components.brain.integrator import Brain
+from rhi.components.body import camera, kinematics
+from rhi.components.body.arm_pose import PosedArm
+from rhi.components.body.camera import Camera
+from rhi.components.body.plant import ArmPlant
+from rhi.components.brain.goal import GoalAttractor, GoalOnset, body_space_attraction, body_space_goal_error
+from rhi.components.brain.integrator import Brain
 from linear_decoder import LinearDecoder
-from master.commands.cli import main
-from master.cosim import ConfigError, System, simulate
-from master.tasks.reach import task as reach
+from rhi.master.commands.cli import main
+from rhi.master.cosim import ConfigError, System, simulate
+from rhi.master.tasks.reach import task as reach
 
 
 def test_goals_follow_the_released_agents_law_and_do_not_depend_on_the_count():
@@ -143,7 +143,7 @@ def test_the_free_arm_reaches_on_a_tiny_decoder_end_to_end(tiny_reach):
 
 def test_the_goal_image_is_the_cameras_picture_of_the_goal_pose(quick_cache):
     """The goal camera's image, in the reach system, has the bytes of the camera's render of the goal pose."""
-    from master.decoders.cache import checkpoint_path
+    from rhi.master.decoders.cache import checkpoint_path
 
     config = reach.load(quick=True)
     trials = reach.plan(config)[:2]

@@ -15,20 +15,20 @@ import pytest
 from fmpy import read_model_description
 from fmpy.validation import validate_fmu
 
-from components.body import kinematics
-from components.body.contract import BODY_CONTRACT
-from components.body.plant import ArmPlant
-from components.component import ComponentError
-from master.commands.cli import main
-from master.cosim import System, simulate
-from master.tasks.reach import task as reach
-from master.config import sources
-from master.export.agent_fmu import MANIFEST, agent_from_resources
-from master.export.body import build_fmu
-from master.export.reach_agent import ReachAgent
-from master.export.ssp_check import read_ssp, trial_parameters
-from master.export.ssp_package import build_ssp
-from master.export.system import final_goal_distance_cm, run_ssp
+from rhi.components.body import kinematics
+from rhi.components.body.contract import BODY_CONTRACT
+from rhi.components.body.plant import ArmPlant
+from rhi.components.component import ComponentError
+from rhi.master.commands.cli import main
+from rhi.master.cosim import System, simulate
+from rhi.master.tasks.reach import task as reach
+from rhi.master.config import sources
+from rhi.master.export.agent_fmu import MANIFEST, agent_from_resources
+from rhi.master.export.body import build_fmu
+from rhi.master.export.reach_agent import ReachAgent
+from rhi.master.export.ssp_check import read_ssp, trial_parameters
+from rhi.master.export.ssp_package import build_ssp
+from rhi.master.export.system import final_goal_distance_cm, run_ssp
 from tests.test_agent import check_port_table, drive_by_hand, open_fmu
 
 STEPS, H = 30, 0.02

@@ -17,8 +17,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from master.cosim import ConfigError
-from master.runtime.context import RunContext
+from rhi.master.cosim import ConfigError
+from rhi.master.runtime.context import RunContext
 
 from tests.faults import Resources
 
@@ -31,7 +31,7 @@ def resources(fault_resources) -> Resources:
 # -- data loss: --out . / "" / .. / a foreign folder with --force ----------------------------------
 @pytest.mark.parametrize("out", [".", "", "..", "./", "work/..", "/"])
 def test_the_working_folder_and_those_above_it_are_refused_even_with_force(tmp_path, monkeypatch, out):
-    from master.outputs import files
+    from rhi.master.outputs import files
 
     work = tmp_path / "work"
     work.mkdir()
@@ -44,8 +44,8 @@ def test_the_working_folder_and_those_above_it_are_refused_even_with_force(tmp_p
 
 
 def test_force_replaces_only_rhi_s_own_output(tmp_path):
-    from master.outputs import files
-    from master.outputs.manifest import Manifest
+    from rhi.master.outputs import files
+    from rhi.master.outputs.manifest import Manifest
 
     foreign = tmp_path / "foreign"
     foreign.mkdir()
@@ -74,7 +74,7 @@ def test_force_replaces_only_rhi_s_own_output(tmp_path):
 
 # -- a concurrent run: the lock, and publish's re-check ----------------------------------------------
 def test_a_second_run_into_the_same_folder_is_refused_while_the_first_holds_it(tmp_path):
-    from master.outputs import files
+    from rhi.master.outputs import files
 
     out = tmp_path / "race"
     with files.output_folder(out, force=False) as staging:
@@ -87,7 +87,7 @@ def test_a_second_run_into_the_same_folder_is_refused_while_the_first_holds_it(t
 
 
 def test_publish_leaves_alone_what_appeared_meanwhile(tmp_path):
-    from master.outputs import files
+    from rhi.master.outputs import files
 
     out = tmp_path / "race"
     with pytest.raises(ConfigError, match="appeared while this run went on|written by something else"):
@@ -100,9 +100,9 @@ def test_publish_leaves_alone_what_appeared_meanwhile(tmp_path):
 
 # -- a checkpoint of the wrong kind ---------------------------------------------------------------------
 def test_a_vae_checkpoint_in_the_conv_slot_is_refused_before_any_work(resources):
-    from components.vision.checkpoint import CheckpointError
-    from master import config as configuration
-    from master.decoders.cache import check_decoders, decoder_component
+    from rhi.components.vision.checkpoint import CheckpointError
+    from rhi.master import config as configuration
+    from rhi.master.decoders.cache import check_decoders, decoder_component
 
     config = configuration.load(overrides={"decoder.conv_checkpoint": resources.vae, "experiment.decoders": ["conv"]},
                                 quick=True)
@@ -116,7 +116,7 @@ def test_a_vae_checkpoint_in_the_conv_slot_is_refused_before_any_work(resources)
 @pytest.mark.parametrize("key, value", [("decoders", ["conv", "conv"]), ("conditions", ["left", "left"]),
                                         ("stimulations", ["sync", "async", "sync"])])
 def test_a_list_naming_an_entry_twice_is_refused_naming_the_key(key, value):
-    from master import config as configuration
+    from rhi.master import config as configuration
 
     with pytest.raises(ConfigError, match=rf"experiment\.{key} lists {value[0]} more than once"):
         configuration.load(overrides={f"experiment.{key}": value})
@@ -124,13 +124,13 @@ def test_a_list_naming_an_entry_twice_is_refused_naming_the_key(key, value):
 
 # -- a cell whose every trial failed ----------------------------------------------------------------
 def test_a_cell_without_trials_has_an_empty_row_and_no_bar(tmp_path):
-    from master.tasks.illusion import Trial
-    from master.outputs import figures, tables
+    from rhi.master.tasks.illusion import Trial
+    from rhi.master.outputs import figures, tables
 
     planned = [Trial("conv", c, s, 0, 0, 0.0, 0.0, 0.1) for c in ("left", "center") for s in ("sync", "async")]
     kept = [t for t in planned if (t.condition, t.stimulation) != ("center", "sync")]
     steps = np.linspace(0, 1, 5)[:, None] * np.array([[1.0, 2.0, 3.0]])
-    from master.tasks.illusion.measures import end_of_trial
+    from rhi.master.tasks.illusion.measures import end_of_trial
 
     per_step = {"drift_cm": steps, "force_x_n": steps, "gamma": steps / 3, "action_accel_x_m_s2": steps,
                 "tactile_time_s": np.full_like(steps, -np.inf)}  # no touch: no half-decay
@@ -146,9 +146,9 @@ def test_a_cell_without_trials_has_an_empty_row_and_no_bar(tmp_path):
 
 def test_a_decoder_whose_whole_batch_failed_costs_only_its_trials(monkeypatch):
     """A failure blaming no trial ends that decoder's batch; the other decoder's trials still run."""
-    from master.cosim import SimulationError
-    from master import config as configuration
-    from master.tasks.illusion import runner
+    from rhi.master.cosim import SimulationError
+    from rhi.master import config as configuration
+    from rhi.master.tasks.illusion import runner
 
     config = configuration.load(quick=True)
 
@@ -158,7 +158,7 @@ def test_a_decoder_whose_whole_batch_failed_costs_only_its_trials(monkeypatch):
         return SimpleNamespace(times=np.arange(3.0))
 
     monkeypatch.setattr(runner, "run_batch", fake_run_batch)
-    monkeypatch.setattr("master.decoders.cache.decoder_component", lambda kind, path, config, *how, **where: None)
+    monkeypatch.setattr("rhi.master.decoders.cache.decoder_component", lambda kind, path, config, *how, **where: None)
     monkeypatch.setattr(runner, "measures", lambda result, model=None: {"drift_cm": np.zeros((3, 6))})
     kept, _, per_step, _, failures = runner.run(config, {"conv": "c.pt", "vae": "v.pt"}, context=RunContext(processes=1))
     assert {t.decoder for t in kept} == {"vae"} and len(failures) == 6
@@ -167,9 +167,9 @@ def test_a_decoder_whose_whole_batch_failed_costs_only_its_trials(monkeypatch):
 
 # -- a hung FMU and Ctrl-C during an FMU call ------------------------------------------------------
 def run_fmu(path, timeout, batch_size=4):
-    from components.body.contract import BODY_CONTRACT
-    from components.fmu import FMUComponent
-    from master import System, simulate
+    from rhi.components.body.contract import BODY_CONTRACT
+    from rhi.components.fmu import FMUComponent
+    from rhi.master import System, simulate
     from tests.toys import Constant
 
     system = System([Constant("shoulder", unit="deg/s"), Constant("elbow", unit="deg/s"),
@@ -189,7 +189,7 @@ def python_sigint():
 
 
 def test_a_step_over_the_time_limit_fails_its_trial_naming_fmu_call_and_time(resources, python_sigint):
-    from master.cosim import SimulationError
+    from rhi.master.cosim import SimulationError
 
     began = time.monotonic()
     # 2 s: far above a normal step's milliseconds, and above a pause of the whole test process (the FMU's Python
@@ -224,7 +224,7 @@ def test_ctrl_c_during_an_fmu_call_is_an_interrupt_not_a_failed_trial(resources,
 
 # -- export-body, atomically ----------------------------------------------------------------------------
 def test_export_builds_beside_the_target_and_renames(tmp_path, monkeypatch):
-    from master.export.body import build_fmu
+    from rhi.master.export.body import build_fmu
 
     target = tmp_path / "Body.fmu"
     target.write_bytes(b"the old FMU")
@@ -247,7 +247,7 @@ def test_export_builds_beside_the_target_and_renames(tmp_path, monkeypatch):
 @pytest.mark.parametrize("out, says", [("/proc/v.fmu", "cannot write into /proc"), ("afile.txt/v.fmu", "is not a folder"),
                                        ("existing.fmu", "is a folder"), ("", "must be a file name ending in .fmu")])
 def test_unwritable_export_targets_are_refused_before_building(tmp_path, monkeypatch, out, says):
-    from master.export.body import build_fmu
+    from rhi.master.export.body import build_fmu
 
     monkeypatch.chdir(tmp_path)
     (tmp_path / "afile.txt").write_text("x")
@@ -259,7 +259,7 @@ def test_unwritable_export_targets_are_refused_before_building(tmp_path, monkeyp
 
 # -- inputs that used to end in a traceback ----------------------------------------------------------
 def test_config_files_that_are_not_utf8_or_not_numbers_are_named(tmp_path):
-    from master import config as configuration
+    from rhi.master import config as configuration
 
     path = tmp_path / "c.toml"
     path.write_bytes(b"\xff\xfe[experiment]\n")
@@ -274,7 +274,7 @@ def test_config_files_that_are_not_utf8_or_not_numbers_are_named(tmp_path):
 
 
 def test_resolution_and_memory_have_upper_bounds_naming_the_memory():
-    from master import config as configuration
+    from rhi.master import config as configuration
 
     with pytest.raises(ConfigError, match=r"experiment\.resolution must be at most 1024 pixels, got 100000 \(it "
                                           r"would need about [\d.]+ TiB of memory\)"):
@@ -285,8 +285,8 @@ def test_resolution_and_memory_have_upper_bounds_naming_the_memory():
 
 
 def test_the_decoder_cache_must_be_a_folder(tmp_path, monkeypatch):
-    from master import config as configuration
-    from master.decoders.cache import check_decoders
+    from rhi.master import config as configuration
+    from rhi.master.decoders.cache import check_decoders
 
     (tmp_path / "cache").write_text("a file")
     monkeypatch.setenv("RHI_CACHE", str(tmp_path / "cache"))
@@ -295,9 +295,9 @@ def test_the_decoder_cache_must_be_a_folder(tmp_path, monkeypatch):
 
 
 def test_an_fmu_whose_binary_does_not_load_is_refused_when_opened(resources):
-    from components.component import ComponentError
-    from components.body.contract import BODY_CONTRACT
-    from components.fmu import FMUComponent
+    from rhi.components.component import ComponentError
+    from rhi.components.body.contract import BODY_CONTRACT
+    from rhi.components.fmu import FMUComponent
 
     with pytest.raises(ComponentError, match=r"Unloadable\.fmu cannot be used: its binary binaries/linux64/ArmBody"
                                              r"\.so does not load on this machine \(.*invalid ELF header"):
@@ -305,7 +305,7 @@ def test_an_fmu_whose_binary_does_not_load_is_refused_when_opened(resources):
 
 
 def test_train_checks_its_output_before_training(tmp_path):
-    from master.decoders.training import check_target
+    from rhi.master.decoders.training import check_target
 
     with pytest.raises(ConfigError, match="is a folder; name the checkpoint file"):
         check_target(tmp_path)
@@ -324,15 +324,15 @@ def test_train_checks_its_output_before_training(tmp_path):
     ("decoder.conv_checkpoint", "/", r"decoder\.conv_checkpoint: / is a folder, not a checkpoint file"),
 ])
 def test_named_messages(key, value, says):
-    from master import config as configuration
-    from master.decoders.cache import check_decoders
+    from rhi.master import config as configuration
+    from rhi.master.decoders.cache import check_decoders
 
     with pytest.raises(ConfigError, match=says):
         check_decoders(configuration.load(overrides={key: value}))
 
 
 def test_every_sweep_point_is_validated_before_the_sweep_starts(tmp_path):
-    from master.sweeps import plan as sweeps
+    from rhi.master.sweeps import plan as sweeps
 
     path = tmp_path / "s.toml"
     path.write_text('[sweep]\n[sweep.grid]\n"experiment.scheme" = ["gauss-seidel", "jakobi"]\n')
@@ -344,7 +344,7 @@ def test_every_sweep_point_is_validated_before_the_sweep_starts(tmp_path):
 
 
 def test_usage_errors_are_one_line(capsys):
-    from master.commands.cli import main
+    from rhi.master.commands.cli import main
 
     for argv in (["experiment"], ["experiment", "--trials", "many", "--out", "x"], ["fly"], []):
         with pytest.raises(SystemExit) as caught:
@@ -355,7 +355,7 @@ def test_usage_errors_are_one_line(capsys):
 
 
 def test_stale_staging_of_ours_is_cleaned_and_nothing_else(tmp_path):
-    from master.outputs import files
+    from rhi.master.outputs import files
 
     out = tmp_path / "run"
     ours = files._make_staging(files.check_output(out, force=False))  # as a killed run leaves it: marked ours

@@ -8,8 +8,8 @@ import os
 import numpy as np
 import pytest
 
-from master.tasks.illusion import fast_check
-from master.outputs.provenance import VECTOR_EXTENSIONS, cpu_description
+from rhi.master.tasks.illusion import fast_check
+from rhi.master.outputs.provenance import VECTOR_EXTENSIONS, cpu_description
 from tests import cross_cpu
 
 # The decoder's sums that differ between kernels run over at most its 64 x 64 pixels (J^T e; a layer's

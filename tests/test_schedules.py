@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 from test_stimulus import run_stimulus
 
-from components.body.camera import Camera, ball_alpha, composite, render
-from components.stimulus import MAX_BLOCKS, block_rows
-from master import config as configuration
-from master.config import protocol
-from master.cosim import ConfigError
-from master.tasks.illusion import wiring
-from master.outputs.tables import probe_name
-from master.tasks.illusion.measures import probes
+from rhi.components.body.camera import Camera, ball_alpha, composite, render
+from rhi.components.stimulus import MAX_BLOCKS, block_rows
+from rhi.master import config as configuration
+from rhi.master.config import protocol
+from rhi.master.cosim import ConfigError
+from rhi.master.tasks.illusion import wiring
+from rhi.master.outputs.tables import probe_name
+from rhi.master.tasks.illusion.measures import probes
 from tests.in_process import rhi_in_process
 
 STEP = 0.02

@@ -10,7 +10,7 @@ import sys
 import time
 from pathlib import Path
 
-from master.outputs.scratch import MARK, clean_stale, scratch_folder, started
+from rhi.master.outputs.scratch import MARK, clean_stale, scratch_folder, started
 from tests.faults import ENV
 from tests.test_hostile_files import ONE_BODY, body_fmu, one_body_package, write_zip  # noqa: F401 (fixture)
 

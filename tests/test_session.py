@@ -1,4 +1,4 @@
-"""master.cosim.Session: the one loop, stepped by hand, is simulate's run; the outside world's inputs.
+"""rhi.master.cosim.Session: the one loop, stepped by hand, is simulate's run; the outside world's inputs.
 
 Truth: ``simulate`` (the same system, parameters and ticks; bitwise), and the exact solution of an
 integrator under a zero-order-hold input.
@@ -6,7 +6,7 @@ integrator under a zero-order-hold input.
 import numpy as np
 import pytest
 
-from master.cosim import ConfigError, Session, SimulationError, System, simulate, tick_times
+from rhi.master.cosim import ConfigError, Session, SimulationError, System, simulate, tick_times
 from tests.toys import Constant, FirstOrder
 
 
@@ -70,7 +70,7 @@ def test_a_closed_session_does_not_step_and_a_failed_initialization_terminates_e
 
 def test_a_failed_step_names_the_component_and_the_time():
     system = System([Constant("source"), FirstOrder("plant")], [("source.y", "plant.u")])
-    from components.component import StepFailure
+    from rhi.components.component import StepFailure
 
     def fail(t, h):
         raise StepFailure("no more")

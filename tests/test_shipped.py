@@ -7,11 +7,11 @@ import sys
 
 import pytest
 
-from components.vision import checkpoint
-from master import config as configuration
-from master.tasks.illusion import fast_check
-from master.decoders.cache import SHIPPED, check_decoders, checkpoint_path
-from master.decoders.training import load_decoder, train_settings
+from rhi.components.vision import checkpoint
+from rhi.master import config as configuration
+from rhi.master.tasks.illusion import fast_check
+from rhi.master.decoders.cache import SHIPPED, check_decoders, checkpoint_path
+from rhi.master.decoders.training import load_decoder, train_settings
 from tests.conftest import ROOT
 
 

@@ -13,16 +13,16 @@ import zipfile
 import pytest
 from fmpy.ssp.ssd import read_ssd
 
-from master.tasks.illusion import wiring
-from master.decoders.cache import decoder_component
-from master.tasks.illusion.measures import measures
-from master.config.protocol import make_trial, plan
-from master.export.agent import agent_connections, join_seed
-from master.export.body import build_fmu
-from master.export.ssp_check import read_ssp, trial_parameters
-from master.export.ssp_package import BODY_PARAMETERS, SSD, TRIALS, build_ssp
-from master.export.system import final_drift_cm, run_ssp
-from master.export.tasks import TASKS
+from rhi.master.tasks.illusion import wiring
+from rhi.master.decoders.cache import decoder_component
+from rhi.master.tasks.illusion.measures import measures
+from rhi.master.config.protocol import make_trial, plan
+from rhi.master.export.agent import agent_connections, join_seed
+from rhi.master.export.body import build_fmu
+from rhi.master.export.ssp_check import read_ssp, trial_parameters
+from rhi.master.export.ssp_package import BODY_PARAMETERS, SSD, TRIALS, build_ssp
+from rhi.master.export.system import final_drift_cm, run_ssp
+from rhi.master.export.tasks import TASKS
 from tests.in_process import rhi_in_process
 from tests.test_agent import agent_fmu, quick  # noqa: F401 (fixtures)
 

@@ -14,10 +14,10 @@ from pathlib import Path
 
 import pytest
 
-from master.cosim import ConfigError
-from master.export import ssp_ecos
-from master.export.ssp_check import read_ssp
-from master.export.ssp_ecos import ECOS_FAILED as ssp_ecos_failed
+from rhi.master.cosim import ConfigError
+from rhi.master.export import ssp_ecos
+from rhi.master.export.ssp_check import read_ssp
+from rhi.master.export.ssp_ecos import ECOS_FAILED as ssp_ecos_failed
 from tests.in_process import rhi_in_process
 from tests.test_agent import agent_fmu, quick  # noqa: F401 (fixtures)
 from tests.test_ssp_export import package  # noqa: F401 (fixture)
@@ -75,7 +75,7 @@ def test_the_edges_of_each_type_pass_the_check(package, tmp_path):  # noqa: F811
 
 
 def test_a_bad_value_is_refused_in_one_line_before_any_master_starts(package, tmp_path, monkeypatch):  # noqa: F811
-    from master.export import system
+    from rhi.master.export import system
 
     bad = with_value(package, tmp_path / "bad.ssp", TRIAL, "period", "nan")
     # refused before any master: main() in this process (tests/in_process.py), as a subprocess would give it

@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from components.component import ComponentError
-from components.stimulus import Stimulus
+from rhi.components.component import ComponentError
+from rhi.components.stimulus import Stimulus
 
 STEP = 0.02
 

@@ -10,10 +10,10 @@ import subprocess
 import numpy as np
 import pytest
 
-from master.sweeps import plan as sweeps
-from master import config as configuration
-from master.commands.cli import main
-from master.commands.sweep import run as run_sweep
+from rhi.master.sweeps import plan as sweeps
+from rhi.master import config as configuration
+from rhi.master.commands.cli import main
+from rhi.master.commands.sweep import run as run_sweep
 from tests.sweep_files import ENV, args, dask_cluster_at, batched_file, command, expected, lockstep_truth, records, single_core, sweep_file
 
 @pytest.fixture(scope="module")
@@ -24,7 +24,7 @@ def dask_cluster(tmp_path_factory):
 
 
 def test_local_pool_and_dask_cluster_give_the_same_trials(dask_cluster, tmp_path, capsys):
-    from master.sweeps.runner import WORKER_SETTINGS
+    from rhi.master.sweeps.runner import WORKER_SETTINGS
 
     path = sweep_file(tmp_path / "s.toml", grid={"stimulations.sync.delay_max": [0.1, 0.6],
                                                  "conditions.left": [-0.15, -0.3]})
@@ -98,9 +98,9 @@ def test_different_sweep_is_refused_and_force_keeps_shared_trials(dask_cluster, 
 
 
 def test_tiny_real_sweep_matches_the_trial_run_here(dask_cluster, tmp_path, monkeypatch):
-    """master.tasks.illusion.trial_outcome through the cluster: the same numbers as one call in this process."""
-    from master.decoders.cache import ensure_checkpoints
-    from master.tasks.illusion import trial_outcome
+    """rhi.master.tasks.illusion.trial_outcome through the cluster: the same numbers as one call in this process."""
+    from rhi.master.decoders.cache import ensure_checkpoints
+    from rhi.master.tasks.illusion import trial_outcome
 
     monkeypatch.setenv("RHI_CACHE", str(tmp_path / "cache"))
     (tmp_path / "base.toml").write_text('[experiment]\ndecoders = ["conv"]\n[train]\nsamples = 200\nepochs = 2\n')

@@ -11,11 +11,11 @@ import time
 
 import pytest
 
-from master.sweeps import plan as sweeps
-from master.cosim import ConfigError
-from master import config as configuration
-from master.tasks.illusion import trial_seed
-from master.commands.sweep import run as run_sweep
+from rhi.master.sweeps import plan as sweeps
+from rhi.master.cosim import ConfigError
+from rhi.master import config as configuration
+from rhi.master.tasks.illusion import trial_seed
+from rhi.master.commands.sweep import run as run_sweep
 from tests.in_process import rhi_in_process
 from tests.sweep_files import ENV, args, batched_file, command, expected, records, single_core, sweep_file
 
@@ -192,11 +192,11 @@ def test_killed_batched_sweep_resumes_bitwise(quick_decoders, tmp_path):
 def test_a_failing_trial_costs_its_chunk_only_itself(quick_decoders, monkeypatch):
     """batch_outcomes: a trial a component blames is recorded alone and the rest rerun without it; a
     failure that blames no trial (a rubber hand out of reach) reruns each trial alone. Against run_batch."""
-    from master.cosim import SimulationError
-    from master.tasks.illusion import measures, plan, run_batch
-    from master.tasks.illusion import runner
-    from master.decoders.cache import decoder_component
-    from master.tasks.illusion.measures import end_of_trial
+    from rhi.master.cosim import SimulationError
+    from rhi.master.tasks.illusion import measures, plan, run_batch
+    from rhi.master.tasks.illusion import runner
+    from rhi.master.decoders.cache import decoder_component
+    from rhi.master.tasks.illusion.measures import end_of_trial
 
     config = configuration.load(quick=True, overrides={
         "experiment.decoders": ["conv"], "experiment.conditions": ["left", "right"], "experiment.trials": 2,
@@ -245,7 +245,7 @@ def test_tasks_keep_large_temporaries_on_the_heap(tmp_path):
     code = """
 import resource, sys
 import numpy as np
-from master.sweeps.runner import steady_malloc
+from rhi.master.sweeps.runner import steady_malloc
 
 
 def faults():
@@ -274,7 +274,7 @@ def test_the_documented_dask_worker_command_has_the_worker_settings():
     import dask
     from docs_tables import block as generated
 
-    from master.sweeps.runner import WORKER_SETTINGS
+    from rhi.master.sweeps.runner import WORKER_SETTINGS
 
     block = generated("sweeps.md", "worker-command")
     variables = dict(re.findall(r"\b(DASK_[A-Z_]+)=(\S+)", block))

@@ -8,16 +8,16 @@ import pytest
 from scipy import stats
 import torch
 
-from components.body import camera, kinematics
-from components.vision import checkpoint
-from components.vision.component import GenerativeModel
-from components.vision.training import TrainSettings, kl_to_prior, train
-from master.decoders import training_data
-from master.cosim import ConfigError
-from master.commands.train import run as run_train
-from master import config as configuration
-from master.decoders.quality import fit_camera, fit_decoder
-from master.decoders.training import load_decoder, train_settings
+from rhi.components.body import camera, kinematics
+from rhi.components.vision import checkpoint
+from rhi.components.vision.component import GenerativeModel
+from rhi.components.vision.training import TrainSettings, kl_to_prior, train
+from rhi.master.decoders import training_data
+from rhi.master.cosim import ConfigError
+from rhi.master.commands.train import run as run_train
+from rhi.master import config as configuration
+from rhi.master.decoders.quality import fit_camera, fit_decoder
+from rhi.master.decoders.training import load_decoder, train_settings
 
 REST, HALF = np.asarray(kinematics.REST_POSE), np.asarray(training_data.HALF_RANGES)
 TINY = dict(preset="tiny", resolution=16, batch_size=16, lr=1e-2, quality_poses=0, threads=1)
@@ -202,7 +202,7 @@ def test_the_cached_decoder_s_name_changes_with_the_camera_blur_only(tmp_path, m
     """A changed blur trains a new default decoder; the default blur keeps the name it always had."""
     import hashlib
     import json
-    from master.decoders.cache import checkpoint_path
+    from rhi.master.decoders.cache import checkpoint_path
     monkeypatch.setenv("RHI_CACHE", str(tmp_path))
     config = configuration.load(quick=True)
     # The settings the name was a hash of before channels_last, fused_adam and stop_hand_error_cm existed:

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 import torch
 
-from components.component import ComponentError, Status
-from components.vision import checkpoint
-from components.vision.component import Decoder, GenerativeModel, jacobian_images
-from components.vision.networks import PRESETS, build
-from master import System, simulate
+from rhi.components.component import ComponentError, Status
+from rhi.components.vision import checkpoint
+from rhi.components.vision.component import Decoder, GenerativeModel, jacobian_images
+from rhi.components.vision.networks import PRESETS, build
+from rhi.master import System, simulate
 from tests.toys import Image
 
 REST, HALF = (147.7, -91.2), (40.0, 50.0)
@@ -253,12 +253,12 @@ def test_bad_checkpoints_give_one_clear_error_naming_the_file(tmp_path, case, me
 
 
 def test_experiment_config_chooses_the_exact_or_the_fast_decoder(tmp_path):
-    from components.vision.fast import LinearisedDecoder
-    from master import config as configuration
-    from master.decoders.cache import decoder_component
-    from master.cosim import ConfigError
-    from components.body.kinematics import REST_POSE
-    from master.decoders.training_data import HALF_RANGES
+    from rhi.components.vision.fast import LinearisedDecoder
+    from rhi.master import config as configuration
+    from rhi.master.decoders.cache import decoder_component
+    from rhi.master.cosim import ConfigError
+    from rhi.components.body.kinematics import REST_POSE
+    from rhi.master.decoders.training_data import HALF_RANGES
     path = tmp_path / "conv.pt"
     save(path, random_model(), {**METADATA, "rest_pose": list(REST_POSE), "half_ranges": list(HALF_RANGES)})
     exact = decoder_component("conv", str(path), configuration.load(overrides={"experiment.resolution": RES,

@@ -3,8 +3,8 @@ import math
 
 import numpy as np
 
-from components.component import Component, StepFailure, Status
-from components.variables import Variable
+from rhi.components.component import Component, StepFailure, Status
+from rhi.components.variables import Variable
 
 
 class Constant(Component):

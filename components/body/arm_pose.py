@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from components.body.kinematics import REST_HAND, REST_POSE, forward
-from components.component import Component, ComponentError
-from components.variables import Variable
+from .kinematics import REST_HAND, REST_POSE, forward
+from ..component import Component, ComponentError
+from ..variables import Variable
 
 
 class PosedArm(Component):

@@ -35,9 +35,9 @@ import math
 import numpy as np
 from PIL import Image, ImageDraw
 
-from components.body.kinematics import FOREARM, REST_POSE, SHOULDER, UPPER_ARM
-from components.component import Component, ComponentError, StepFailure
-from components.variables import Variable
+from .kinematics import FOREARM, REST_POSE, SHOULDER, UPPER_ARM
+from ..component import Component, ComponentError, StepFailure
+from ..variables import Variable
 
 # Field of view (m). It holds the rubber arms of every condition, the ball's path, and the
 # whole decoder training range (shoulder rest +-40 deg, elbow rest +-50 deg: hands reach

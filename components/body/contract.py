@@ -1,8 +1,8 @@
 """The body FMU contract: the ports any body plant must have to take the arm's place (docs/design.md,
-"Body FMU contract"). The native plant (:mod:`components.body.plant`) declares them; an FMU swapped in with
+"Body FMU contract"). The native plant (:mod:`rhi.components.body.plant`) declares them; an FMU swapped in with
 ``--body`` is checked against them before anything runs. :data:`FMI3_ARRAYS`: the same ports as the body FMUs'
 FMI 3.0 builds carry them (docs/fmi.md)."""
-from components.variables import ContractVariable
+from ..variables import ContractVariable
 
 BODY_CONTRACT = (
     ContractVariable("u_shoulder", "input", "Real", "deg/s"),

@@ -5,7 +5,7 @@ a copy of the ``components`` package and a one-line resource file,
 ``rhi_component.txt``, that names the model and the component class to wrap
 (``ArmBody components.body.plant:ArmPlant``): one slave class serves every body
 variant. Each FMU instance is one trial (batch size 1); the slave base,
-:class:`components.fmu_slave_base.ComponentSlaveBase`, taken from the FMU's own
+:class:`rhi.components.fmu_slave_base.ComponentSlaveBase`, taken from the FMU's own
 copy of ``components``, registers the variables and runs the lifecycle. pythonfmu
 takes the class of this file that has ``Fmi2Slave`` deepest among its bases.
 """
@@ -32,7 +32,7 @@ def own_bundle():
 
 
 def bundled(resources: str, spec: str):
-    """``module:name`` from the FMU's own copy of its packages (:func:`components.fmu_bundle.bundled`)."""
+    """``module:name`` from the FMU's own copy of its packages (:func:`rhi.components.fmu_bundle.bundled`)."""
     return _BUNDLE.bundled(resources, spec, __name__)
 
 

@@ -3,8 +3,8 @@
 This file is the FMI 3.0 body FMU's main script, the twin of ``components/body/fmu_slave.py`` (FMI 2.0):
 ``master/export/body.py`` bundles it with a copy of the ``components`` package and the same one-line
 ``rhi_component.txt`` (``ArmBody components.body.plant:ArmPlant``). The slave base,
-:class:`components.fmu_slave3_base.ComponentSlave3Base`, and the arrays,
-:data:`components.body.contract.FMI3_ARRAYS`, are taken from the FMU's own copy of ``components``. pythonfmu3
+:class:`rhi.components.fmu_slave3_base.ComponentSlave3Base`, and the arrays,
+:data:`rhi.components.body.contract.FMI3_ARRAYS`, are taken from the FMU's own copy of ``components``. pythonfmu3
 (its builder and its library both) takes the class of this file that names ``Fmi3Slave`` among its bases.
 """
 from __future__ import annotations
@@ -32,7 +32,7 @@ def own_bundle():
 
 
 def bundled(resources: str, spec: str):
-    """``module:name`` from the FMU's own copy of its packages (:func:`components.fmu_bundle.bundled`)."""
+    """``module:name`` from the FMU's own copy of its packages (:func:`rhi.components.fmu_bundle.bundled`)."""
     return _BUNDLE.bundled(resources, spec, __name__)
 
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from components.component import ComponentError
+from ..component import ComponentError
 
 SHOULDER = (-0.20, 0.0)     # m, left shoulder joint (fixed on the torso)
 UPPER_ARM = 0.3595          # m, shoulder -> elbow

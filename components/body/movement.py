@@ -12,9 +12,9 @@ import math
 
 import numpy as np
 
-from components.body.kinematics import REST_POSE, forward
-from components.component import Component, ComponentError
-from components.variables import Variable
+from .kinematics import REST_POSE, forward
+from ..component import Component, ComponentError
+from ..variables import Variable
 
 
 def periodic_step_velocity(t, h, amplitude, period):

@@ -40,9 +40,9 @@ import pymunk.batch
 from pymunk.batch import BodyFields
 from pymunk._chipmunk import ffi, lib as chipmunk  # Chipmunk's own calls (see _substeps_numpy, c_loop)
 
-from components.body.kinematics import FOREARM, REST_HAND, REST_POSE, SHOULDER, UPPER_ARM, forward
-from components.component import Component, ComponentError, StepFailure
-from components.variables import Variable
+from .kinematics import FOREARM, REST_HAND, REST_POSE, SHOULDER, UPPER_ARM, forward
+from ..component import Component, ComponentError, StepFailure
+from ..variables import Variable
 
 CELL_ARM = 1.0  # m, length of each load-cell spring (long, so a sideways deflection barely loads it)
 
@@ -59,11 +59,11 @@ def address(cdata) -> int:
 
 
 def c_loop():
-    """``components.body._servo`` bound to pymunk's Chipmunk, or None (the numpy loop) where it is not built,
+    """``rhi.components.body._servo`` bound to pymunk's Chipmunk, or None (the numpy loop) where it is not built,
     pymunk's functions are not of the types it calls, or numpy's maximum and minimum here choose otherwise than
     it does between equal operands (+0 and -0) or a NaN (it follows numpy's x86-64 kernels)."""
     try:
-        from components.body import _servo
+        from . import _servo
     except ImportError:
         return None
     functions = [ffi.addressof(chipmunk, name) for name in C_FUNCTIONS]
@@ -89,7 +89,7 @@ def state_output(name, unit, description, start):
     Parameters
     ----------
     name, unit, description : str
-        As for :class:`~components.variables.Variable`.
+        As for :class:`~rhi.components.variables.Variable`.
     start : float
         Its start value, in ``unit``.
 

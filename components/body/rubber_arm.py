@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from components.body.kinematics import REST_HAND, REST_POSE, inverse
-from components.component import Component, ComponentError
-from components.variables import Variable
+from .kinematics import REST_HAND, REST_POSE, inverse
+from ..component import Component, ComponentError
+from ..variables import Variable
 
 
 class RubberArm(Component):

@@ -1,6 +1,6 @@
 """A second body for the same contract: a purely kinematic arm (``rhi export-body --variant kinematic``).
 
-Where :class:`~components.body.plant.ArmPlant` simulates masses, a velocity servo
+Where :class:`~rhi.components.body.plant.ArmPlant` simulates masses, a velocity servo
 and a compliant load cell in pymunk, this arm has no dynamics at all:
 
 - free: the joints follow the command exactly, q(t + h) = q(t) + h * u;
@@ -18,9 +18,9 @@ import math
 
 import numpy as np
 
-from components.body.kinematics import forward, jacobian
-from components.body.plant import ArmPlant
-from components.component import Component, StepFailure
+from .kinematics import forward, jacobian
+from .plant import ArmPlant
+from ..component import Component, StepFailure
 
 # The contract's variables and the servo parameters, declared exactly as the pymunk plant declares them.
 SHARED = ("u_shoulder", "u_elbow", "q_shoulder", "q_elbow", "hand_x", "hand_y", "force_x", "force_y",

@@ -1,6 +1,6 @@
 """The brain components: the paper's free-energy integrator of belief and action with causal inference of gamma
 (``Brain``), the causal model's brain (``causal_brain.CausalBrain``), both on one base of step and guards
 (``base.BeliefBrain``)."""
-from components.brain.integrator import Brain
+from .integrator import Brain
 
 __all__ = ["Brain"]

@@ -6,7 +6,7 @@ models differ only in how fast the belief moves; each step of every model, for e
 1. the inputs are checked finite, by name (event times may be -inf: no event yet);
 2. the model's own rate (:meth:`BeliefBrain.rate`): gamma, mu_dot, the stiffness number dt * k of the
    belief's decay, the free energy and any state of the model's own (the paper's brain:
-   :mod:`components.brain.integrator`; the causal model's: :mod:`components.brain.causal_brain`);
+   :mod:`rhi.components.brain.integrator`; the causal model's: :mod:`rhi.components.brain.causal_brain`);
 3. the guards of explicit Euler: the belief is stable only while the stiffness number < 2, the leaky
    action only while dt / tau < 2;
 4. mu <- mu + dt * mu_dot, then a_dot from the UPDATED mu (:func:`action_rate`, eq. 7) and the action law
@@ -14,7 +14,7 @@ models differ only in how fast the belief moves; each step of every model, for e
 5. mu, a_dot and the free energy checked finite; only then is anything committed, so a failed step
    leaves the state as it was.
 
-The guards raise :class:`~components.component.StepFailure` naming the variable, the value and the trials
+The guards raise :class:`~rhi.components.component.StepFailure` naming the variable, the value and the trials
 (:func:`require_finite`, :func:`trials_text`); the master then stops the run.
 """
 from __future__ import annotations
@@ -25,11 +25,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from components.brain.touch_timing import observe_events
-from components.component import Component, ComponentError, StepFailure
+from .touch_timing import observe_events
+from ..component import Component, ComponentError, StepFailure
 
 STABILITY_LIMIT = 2.0  # explicit Euler on a linear decay of rate k is stable iff dt * k < 2
-GOAL_INPUTS = ("goal_drive", "goal_error", "goal_stiffness")  # components.brain.goal.goal_inputs
+GOAL_INPUTS = ("goal_drive", "goal_error", "goal_stiffness")  # rhi.components.brain.goal.goal_inputs
 EVENT_INPUTS = ("visual_time", "tactile_time")
 
 
@@ -58,7 +58,7 @@ def action_update(action, a_dot, action_time_constant, action_limit, h):
 
     tau = ``action_time_constant``: inf is the paper's law a <- clip(a + h * a_dot) (computed as written,
     so bit for bit the released agent's), a finite tau the leaky integrator whose fixed point is
-    a = tau * a_dot (:mod:`components.brain.integrator`'s notes).
+    a = tau * a_dot (:mod:`rhi.components.brain.integrator`'s notes).
 
     Parameters
     ----------
@@ -87,7 +87,7 @@ def add_goal_drive(mu_dot, goal_drive):
 
     Source: the released agent adds its attractor term so (``FepAgent.active_inference_step``: mu_dot =
     dF_dmu_vis + dF_dmu_attr + proprioception); the term itself: a goal decoder's drive or
-    :mod:`components.brain.goal`.
+    :mod:`rhi.components.brain.goal`.
 
     Parameters
     ----------
@@ -232,7 +232,7 @@ class BeliefBrain(Component, abc.ABC):
             Sensed joint angles, deg (checked finite).
         pair : ndarray of bool, (B,)
             A new visual and a new tactile event both seen since the last Bayes update
-            (:func:`~components.brain.touch_timing.observe_events`).
+            (:func:`~rhi.components.brain.touch_timing.observe_events`).
 
         Returns
         -------

@@ -2,14 +2,14 @@
 
 Each step, for each of the B trials (docs/model.md):
 
-1. gamma_timing <- :func:`~components.brain.body_inference.hazard_predict` (the common-cause state
+1. gamma_timing <- :func:`~rhi.components.brain.body_inference.hazard_predict` (the common-cause state
    persists, relaxing to its prior over ``switching_time``); at a new visuo-tactile pair it is
    updated by the perceived delay's likelihood ratio (the delay plus this participant's timing noise);
 2. gamma = posterior(gamma_timing, spatial likelihood ratio of the seen pose x_v and the felt pose s_p);
 3. mu_dot = (s_p - mu)/Sigma_p + gamma (x_v - mu)/Sigma_x + pixel_weight * gamma * visual_drive
    (:func:`belief_rate`): x_v and Sigma_x (deg, deg^2 per joint) come from the pose encoder;
 4. a_dot and the action as in the paper's brain: the guards, the Euler step and the action law are every
-   brain's (:class:`~components.brain.base.BeliefBrain`); this model computes gamma, mu_dot and F
+   brain's (:class:`~rhi.components.brain.base.BeliefBrain`); this model computes gamma, mu_dot and F
    (:meth:`CausalBrain.rate`).
 
 A reach goal's pull (input ``goal_drive``, docs/reach.md) is added to mu_dot unweighted by gamma, as in the
@@ -18,18 +18,18 @@ paper's brain; it is 0 (no goal) unless the reach task connects it.
 The brain reads no position from the simulator: the seen arm reaches it only through the camera's
 image and the pose encoder, the felt arm only as the sensed joint angles s_p. Each trial is one
 participant: its parameters are drawn from the population once, at initialization, from its
-``participant_seed`` (:func:`~components.brain.body_inference.participants`).
+``participant_seed`` (:func:`~rhi.components.brain.body_inference.participants`).
 """
 from __future__ import annotations
 
 import numpy as np
 
-from components.brain.body_inference import hazard_predict, participants, posterior, spatial_likelihood_ratio, \
+from .body_inference import hazard_predict, participants, posterior, spatial_likelihood_ratio, \
     timing_likelihood_ratio
-from components.brain.base import BeliefBrain, PerceptualNoise, BeliefRate, add_goal_drive, require_finite
-from components.brain.goal import goal_inputs
-from components.component import ComponentError, StepFailure
-from components.variables import Variable
+from .base import BeliefBrain, PerceptualNoise, BeliefRate, add_goal_drive, require_finite
+from .goal import goal_inputs
+from ..component import ComponentError, StepFailure
+from ..variables import Variable
 
 
 def belief_rate(s_p, mu, gamma, seen_pose, seen_variance, proprioceptive_variance, pixel_weight, visual_drive):

@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from components.component import StepFailure, Component
-from components.variables import Variable
+from ..component import StepFailure, Component
+from ..variables import Variable
 
 
 def body_space_attraction(mu, goal_pose, goal_variance, precision_ratio):

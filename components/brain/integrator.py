@@ -2,14 +2,14 @@
 
 Each step, for each of the B trials, in the released agent's order (docs/design.md, "Brain"):
 
-1. gamma from the events (eqs. 8-9, :mod:`components.brain.touch_timing`; with the
+1. gamma from the events (eqs. 8-9, :mod:`rhi.components.brain.touch_timing`; with the
    extension over space there, ``spatial_sd`` finite, also from the seen and felt hands);
 2. mu_dot = (s_p - mu)/Sigma_p + gamma * visual_drive [+ goal_drive, a reach goal's pull, unweighted by
    gamma; 0 unless the reach task connects it, docs/reach.md];  mu <- mu + dt * mu_dot  (:func:`belief_rate`);
-3. a_dot = -(s_p - mu)/Sigma_p with the UPDATED mu  (:func:`~components.brain.base.action_rate`, eq. 7);
-4. a <- clip(a + dt * (a_dot - a/tau), -limit, limit)  (:func:`~components.brain.base.action_update`, the
+3. a_dot = -(s_p - mu)/Sigma_p with the UPDATED mu  (:func:`~rhi.components.brain.base.action_rate`, eq. 7);
+4. a <- clip(a + dt * (a_dot - a/tau), -limit, limit)  (:func:`~rhi.components.brain.base.action_update`, the
    action law).
-Steps 2-4 after gamma are every brain's (:class:`~components.brain.base.BeliefBrain`); this model computes
+Steps 2-4 after gamma are every brain's (:class:`~rhi.components.brain.base.BeliefBrain`); this model computes
 gamma, mu_dot and the free energy (:meth:`Brain.rate`).
 
 Step 3 uses mu after step 2, as the released agent does (it updates ``self.mu`` and then
@@ -52,7 +52,7 @@ yet, since the body steps after the brain.
 Time of the events: under Gauss-Seidel the stimulus has already advanced to t + h when the
 brain steps from t, so the decay of eq. 9 measures t + h minus the last tactile event time.
 
-Guards (the step fails, the master stops the run; the shared step of :mod:`components.brain.base`):
+Guards (the step fails, the master stops the run; the shared step of :mod:`rhi.components.brain.base`):
 explicit Euler of eq. 6 is stable only while dt * (1/Sigma_p + gamma * visual_stiffness) < 2,
 visual_stiffness being the largest eigenvalue of J^T J / Sigma_v; the leaky action only while
 dt/tau < 2; and every input and result must be finite (event times may be -inf: no event yet).
@@ -61,12 +61,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from components.brain.base import STABILITY_LIMIT, BeliefBrain, BeliefRate, action_rate, action_update, \
+from .base import STABILITY_LIMIT, BeliefBrain, BeliefRate, action_rate, action_update, \
     add_goal_drive, euler_step, trials_text
-from components.brain.touch_timing import spatial_likelihood, update_gamma
-from components.brain.goal import goal_inputs
-from components.component import ComponentError, StepFailure
-from components.variables import Variable
+from .touch_timing import spatial_likelihood, update_gamma
+from .goal import goal_inputs
+from ..component import ComponentError, StepFailure
+from ..variables import Variable
 
 # The action law and the Euler step are the base's, named here too: docs and master read them from this module.
 __all__ = ["STABILITY_LIMIT", "Brain", "action_rate", "action_update", "belief_rate", "euler_step", "free_energy",

@@ -1,23 +1,23 @@
 """The ownership model's brain: ownership gamma from accumulated timing evidence, drift as a slow realignment b.
 
 Each step, for each of the B trials (docs/model.md, "The ownership model"; the equations in
-:mod:`components.brain.ownership_inference`):
+:mod:`rhi.components.brain.ownership_inference`):
 
 1. ownership gamma and the coupling rho, two common-cause beliefs about the seen and the felt arm, are
    predicted over the step as two-state chains relaxing to their priors at the switching rate
-   (:func:`~components.brain.body_inference.hazard_predict`); at a new visuo-tactile pair both add the same
+   (:func:`~rhi.components.brain.body_inference.hazard_predict`); at a new visuo-tactile pair both add the same
    touch's evidence: the log likelihood ratio of the perceived asynchrony
-   (:func:`~components.brain.ownership_inference.asynchrony_log_likelihood_ratio`; the delay plus this
+   (:func:`~rhi.components.brain.ownership_inference.asynchrony_log_likelihood_ratio`; the delay plus this
    trial's perceptual noise) plus that of the distance between the seen and the felt hand
-   (:func:`~components.brain.ownership_inference.spatial_log_likelihood_ratio`), by Bayes' rule
-   (:func:`~components.brain.body_inference.posterior`). They differ
+   (:func:`~rhi.components.brain.ownership_inference.spatial_log_likelihood_ratio`), by Bayes' rule
+   (:func:`~rhi.components.brain.body_inference.posterior`). They differ
    only in their priors: ownership starts from the paper's gamma0 and needs evidence; the coupling starts high
    and needs none, but asynchronous touches take it away;
 2. the ownership onset: the first time gamma reaches 1/2;
 3. the realignment b relaxes at rate k toward w rho (x_v - s_p), exactly over the step;
 4. mu_dot = (s_p + b - mu)/Sigma_p: the belief (the perceived arm) follows the realigned proprioception, so
    the drift is b as it builds; the action and the guards are every brain's
-   (:class:`~components.brain.base.BeliefBrain`: a_dot = -(s_p - mu)/Sigma_p, the belief-sense gap).
+   (:class:`~rhi.components.brain.base.BeliefBrain`: a_dot = -(s_p - mu)/Sigma_p, the belief-sense gap).
 
 A reach goal's pull (input ``goal_drive``) is added to mu_dot as in the other brains. The brain reads no
 position from the simulator: the seen arm reaches it only as the pose encoder's reading of the camera's image,
@@ -28,13 +28,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from components.brain.base import BeliefBrain, PerceptualNoise, BeliefRate, add_goal_drive
-from components.brain.body_inference import hazard_predict, posterior
-from components.brain.goal import goal_inputs
-from components.brain.ownership_inference import asynchrony_log_likelihood_ratio, belief_rate, free_energy, \
+from .base import BeliefBrain, PerceptualNoise, BeliefRate, add_goal_drive
+from .body_inference import hazard_predict, posterior
+from .goal import goal_inputs
+from .ownership_inference import asynchrony_log_likelihood_ratio, belief_rate, free_energy, \
     hand_separation, ownership_onset, realignment_step, realignment_target, spatial_log_likelihood_ratio
-from components.component import ComponentError
-from components.variables import Variable
+from ..component import ComponentError
+from ..variables import Variable
 
 NOISE_STREAM = 2  # the trial's generator is numpy's default_rng([participant_seed, NOISE_STREAM])
 

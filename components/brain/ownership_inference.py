@@ -8,8 +8,8 @@ One function per equation, each vectorised over the batch of B trials (docs/mode
   touch lies from the felt one (:func:`peripersonal_sd_from_boundary` derives the spread from where it is neutral);
 - between touches the common-cause state relaxes to its prior as a two-state Markov chain, and at a touch
   Bayes' rule adds the touch's evidence to its log odds: the causal model's
-  :func:`~components.brain.body_inference.hazard_predict` (switching_time = 1 / switching rate) and
-  :func:`~components.brain.body_inference.posterior` (likelihood ratio = exp of the log ratio), reused;
+  :func:`~rhi.components.brain.body_inference.hazard_predict` (switching_time = 1 / switching rate) and
+  :func:`~rhi.components.brain.body_inference.posterior` (likelihood ratio = exp of the log ratio), reused;
 - :func:`ownership_onset`: the first time ownership gamma reaches 1/2;
 - :func:`realignment_target` and :func:`realignment_step`: the slow realignment b and its exact step;
 - :func:`belief_rate` and :func:`free_energy`: the belief follows the realigned proprioception s_p + b.

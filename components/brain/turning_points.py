@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from components.component import Component
-from components.variables import Variable
+from ..component import Component
+from ..variables import Variable
 
 STILL = 1e-9  # deg: a change smaller than this is no movement (it sets no direction)
 

@@ -4,8 +4,8 @@ Modules: :mod:`contract` (a file checked against a contract before it loads), :m
 once, its library held), :mod:`watchdog` (time limits and signals during calls), :mod:`adapter`
 (:class:`FMUComponent`).
 """
-from components.fmu.adapter import FMUComponent
-from components.fmu.contract import check_contract
-from components.fmu.library import extracted, guard_library
+from .adapter import FMUComponent
+from .contract import check_contract
+from .library import extracted, guard_library
 
 __all__ = ["FMUComponent", "check_contract", "extracted", "guard_library"]

@@ -1,19 +1,19 @@
 """Any FMI 2.0 co-simulation FMU as a native component, on top of fmpy.
 
 :class:`FMUComponent` reads the FMU's model description and declares one
-:class:`~components.variables.Variable` per scalar Real, Integer or Boolean
+:class:`~rhi.components.variables.Variable` per scalar Real, Integer or Boolean
 variable (causality, unit, start, range, description and the output
 dependencies of ``ModelStructure``), so the master validates and wires an FMU
 exactly like a component written in Python. A batch of B trials is B FMU
 instances; ``do_step`` steps each of them.
 
 Before anything runs, :func:`check_contract` checks the file against a
-contract (for a body, :data:`components.body.contract.BODY_CONTRACT`, docs/design.md "Body FMU
+contract (for a body, :data:`rhi.components.body.contract.BODY_CONTRACT`, docs/design.md "Body FMU
 contract") and
 the constructor raises one ComponentError that lists every problem found.
 
 Every call into an FMU runs under a wall-clock limit (``step_timeout``, seconds; None: none) and with
-SIGINT and SIGTERM kept out of the FMU's own code (:class:`~components.fmu.watchdog.Watch`): a call over its limit is stopped and
+SIGINT and SIGTERM kept out of the FMU's own code (:class:`~rhi.components.fmu.watchdog.Watch`): a call over its limit is stopped and
 fails its trial with a StepFailure naming the FMU, the call, the trial and the time; a signal received
 during a call stops the call, and then takes its usual course (KeyboardInterrupt) once the call has
 returned, instead of being turned by the FMU into a failed step.
@@ -33,11 +33,11 @@ import zipfile
 
 import numpy as np
 
-from components.component import INITIALIZATION, STEPPING, Component, ComponentError, Status, StepFailure
-from components.fmu.contract import SCALAR_TYPES, CAUSALITY, check_contract, library_path
-from components.fmu.library import extracted, guard_library
-from components.fmu.watchdog import WATCH, Call, CallStopped
-from components.variables import Variable
+from ..component import INITIALIZATION, STEPPING, Component, ComponentError, Status, StepFailure
+from .contract import SCALAR_TYPES, CAUSALITY, check_contract, library_path
+from .library import extracted, guard_library
+from .watchdog import WATCH, Call, CallStopped
+from ..variables import Variable
 
 
 def _parse(kind: str, text):
@@ -53,7 +53,7 @@ class FMUComponent(Component):
 
     path: the .fmu file. name: instance name in the system.
     contract: the ContractVariables the FMU must have (empty: check only that it is a usable FMU), e.g.
-    :data:`components.body.contract.BODY_CONTRACT`.
+    :data:`rhi.components.body.contract.BODY_CONTRACT`.
     step_timeout: seconds one call into an instance may take (None or 0: no limit); a longer call
     fails its trial (see the module's docstring).
     """
@@ -113,7 +113,7 @@ class FMUComponent(Component):
     # -- lifecycle ------------------------------------------------------------------------
     def instantiate(self, batch_size: int = 1) -> None:
         """Instantiate one FMU instance per trial (fmi2Instantiate, one logger for all into ``messages``), with the
-        signal handlers of :data:`~components.fmu.watchdog.WATCH` installed until :meth:`terminate`.
+        signal handlers of :data:`~rhi.components.fmu.watchdog.WATCH` installed until :meth:`terminate`.
 
         Parameters
         ----------
@@ -203,7 +203,7 @@ class FMUComponent(Component):
         return f" ({reason})" if reason else ""
 
     def _guarded(self, call: Call, trial: int, function):
-        """``function()``, a call into instance ``trial``, watched (see :class:`~components.fmu.watchdog.Watch`): returns None, or the
+        """``function()``, a call into instance ``trial``, watched (see :class:`~rhi.components.fmu.watchdog.Watch`): returns None, or the
         FMI status of a call that failed; a call over the limit raises a StepFailure for its trial; a signal
         received during the call takes its usual course once it has returned."""
         from fmpy.fmi1 import FMICallException

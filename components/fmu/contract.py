@@ -7,7 +7,7 @@ import os
 import zipfile
 from xml.etree import ElementTree as ET
 
-from components.archives import ArchiveError, check_archive
+from ..archives import ArchiveError, check_archive
 
 SCALAR_TYPES = ("Real", "Integer", "Boolean")
 CAUSALITY = {"parameter": "parameter", "input": "input", "output": "output",

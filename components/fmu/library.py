@@ -8,8 +8,8 @@ import os
 import shutil
 import tempfile
 
-from components.archives import extract
-from components.fmu.contract import library_path
+from ..archives import extract
+from .contract import library_path
 
 # pythonfmu's export library (0.7) holds a global shared_ptr that C++ destroys at process exit and
 # then resets again from its __attribute__((destructor)): a use-after-free that randomly aborts the
@@ -29,7 +29,7 @@ def guard_library(unzipdir: str, model_identifier: str) -> None:
 
 
 def extracted(path: str) -> str:
-    """The FMU at ``path`` unzipped (checked: :func:`components.archives.extract`), once per process and
+    """The FMU at ``path`` unzipped (checked: :func:`rhi.components.archives.extract`), once per process and
     file version (removed at exit)."""
     status = os.stat(path)
     key = (path, status.st_mtime_ns, status.st_size)

@@ -5,7 +5,7 @@ Modules: :mod:`networks` (the shared decoder definition, the VAE encoder, preset
 :mod:`component` (the co-simulation component, forward-mode Jacobians).
 Training data come from the body's camera; that wiring lives in ``master/decoders/training_data.py``.
 """
-from components.vision.checkpoint import CheckpointError
-from components.vision.component import Decoder, GenerativeModel, jacobian_images
+from .checkpoint import CheckpointError
+from .component import Decoder, GenerativeModel, jacobian_images
 
 __all__ = ["Decoder", "GenerativeModel", "jacobian_images", "CheckpointError"]

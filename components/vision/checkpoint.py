@@ -32,9 +32,9 @@ from typing import BinaryIO
 
 import torch
 
-from components.archives import ArchiveError, check_archive
-from components.component import ComponentError
-from components.vision.networks import VisualModel, build, sizes_from_dict
+from ..archives import ArchiveError, check_archive
+from ..component import ComponentError
+from .networks import VisualModel, build, sizes_from_dict
 
 FORMAT = "rhi-visual-decoder/1"
 REQUIRED = {"kind": str, "preset": str, "sizes": dict, "resolution": int, "rest_pose": list,

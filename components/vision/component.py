@@ -26,10 +26,10 @@ import numpy as np
 import torch
 from torch.autograd import forward_ad
 
-from components.component import Component, ComponentError, StepFailure
-from components.variables import Variable
-from components.vision.checkpoint import check_matches, load
-from components.vision.networks import normalise
+from ..component import Component, ComponentError, StepFailure
+from ..variables import Variable
+from .checkpoint import check_matches, load
+from .networks import normalise
 
 REFERENCE_PIXELS = 256 * 256
 # Calibrated at the 256x256 reference with this project's camera and decoders (docs/results.md, "Calibrating

@@ -18,7 +18,7 @@ A step costs one pass over each trial's image and one over each point in use, fo
 J0^T (s - g0) and |s - g0|^2 per trial; the terms in d = mu - mu0 follow in float64
 (:func:`linearised_terms`), scaled by the precision as in :func:`visual_drive` and
 :func:`visual_error`.
-The prediction output is computed only if read (:class:`~components.component.Deferred`).
+The prediction output is computed only if read (:class:`~rhi.components.component.Deferred`).
 
 Example::
 
@@ -31,10 +31,10 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from components.component import Deferred
-from components.variables import Variable
-from components.vision.component import Decoder, jacobian_gram, largest_eigenvalue, visual_error
-from components.vision.optimised import optimised
+from ..component import Deferred
+from ..variables import Variable
+from .component import Decoder, jacobian_gram, largest_eigenvalue, visual_error
+from .optimised import optimised
 
 DEFAULT_TOLERANCE = 0.005  # deg: every cell's final drift within 1 % of the exact integrator's (docs/decoders.md, "Fast mode")
 

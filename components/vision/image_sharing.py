@@ -2,7 +2,7 @@
 what a network computed from an image, keyed by a digest of its bytes.
 
 Trials of one lockstep batch that show the same rubber arm and ball see the same picture (the camera draws it
-once and copies it, :class:`components.body.camera.Camera`), and a batch of the next participants sees the
+once and copies it, :class:`rhi.components.body.camera.Camera`), and a batch of the next participants sees the
 same sequence of pictures again. A component that reads the image runs its network once per distinct image
 (:func:`distinct`) and keeps the result for the next time that image comes (:class:`FeatureStore`).
 

@@ -28,7 +28,7 @@ from dataclasses import asdict, dataclass
 import torch
 from torch import nn
 
-from components.component import ComponentError
+from ..component import ComponentError
 
 KINDS = ("conv", "vae")
 

@@ -24,8 +24,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from components.vision.component import GenerativeModel
-from components.vision.networks import ConvDecoder, normalise
+from .component import GenerativeModel
+from .networks import ConvDecoder, normalise
 
 ACTIVATION_BUDGET = 24 * 2**20  # bytes of the largest feature map of one decoder pass: about this CPU's L3 (32 MB)
 

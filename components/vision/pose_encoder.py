@@ -4,7 +4,7 @@ The causal model's visual evidence lives in body space (docs/model.md): an encod
 camera image and returns, per trial, the seen arm's joint angles x_v (deg) and a variance per
 joint (deg^2), the visual observation the brain weighs by its precision.
 
-- Network: the VAE's convolutional encoder (:class:`components.vision.networks.Encoder`), a mean
+- Network: the VAE's convolutional encoder (:class:`rhi.components.vision.networks.Encoder`), a mean
   and a log-variance in the decoders' normalised joint units. For the ``vae`` decoder it *is* the
   VAE's trained encoder; for the ``conv`` decoder one of the same shape is trained here, on the
   same rendered (angles, image) pairs, by :func:`train_encoder`.
@@ -27,11 +27,11 @@ import os
 import numpy as np
 import torch
 
-from components.component import Component, ComponentError, StepFailure
-from components.variables import Variable
-from components.vision.component import available_cores
-from components.vision.image_sharing import FeatureStore, digest, distinct, weights_key
-from components.vision.networks import Encoder, normalise, sizes_dict, sizes_from_dict
+from ..component import Component, ComponentError, StepFailure
+from ..variables import Variable
+from .component import available_cores
+from .image_sharing import FeatureStore, digest, distinct, weights_key
+from .networks import Encoder, normalise, sizes_dict, sizes_from_dict
 
 FORMAT = "rhi-pose-encoder/1"
 MIN_ROWS = 2      # images per convolution call at least: torch on the CPU convolves a batch of one another way (other bits)
@@ -182,7 +182,7 @@ class PoseEncoder(Component):
     """Pose-encoder component: the image in; the seen arm's angles and their calibrated variance out.
 
     The network's convolutions run once per distinct image (``share``): trials showing the same picture share
-    them (:func:`~components.vision.image_sharing.distinct`), and what they gave is kept for the next step or
+    them (:func:`~rhi.components.vision.image_sharing.distinct`), and what they gave is kept for the next step or
     batch that shows it (one store per process, :data:`STORE_MB`). The dense layers still run on every trial's
     row, in one batch of all B trials as before, so the outputs are the unshared computation's bit for bit
     wherever the convolutions give each image the same numbers in a batch of any size >= :data:`MIN_ROWS`

@@ -36,9 +36,9 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from components.component import ComponentError
-from components.vision.component import available_cores
-from components.vision.networks import KINDS, PRESETS, VisualModel, build, normalise, preset, sizes_dict
+from ..component import ComponentError
+from .component import available_cores
+from .networks import KINDS, PRESETS, VisualModel, build, normalise, preset, sizes_dict
 
 
 @dataclass(frozen=True)

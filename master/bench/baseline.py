@@ -11,8 +11,8 @@ gamma, mu and a in numpy.
 Here the environment (Unity in the paper) is this project's body, camera, stimulus and rubber
 arm components, stepped directly in the master's Gauss-Seidel order without the master. The
 agent itself is written out below from the paper and docs/design.md, as the released agent wrote
-it, and takes NOTHING from the integrator (``components.brain``), the decoder component or the
-experiment (``master.tasks.illusion``): the eq. 6 belief update, the eq. 7 action and its clip,
+it, and takes NOTHING from the integrator (``rhi.components.brain``), the decoder component or the
+experiment (``rhi.master.tasks.illusion``): the eq. 6 belief update, the eq. 7 action and its clip,
 the eqs. 8-9 gamma (Bayes on a pair of events, the decay between them, the clamp) and the
 event bookkeeping are the numpy code of :meth:`PaperStyleAgent.run`; its constants are read
 straight from the configuration (``config["brain"]`` etc.); the decoder input normalisation
@@ -35,11 +35,11 @@ import time
 import numpy as np
 import torch
 
-from components.body.camera import Camera
-from components.body.kinematics import REST_POSE
-from components.body.plant import ArmPlant
-from components.body.rubber_arm import RubberArm
-from components.stimulus import Stimulus
+from rhi.components.body.camera import Camera
+from rhi.components.body.kinematics import REST_POSE
+from rhi.components.body.plant import ArmPlant
+from rhi.components.body.rubber_arm import RubberArm
+from rhi.components.stimulus import Stimulus
 
 REFERENCE_PIXELS = 256 * 256  # Sigma_v is per pixel at the paper's 256x256 (docs/results.md, "Calibrating the visual variance")
 
@@ -50,7 +50,7 @@ class PaperStyleAgent:
     model: the decoder g (a GenerativeModel: ``.decoder``, ``.rest_pose``, ``.half_ranges``,
         ``.resolution``; its weights are copied, never changed).
     trial: what makes the trial differ (``offset_x``, ``delay_min``, ``delay_max``, ``seed``), e.g. a
-        :class:`master.config.protocol.Trial`; config: the experiment's configuration (a loaded
+        :class:`rhi.master.config.protocol.Trial`; config: the experiment's configuration (a loaded
         ``defaults.toml``), read directly.
     weight_gradients: let the backward pass compute weight gradients too, as the released agent
         does (its decoder's parameters require grad); False computes the input gradient only.

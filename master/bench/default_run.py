@@ -1,6 +1,6 @@
 """The everyday path as a user meets it: `rhi experiment` from an empty decoder cache, its wall time and CPU use.
 
-Run as a child process (``python -m master experiment``) with ``RHI_CACHE`` an empty temporary folder, as
+Run as a child process (``python -m rhi experiment``) with ``RHI_CACHE`` an empty temporary folder, as
 on a fresh clone: the decoders are the package's shipped ones when the settings are the defaults, else
 trained. CPU utilisation is the child's CPU seconds (user + system, its own children included) over its
 wall seconds: 200 % is both cores of a 2-core machine busy the whole run.
@@ -36,7 +36,7 @@ def default_run(quick: bool = False, cache: str | None = None) -> dict:
     """
     root = Path(__file__).resolve().parents[2]
     with tempfile.TemporaryDirectory(prefix="rhi-bench-run-") as folder:
-        command = [sys.executable, "-m", "master", "experiment", "--out", str(Path(folder) / "run")]
+        command = [sys.executable, "-m", "rhi", "experiment", "--out", str(Path(folder) / "run")]
         command += ["--quick"] * quick
         environment = {**os.environ, "RHI_CACHE": cache or str(Path(folder) / "cache"),
                        "PYTHONPATH": str(root) + os.pathsep + os.environ.get("PYTHONPATH", "")}

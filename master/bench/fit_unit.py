@@ -3,17 +3,17 @@ the paper's model and the causal one, measured in one run, and their ratio.
 
 A fit (master/fit/simulate.py) runs its simulated participants in lockstep batches of ``fit.participants_per_batch``
 participants, each with its own draw of the fitted parameters and its own seed, over every design cell, one trial a
-cell; a worker runs a batch with :func:`master.tasks.illusion.runner.batch_outcomes` (master/sweeps/runner.py,
+cell; a worker runs a batch with :func:`rhi.master.tasks.illusion.runner.batch_outcomes` (master/sweeps/runner.py,
 ``run_chunk``). Here the same: ``fit_participants`` participants a batch over the protocol's cells (every condition x
 stimulation of the defaults, the conv decoder), ``fit_batches`` batches one after another in this process, each
 participant's values drawn from :data:`PRIORS` (uniform, or log-uniform: uniform in the logarithm, as
-``master.fit.plan.draw_prior`` draws them), the batches' trial counts and steps the fit's.
+``rhi.master.fit.plan.draw_prior`` draws them), the batches' trial counts and steps the fit's.
 
 CPU-s is this process's CPU time (``time.process_time``: every thread of it; the batches run here, no child
 process) from the start of each batch to its records, loading the decoder and pose encoder included, as each of a
 fit's batches pays them; a warm-up batch of one participant and ``min_steps`` steps first takes the one-time imports
 out, as a fit's worker has them. The stores that outlive a batch (the pose encoder's features by image,
-:data:`components.vision.pose_encoder.STORE`) are emptied before each model's first batch: its first batch pays for
+:data:`rhi.components.vision.pose_encoder.STORE`) are emptied before each model's first batch: its first batch pays for
 every picture, the next ones find the pictures the first saw, as a fit's later batches do. A run of fewer than
 1500 steps is scaled to 1500 (CPU-s x 1500 / steps).
 """
@@ -25,10 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
-from master import config as configuration
-from master import models
-from master.config.protocol import make_trial
-from master.tasks.illusion.runner import batch_outcomes
+from rhi.master import config as configuration
+from rhi.master import models
+from rhi.master.config.protocol import make_trial
+from rhi.master.tasks.illusion.runner import batch_outcomes
 
 TRIAL_STEPS = 1500  # the unit's trial: the protocol's 1500 steps (30 s at 0.02 s)
 # Per model: (key, prior, low, high): a few-fold range around each default, as a fit's priors (docs/fit/*.toml).
@@ -74,9 +74,9 @@ def model_config(model: str, settings, folder: Path) -> tuple[dict, str]:
                  "experiment.decoders": ["conv"], "experiment.trials": 1}
     if settings.fit_trained:
         config = configuration.load(overrides=overrides, model_name=model)
-        from master.decoders.cache import checkpoint_path
+        from rhi.master.decoders.cache import checkpoint_path
         return config, checkpoint_path("conv", config, must_exist=True)
-    from master.bench.sweep_rate import untrained_checkpoint
+    from rhi.master.bench.sweep_rate import untrained_checkpoint
 
     checkpoint = untrained_checkpoint("conv", preset_name, resolution, settings.seed, folder)
     key = models.get(model).pose_encoder_key
@@ -89,10 +89,10 @@ def untrained_pose_encoder(preset_name: str, resolution: int, seed: int, folder:
     """A pose-encoder file of an untrained encoder (torch seed ``seed``): the speed does not depend on the weights."""
     import torch
 
-    from components.body import kinematics
-    from components.vision.networks import Encoder, preset
-    from components.vision.pose_encoder import PoseModel, save_encoder
-    from master.decoders.training_data import HALF_RANGES
+    from rhi.components.body import kinematics
+    from rhi.components.vision.networks import Encoder, preset
+    from rhi.components.vision.pose_encoder import PoseModel, save_encoder
+    from rhi.master.decoders.training_data import HALF_RANGES
 
     torch.manual_seed(seed)
     path = folder / f"pose-untrained-{preset_name}-r{resolution}.pt"
@@ -103,7 +103,7 @@ def untrained_pose_encoder(preset_name: str, resolution: int, seed: int, folder:
 
 def model_unit(model: str, settings, folder: Path) -> dict:
     """One model's batches: trials, steps, CPU-s per batch and the unit, CPU-s per 1500-step trial."""
-    from components.vision import pose_encoder
+    from rhi.components.vision import pose_encoder
 
     config, checkpoint = model_config(model, settings, folder)
     rng = np.random.default_rng([settings.seed, settings.fit_models.index(model)])

@@ -17,11 +17,11 @@ def master_overhead(steps: int, step_size: float = 0.02) -> dict:
 
     from fmpy import read_model_description, simulate_fmu
 
-    from components.body.contract import BODY_CONTRACT
-    from components.fmu import FMUComponent, extracted, guard_library
-    from master.cosim import simulate
-    from master.export.body import build_fmu
-    from master.cosim import System
+    from rhi.components.body.contract import BODY_CONTRACT
+    from rhi.components.fmu import FMUComponent, extracted, guard_library
+    from rhi.master.cosim import simulate
+    from rhi.master.export.body import build_fmu
+    from rhi.master.cosim import System
 
     # Both set the two inputs (held at 0) before every step and read the six outputs after it.
     signal = np.array([(0.0, 0.0, 0.0), (steps * step_size, 0.0, 0.0)],

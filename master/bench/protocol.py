@@ -12,13 +12,13 @@ from dataclasses import asdict
 import numpy as np
 import torch
 
-from components.body import kinematics
-from components.vision.component import Decoder, available_cores
-from components.vision.fast import LinearisedDecoder
-from components.vision.optimised import optimised
-from master.tasks import illusion as experiment
-from master.bench.settings import BenchSettings, protocol_config, protocol_trials, timed, untrained
-from master import config as configuration
+from rhi.components.body import kinematics
+from rhi.components.vision.component import Decoder, available_cores
+from rhi.components.vision.fast import LinearisedDecoder
+from rhi.components.vision.optimised import optimised
+from rhi.master.tasks import illusion as experiment
+from rhi.master.bench.settings import BenchSettings, protocol_config, protocol_trials, timed, untrained
+from rhi.master import config as configuration
 
 
 def trained_protocol(settings: BenchSettings) -> tuple[dict, dict] | None:
@@ -26,7 +26,7 @@ def trained_protocol(settings: BenchSettings) -> tuple[dict, dict] | None:
     decoders it names, if every one of them is in the cache; else None."""
     if not settings.protocol_trained:
         return None
-    from master.decoders.cache import checkpoint_path
+    from rhi.master.decoders.cache import checkpoint_path
     quick = settings.protocol_trained == "quick"
     config = configuration.load(quick=quick, preset_name=None if quick else settings.protocol_trained,
                                 overrides={"experiment.steps": settings.protocol_steps})
@@ -38,7 +38,7 @@ def trained_run(config: dict, paths: dict, threads: int) -> dict:
     """The protocol as `rhi experiment` runs it once its decoders are cached: each decoder's trials in one lockstep
     batch through the decoder component the configuration makes (the paper preset: the fast mode); the time
     includes loading each decoder."""
-    from master.decoders.cache import decoder_component
+    from rhi.master.decoders.cache import decoder_component
     torch.set_num_threads(threads)
     began, stepping, trials, parts = time.perf_counter(), 0.0, 0, {}
     relinearisations, points, calls = [], 0, 0
@@ -139,7 +139,7 @@ def protocol_in_child(settings: BenchSettings) -> dict:
     import subprocess
     from pathlib import Path
     root = str(Path(__file__).resolve().parents[2])
-    code = ("import json, sys; from master.bench.settings import BenchSettings; from master.bench.protocol import protocol_run; "
+    code = ("import json, sys; from rhi.master.bench.settings import BenchSettings; from rhi.master.bench.protocol import protocol_run; "
             "print(json.dumps(protocol_run(BenchSettings(**json.loads(sys.argv[1])))))")
     given = {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(settings).items()}
     given["presets"] = [tuple(p) for p in given["presets"]]
@@ -152,8 +152,8 @@ def protocol_in_child(settings: BenchSettings) -> dict:
 
 def fast_error(settings: BenchSettings) -> dict:
     """Final drift of the fast mode against the exact integrator, trained default conv decoder (if cached)."""
-    from master.decoders.cache import checkpoint_path
-    from master.decoders.training import load_decoder
+    from rhi.master.decoders.cache import checkpoint_path
+    from rhi.master.decoders.training import load_decoder
     config = configuration.load(overrides={"experiment.steps": settings.error_steps, "experiment.decoders": ["conv"],
                                            "experiment.trials": settings.error_trials})
     if settings.error_model == "untrained":  # smoke tests: tiny, strong drive, frequent touches

@@ -10,7 +10,7 @@ def targets(report: dict) -> dict:
     Parameters
     ----------
     report : dict
-        :func:`~master.bench.suite.run_suite`'s report.
+        :func:`~rhi.master.bench.suite.run_suite`'s report.
 
     Returns
     -------

@@ -8,13 +8,13 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from components.body import kinematics
-from components.vision.component import GenerativeModel
-from components.vision.fast import DEFAULT_TOLERANCE
-from components.vision.networks import build
-from master.tasks import illusion as experiment
-from master import config as configuration
-from master.decoders.training_data import HALF_RANGES
+from rhi.components.body import kinematics
+from rhi.components.vision.component import GenerativeModel
+from rhi.components.vision.fast import DEFAULT_TOLERANCE
+from rhi.components.vision.networks import build
+from rhi.master.tasks import illusion as experiment
+from rhi.master import config as configuration
+from rhi.master.decoders.training_data import HALF_RANGES
 
 
 @dataclass(frozen=True)
@@ -68,7 +68,7 @@ def untrained(preset: str, resolution: int, seed: int) -> GenerativeModel:
     Parameters
     ----------
     preset : str
-        The network preset (:data:`components.vision.networks.PRESETS`).
+        The network preset (:data:`rhi.components.vision.networks.PRESETS`).
     resolution : int
         Image side, px.
     seed : int

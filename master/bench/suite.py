@@ -5,11 +5,11 @@ camera, stimulus, rubber arm, decoder, brain, master). Measured per preset (pape
 and the paper's decoder; default: 64x64 and the default decoder), with UNTRAINED seeded
 decoders of the right architecture (speed does not depend on the weights):
 
-- baseline: :class:`master.bench.baseline.PaperStyleAgent`, one trial the way the released agent runs;
-- exact_single: this project's integrator, B = 1 through :func:`master.cosim.simulate`;
+- baseline: :class:`rhi.master.bench.baseline.PaperStyleAgent`, one trial the way the released agent runs;
+- exact_single: this project's integrator, B = 1 through :func:`rhi.master.cosim.simulate`;
 - exact_batched: all ``batch`` trials of the protocol in lockstep, one decoder call per step;
 - exact_batched_optimised: the same with the decoder's JVPs written out, in channels-last layout;
-- fast: the linearised decoder (:mod:`components.vision.fast`), batched.
+- fast: the linearised decoder (:mod:`rhi.components.vision.fast`), batched.
 
 Each is timed after a warm-up (the initialization's decoder call, and a 2-step probe run
 that sizes the measured run to ``budget_s``). Also: the decoder's FLOPs per agent-step
@@ -20,8 +20,8 @@ same body FMU (both set the inputs and read the outputs every step), the whole p
 in fast mode (in a child process, for its peak memory), the fast mode's drift error against
 the exact integrator with a trained default decoder when one is cached (docs/performance.md), and
 the protocol as a sweep on the local pool against the same trials in lockstep
-(:mod:`master.bench.sweep_rate`), and the fit's unit of work: CPU-s per simulated 1500-step trial in fit-like
-batches, paper's model and causal (:mod:`master.bench.fit_unit`).
+(:mod:`rhi.master.bench.sweep_rate`), and the fit's unit of work: CPU-s per simulated 1500-step trial in fit-like
+batches, paper's model and causal (:mod:`rhi.master.bench.fit_unit`).
 """
 from __future__ import annotations
 
@@ -34,19 +34,19 @@ import numpy as np
 import torch
 from torch.utils.flop_counter import FlopCounterMode
 
-from components.body import kinematics
-from components.vision.component import Decoder, GenerativeModel, available_cores
-from components.vision.fast import LinearisedDecoder
-from components.vision.optimised import optimised
-from master.tasks import illusion as experiment
-from master.bench.baseline import PaperStyleAgent
-from master.bench.fmu_overhead import master_overhead
-from master.bench.protocol import fast_error, peak_rss_mb, projected, protocol_in_child
-from master.bench.default_run import default_run
-from master.bench.fit_unit import fit_unit
-from master.bench.report import targets
-from master.bench.settings import BenchSettings, protocol_config, protocol_trials, timed, untrained
-from master.bench.sweep_rate import sweep_rate
+from rhi.components.body import kinematics
+from rhi.components.vision.component import Decoder, GenerativeModel, available_cores
+from rhi.components.vision.fast import LinearisedDecoder
+from rhi.components.vision.optimised import optimised
+from rhi.master.tasks import illusion as experiment
+from rhi.master.bench.baseline import PaperStyleAgent
+from rhi.master.bench.fmu_overhead import master_overhead
+from rhi.master.bench.protocol import fast_error, peak_rss_mb, projected, protocol_in_child
+from rhi.master.bench.default_run import default_run
+from rhi.master.bench.fit_unit import fit_unit
+from rhi.master.bench.report import targets
+from rhi.master.bench.settings import BenchSettings, protocol_config, protocol_trials, timed, untrained
+from rhi.master.bench.sweep_rate import sweep_rate
 
 
 # -- counting -------------------------------------------------------------------------------------
@@ -133,7 +133,7 @@ def sized_run(make_decoder, trials, resolution: int, settings: BenchSettings) ->
 
 
 def baseline_run(model, trial, resolution: int, settings: BenchSettings) -> dict:
-    """The baseline: one trial the way the released agent runs (:class:`~master.bench.baseline.PaperStyleAgent`),
+    """The baseline: one trial the way the released agent runs (:class:`~rhi.master.bench.baseline.PaperStyleAgent`),
     after a warm-up, its steps sized to ``settings.budget_s`` by a probe run.
 
     Returns

@@ -8,7 +8,7 @@ decoder, the sweep's default chunks). Both use the same number of processes. The
 reported twice: over the whole command (Python start-up, the pool's start and the record files
 included) and over its task window, from the first task's start to the last one's end as the trial
 records give them (what a long sweep converges to); the target is judged on the task window. The
-bench cannot import master.sweeps (the same layer), hence the child.
+bench cannot import rhi.master.sweeps (the same layer), hence the child.
 """
 from __future__ import annotations
 
@@ -22,17 +22,17 @@ from pathlib import Path
 
 import torch
 
-from components.body import kinematics
-from components.vision import checkpoint
-from components.vision.component import available_cores
-from components.vision.networks import build, preset, sizes_dict
-from master.tasks import illusion as experiment
-from master import config as configuration
-from master.tasks.illusion import runner
-from master.runtime.pool import process_count
-from master.decoders.training_data import HALF_RANGES
-from master.outputs.files import atomic_write
-from master.runtime.context import RunContext
+from rhi.components.body import kinematics
+from rhi.components.vision import checkpoint
+from rhi.components.vision.component import available_cores
+from rhi.components.vision.networks import build, preset, sizes_dict
+from rhi.master.tasks import illusion as experiment
+from rhi.master import config as configuration
+from rhi.master.tasks.illusion import runner
+from rhi.master.runtime.pool import process_count
+from rhi.master.decoders.training_data import HALF_RANGES
+from rhi.master.outputs.files import atomic_write
+from rhi.master.runtime.context import RunContext
 
 KINDS = ("conv", "vae")
 
@@ -86,7 +86,7 @@ def sweep_run(text: str, folder: Path, trials: int, steps: int) -> dict:
     root = str(Path(__file__).resolve().parents[2])
     env = {**os.environ, "PYTHONPATH": root + os.pathsep + os.environ.get("PYTHONPATH", "")}
     began = time.perf_counter()
-    child = subprocess.run([sys.executable, "-m", "master", "sweep", "--config", str(folder / "sweep.toml"),
+    child = subprocess.run([sys.executable, "-m", "rhi", "sweep", "--config", str(folder / "sweep.toml"),
                             "--out", str(folder / "out")], capture_output=True, text=True, env=env, cwd=folder)
     wall = time.perf_counter() - began
     if child.returncode:
@@ -103,7 +103,7 @@ def sweep_run(text: str, folder: Path, trials: int, steps: int) -> dict:
 
 def trained_checkpoints(preset_name: str, resolution: int) -> dict[str, str] | None:
     """The trained decoders of the defaults at this network preset and resolution, cached or shipped; else None."""
-    from master.decoders.cache import checkpoint_path
+    from rhi.master.decoders.cache import checkpoint_path
     config = configuration.load(overrides={"experiment.resolution": resolution, "train.preset": preset_name})
     paths = {kind: checkpoint_path(kind, config) for kind in KINDS}
     return paths if all(os.path.isfile(path) for path in paths.values()) else None

@@ -1,6 +1,6 @@
 """``rhi bench --training``: samples per second of a decoder's training step, and where the step's time goes.
 
-One training step of :func:`components.vision.training.train` (the loss of ``batch_loss``, its
+One training step of :func:`rhi.components.vision.training.train` (the loss of ``batch_loss``, its
 backward pass, the Adam step, and the batch gathered from the rendered data set) is timed phase by
 phase on camera images, for each decoder kind, in two ways:
 
@@ -28,11 +28,11 @@ import numpy as np
 import torch
 from torch import nn
 
-from components.vision.component import available_cores
-from components.vision.networks import build
-from components.vision.training import batch_loss
-from master.decoders import training_data
-from master.decoders.training import train_settings
+from rhi.components.vision.component import available_cores
+from rhi.components.vision.networks import build
+from rhi.components.vision.training import batch_loss
+from rhi.master.decoders import training_data
+from rhi.master.decoders.training import train_settings
 
 PHASES = ("data", "encoder", "decoder_and_loss", "backward", "optimiser")
 BEFORE_BATCH = 32  # the batch size of the earlier measurements (CHANGELOG.md)

@@ -5,8 +5,8 @@ import json
 import sys
 from dataclasses import replace
 
-from master.cosim import ConfigError
-from master.config import MAX_THREADS, file_problem
+from rhi.master.cosim import ConfigError
+from rhi.master.config import MAX_THREADS, file_problem
 
 
 HELP = "measure speed"
@@ -29,9 +29,9 @@ def add_arguments(parser) -> None:
 
 def run(args) -> int:
     """The ``rhi bench`` command: args.json, and optionally args.quick, args.threads."""
-    from master.bench.report import table
-    from master.bench.settings import QUICK, BenchSettings
-    from master.bench.suite import run_suite
+    from rhi.master.bench.report import table
+    from rhi.master.bench.settings import QUICK, BenchSettings
+    from rhi.master.bench.suite import run_suite
 
     settings = QUICK if getattr(args, "quick", False) else BenchSettings()
     threads = getattr(args, "threads", 0) or 0
@@ -45,14 +45,14 @@ def run(args) -> int:
         raise ConfigError("--checkpoint names the decoder of the fast mode's drift error; --training measures the "
                           "training step, which uses none: give one or the other")
     if checkpoint:  # the drift error's decoder (--quick too), checked before anything is measured
-        from master import config as configuration
-        from master.decoders.cache import check_kind, loaded
+        from rhi.master import config as configuration
+        from rhi.master.decoders.cache import check_kind, loaded
 
         config = configuration.load()
         check_kind("conv", checkpoint, loaded(checkpoint, config["experiment"]["resolution"], config["camera"]["blur"]))
     if getattr(args, "training", False):
-        from master.bench import training
-        from master import config as configuration
+        from rhi.master.bench import training
+        from rhi.master import config as configuration
         quick = getattr(args, "quick", False)
         report = training.training_rates(configuration.load(quick=quick, preset_name=None if quick else "paper"),
                                          steps=2 if quick else 3, threads=threads)

@@ -14,9 +14,9 @@ import signal
 import sys
 import threading
 
-from components.component import ComponentError
-from master.cosim import ConfigError, SimulationError
-from master.cosim.errors import one_line
+from rhi.components.component import ComponentError
+from rhi.master.cosim import ConfigError, SimulationError
+from rhi.master.cosim.errors import one_line
 
 USER_ERRORS = (ConfigError, ComponentError)
 STDOUT_ERRORS = (errno.EPIPE, errno.ENOSPC, errno.EBADF, errno.EIO)
@@ -66,7 +66,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"rhi {_version()}")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name, module_name in COMMANDS.items():
-        module = importlib.import_module(f"master.commands.{module_name}")
+        module = importlib.import_module(f"rhi.master.commands.{module_name}")
         command = commands.add_parser(name, help=module.HELP)
         module.add_arguments(command)
         command.set_defaults(run=module.run)
@@ -82,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
     # does not), and inherited by the processes a command starts.
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     args = build_parser().parse_args(argv)
-    from components.fmu import watchdog
+    from rhi.components.fmu import watchdog
 
     main_thread = threading.current_thread() is threading.main_thread()
     handlers = {number: signal.getsignal(number) for number in (signal.SIGINT, signal.SIGTERM)} if main_thread else {}
@@ -169,7 +169,7 @@ def _stuck_handler(command: str):
     watchdog thread calls this, which removes this run's staging folder and lock and ends the process
     with status 1 and one line."""
     def stuck(message: str) -> None:
-        from master.outputs.files import abandon_staging
+        from rhi.master.outputs.files import abandon_staging
         abandon_staging()
         try:
             sys.stderr.write("\n")  # after a progress bar's last line

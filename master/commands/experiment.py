@@ -5,9 +5,9 @@ import sys
 import time
 from pathlib import Path
 
-from master import models
-from master import config as configuration
-from master.outputs.files import check_output
+from rhi.master import models
+from rhi.master import config as configuration
+from rhi.master.outputs.files import check_output
 
 
 HELP = "run the paper's rubber-hand protocol"
@@ -33,7 +33,7 @@ def add_arguments(parser) -> None:
 
 
 def add_preset(parser) -> None:
-    """Add ``--preset NAME`` (a shipped configuration, one of ``master.config.PRESETS``) to ``parser``."""
+    """Add ``--preset NAME`` (a shipped configuration, one of ``rhi.master.config.PRESETS``) to ``parser``."""
     parser.add_argument("--preset", choices=configuration.PRESETS,
                         help="a shipped configuration merged over the defaults, under --config: paper = 256x256 "
                              "and the paper's decoders (master/paper.toml)")
@@ -66,9 +66,9 @@ def run(args) -> int:
     config = configuration.load(args.config, overrides(args), quick=args.quick,  # before torch loads: fast refusals
                                 preset_name=args.preset, model_name=args.model)
     check_output(args.out, args.force)
-    from components.vision.component import resolve_device
-    from master.runtime.context import RunContext
-    from master.tasks.illusion.publish import run_into
+    from rhi.components.vision.component import resolve_device
+    from rhi.master.runtime.context import RunContext
+    from rhi.master.tasks.illusion.publish import run_into
 
     failures = run_into(args.out, config, args.body,
                         RunContext.of(args, progress=True, device=resolve_device(args.device)))

@@ -40,9 +40,9 @@ def add_common(parser) -> None:
 
 def check_out(args, noun: str, suffix: str) -> None:
     """--out FILE checked before any work: an existing file is replaced only with --force, and only if rhi wrote
-    it, a file of its kind (master.export.own_files)."""
-    from master.export import own_files
-    from master.outputs.files import check_output_file
+    it, a file of its kind (rhi.master.export.own_files)."""
+    from rhi.master.export import own_files
+    from rhi.master.outputs.files import check_output_file
 
     ours = {".fmu": own_files.fmu_problem, ".ssp": own_files.ssp_problem, ".csv": own_files.csv_problem}[suffix]
     check_output_file(args.out, noun, suffix, getattr(args, "force", False), ours)
@@ -51,8 +51,8 @@ def check_out(args, noun: str, suffix: str) -> None:
 def load(args) -> dict:
     """The task's configuration: defaults (and master/reach.toml for the reach), --quick, --config, and
     --checkpoint for the --decoder it belongs to."""
-    from master.cosim import ConfigError
-    from master.export.tasks import task
+    from rhi.master.cosim import ConfigError
+    from rhi.master.export.tasks import task
 
     if args.checkpoint and not args.decoder:
         raise ConfigError("--checkpoint needs --decoder (conv or vae): the kind of decoder it holds")
@@ -64,10 +64,10 @@ def load(args) -> dict:
 
 def run(args) -> int:
     """The ``rhi export-agent`` command: args.out, .config, .quick, .decoder, .checkpoint."""
-    from master.export.agent_fmu import export_agent
+    from rhi.master.export.agent_fmu import export_agent
 
     started = time.perf_counter()
-    from master.export.agent_fmu import check_fmi
+    from rhi.master.export.agent_fmu import check_fmi
 
     check_fmi(args.fmi, args.task)
     check_out(args, "FMU file", ".fmu")

@@ -20,8 +20,8 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     """The ``rhi export-body`` command: args.variant (None: native), args.fmi (the FMI version), args.out,
     args.force (replace an FMU rhi wrote)."""
-    from master.commands.export_agent import check_out
-    from master.export.body import check_fmi, export_body
+    from rhi.master.commands.export_agent import check_out
+    from rhi.master.export.body import check_fmi, export_body
 
     started = time.perf_counter()
     variant, fmi = args.variant or "native", getattr(args, "fmi", "2.0")  # FMI 2.0 when a caller does not say

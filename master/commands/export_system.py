@@ -4,7 +4,7 @@ from __future__ import annotations
 import os
 import time
 
-from master.commands.export_agent import add_common, check_out, load
+from rhi.master.commands.export_agent import add_common, check_out, load
 
 HELP = "export the experiment as an SSP 1.0 package (agent and body FMUs, a parameter file per trial)"
 
@@ -23,7 +23,7 @@ def add_arguments(parser) -> None:
 
 def run(args) -> int:
     """The ``rhi export-system`` command: as export-agent, and .body_variant, .body, .trial."""
-    from master.export.system import export_system
+    from rhi.master.export.system import export_system
 
     started = time.perf_counter()
     check_out(args, "SSP file", ".ssp")

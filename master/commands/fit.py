@@ -30,9 +30,9 @@ def run(args) -> int:
     """Run `rhi fit` (ConfigError without the sbi package) and print its summary; returns the exit status, 0."""
     import importlib.util
 
-    from master.cosim import ConfigError
-    from master.fit.run import fit
-    from master.runtime.context import RunContext
+    from rhi.master.cosim import ConfigError
+    from rhi.master.fit.run import fit
+    from rhi.master.runtime.context import RunContext
 
     if importlib.util.find_spec("sbi") is None:  # an install without the fit extra
         raise ConfigError("rhi fit needs the sbi package: pip install -c constraints.txt -e '.[fit]' "
@@ -53,6 +53,6 @@ def run(args) -> int:
             print(f"  {parameter['key']}: r = {values['correlation']:.3f}, coverage 50 % {values['coverage_50']:.2f}, "
                   f"90 % {values['coverage_90']:.2f}, SBC p = {values['sbc_chisquare_p']:.3f} (chi-square), "
                   f"{values['sbc_ks_p']:.3f} (KS)")
-        from master.fit.calibration import verdict_words
+        from rhi.master.fit.calibration import verdict_words
         print(f"  SBC rank tests as one family (Bonferroni): {verdict_words(calibration['sbc_verdict'])}")
     return 0

@@ -11,8 +11,8 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from master import models as registry
-from master.phenomena import NAMES, sweep_file
+from rhi.master import models as registry
+from rhi.master.phenomena import NAMES, sweep_file
 
 BOTH = ("paper", "causal")  # --model both: these side by side (a model's own name runs it alone)
 OWN_PROTOCOLS = ("moving-hand", "reach-after")  # not sweeps: master/phenomena/moving_hand.py, reach_after.py
@@ -38,17 +38,17 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     """Run `rhi phenomenon NAME`: its own protocol, or its sweep once per model and the report; returns the exit
     status (the sweeps' highest: 1 when a trial failed)."""
-    from master.commands.sweep import sweep_and_report
-    from master.runtime.context import RunContext
-    from master.phenomena.report import report
+    from rhi.master.commands.sweep import sweep_and_report
+    from rhi.master.runtime.context import RunContext
+    from rhi.master.phenomena.report import report
 
-    from master.sweeps import plan
-    from master.sweeps.folder import check_folder
-    from master.sweeps.runner import check_decoders
+    from rhi.master.sweeps import plan
+    from rhi.master.sweeps.folder import check_folder
+    from rhi.master.sweeps.runner import check_decoders
 
     started, out, context = time.perf_counter(), Path(args.out), RunContext.of(args)  # its address checked first
     if args.name in OWN_PROTOCOLS:
-        protocol = __import__(f"master.phenomena.{args.name.replace('-', '_')}", fromlist=["_"])
+        protocol = __import__(f"rhi.master.phenomena.{args.name.replace('-', '_')}", fromlist=["_"])
         config = protocol.load(args.config, "paper" if args.model == "both" else args.model)
         written = protocol.run_into(out, config, context)
         print(f"rhi phenomenon {args.name}: wrote {', '.join(str(out / name) for name in written)} "
@@ -89,11 +89,11 @@ COMMAND = "rhi phenomenon"  # the manifest's "command" in DIR: the report's file
 
 
 def report_manifest(out: Path, name: str):
-    """DIR's manifest (master.outputs.manifest), checked before anything runs: the report's files NAME.csv and
+    """DIR's manifest (rhi.master.outputs.manifest), checked before anything runs: the report's files NAME.csv and
     NAME.png, when there, must be the ones rhi phenomenon wrote, unchanged; else a ConfigError naming them."""
-    from master.cosim import ConfigError
-    from master.outputs.manifest import NAME, Manifest
-    from master.phenomena import FILES
+    from rhi.master.cosim import ConfigError
+    from rhi.master.outputs.manifest import NAME, Manifest
+    from rhi.master.phenomena import FILES
 
     own = Manifest.read(out, COMMAND) or Manifest(out, COMMAND)
     stem = FILES[name].removesuffix(".toml")

@@ -5,8 +5,8 @@ import sys
 import time
 from pathlib import Path
 
-from master.commands.experiment import add_model
-from master.outputs.files import check_output
+from rhi.master.commands.experiment import add_model
+from rhi.master.outputs.files import check_output
 
 
 HELP = "the free arm reaching to a seen goal: near and far goals per decoder"
@@ -27,15 +27,15 @@ def add_arguments(parser) -> None:
 
 def run(args) -> int:
     """Run `rhi reach` into ``args.out``; returns the exit status (0, or 1 when a reach failed and was left out)."""
-    from master.tasks.reach import task as reach
+    from rhi.master.tasks.reach import task as reach
 
     started = time.perf_counter()
     overrides = {key: value for key, value in (("reach.goals", args.goals), ("experiment.seed", args.seed))
                  if value is not None}
     config = reach.load(args.config, quick=args.quick, model_name=args.model, overrides=overrides)
     check_output(args.out, args.force)
-    from master.runtime.context import RunContext
-    from master.tasks.reach.publish import run_into
+    from rhi.master.runtime.context import RunContext
+    from rhi.master.tasks.reach.publish import run_into
 
     failures = run_into(args.out, config, RunContext.of(args, progress=True))
     for trial, error in failures.items():

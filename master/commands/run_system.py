@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import time
 
-from master.commands.export_agent import check_out
+from rhi.master.commands.export_agent import check_out
 
 HELP = "run an SSP package under FMPy's, libcosim's or Ecos's master"
 
@@ -22,7 +22,7 @@ def add_arguments(parser) -> None:
 
 def run(args) -> int:
     """The ``rhi run-system`` command: args.ssp, .master, .trial, .steps, .out."""
-    from master.export.system import final_drift_cm, final_goal_distance_cm, run_ssp, write_csv
+    from rhi.master.export.system import final_drift_cm, final_goal_distance_cm, run_ssp, write_csv
 
     started = time.perf_counter()
     check_out(args, "CSV file", ".csv")

@@ -25,17 +25,17 @@ def add_arguments(parser) -> None:
 
 def run(args) -> int:
     """The command: 0 when every trial succeeded, 1 when some failed (each listed on one line)."""
-    from master.runtime.context import RunContext
+    from rhi.master.runtime.context import RunContext
 
     return sweep_and_report(args.config, args.out, RunContext.of(args), getattr(args, "model", None))
 
 
 def sweep_and_report(path, out, context, model: str | None = None, trials: int | None = None) -> int:
     """Run the sweep file ``path`` into ``out`` (resumably) and print what was done; 0 when every trial succeeded,
-    1 when some failed. context: a :class:`~master.runtime.context.RunContext` (force, scheduler, debug). model,
+    1 when some failed. context: a :class:`~rhi.master.runtime.context.RunContext` (force, scheduler, debug). model,
     trials: instead of the file's ``sweep.model`` and ``sweep.trials``."""
-    from master.sweeps import plan as sweeps
-    from master.sweeps.run import run_into
+    from rhi.master.sweeps import plan as sweeps
+    from rhi.master.sweeps.run import run_into
 
     sweep = sweeps.load(path, model, trials)
     task = sweeps.resolve_task(sweep.task)

@@ -3,8 +3,8 @@
 It reads the configuration like `rhi experiment`: ``[train]`` and the camera's ``[camera] blur``."""
 from __future__ import annotations
 
-from master import config as configuration
-from master.commands.experiment import add_device, add_preset
+from rhi.master import config as configuration
+from rhi.master.commands.experiment import add_device, add_preset
 
 HELP = "train a visual decoder"
 
@@ -21,8 +21,8 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     """The body of `rhi train`: args has .decoder, .config, .out, and optionally .preset and .device
     (default auto); everything checked before training."""
-    from components.vision.component import resolve_device
-    from master.decoders.training import check_target, train_decoder, train_settings
+    from rhi.components.vision.component import resolve_device
+    from rhi.master.decoders.training import check_target, train_decoder, train_settings
 
     config = configuration.load(args.config, preset_name=getattr(args, "preset", None))
     settings = train_settings(config)

@@ -17,9 +17,9 @@ import tomllib
 from importlib import resources
 from pathlib import Path
 
-from master import models
-from master.config import schedules
-from master.cosim import ConfigError
+from rhi.master import models
+from rhi.master.config import schedules
+from rhi.master.cosim import ConfigError
 
 OPEN_TABLES = ("conditions", "stimulations")  # users may add entries here (a new condition, say)
 LISTS = ("decoders", "conditions", "stimulations")  # experiment.* lists: non-empty, no entry twice
@@ -30,7 +30,7 @@ PRESETS = ("paper",)  # --preset NAME merges master/NAME.toml over the defaults
 
 def defaults() -> dict:
     """The shipped defaults, ``master/defaults.toml``, read afresh (its ``[quick]`` table included)."""
-    with resources.files("master").joinpath("defaults.toml").open("rb") as file:
+    with resources.files("rhi.master").joinpath("defaults.toml").open("rb") as file:
         return tomllib.load(file)
 
 
@@ -38,12 +38,12 @@ def preset(name: str) -> dict:
     """The shipped preset ``name`` (``master/NAME.toml``): the keys it changes; ConfigError if unknown."""
     if name not in PRESETS:
         raise ConfigError(f"preset {name!r} is unknown; choose one of {', '.join(PRESETS)}")
-    with resources.files("master").joinpath(f"{name}.toml").open("rb") as file:
+    with resources.files("rhi.master").joinpath(f"{name}.toml").open("rb") as file:
         return tomllib.load(file)
 
 
 def with_model(config: dict, name: str) -> dict:
-    """``config`` with the model ``name`` (a registered name or ``file.py:Class``, :func:`master.models.get`)
+    """``config`` with the model ``name`` (a registered name or ``file.py:Class``, :func:`rhi.master.models.get`)
     merged over it: its new tables (``[model]``, ``[causal]``) added, its keys in existing tables merged."""
     shipped = models.get(name).settings()
     added = {table: values for table, values in shipped.items() if table not in config}
@@ -208,7 +208,7 @@ def load(path: str | Path | None = None, overrides: dict | None = None, quick: b
 
     overrides: ``{"experiment.trials": 3, ...}`` from the command line.
     preset_name: a shipped preset (:data:`PRESETS`), e.g. ``"paper"``; None: none.
-    model_name: a model, by name or ``file.py:Class`` (:func:`master.models.get`); ``paper`` (the default) adds
+    model_name: a model, by name or ``file.py:Class`` (:func:`rhi.master.models.get`); ``paper`` (the default) adds
     nothing.
     """
     config = defaults()
@@ -310,7 +310,7 @@ def validate(config: dict) -> None:
         raise ConfigError(f"this run would need about {size(needed)} of memory ({what}), more than this machine's "
                           f"{size(available)}; lower experiment.resolution, experiment.steps or experiment.trials "
                           "(or train.samples)")
-    from master.config.sources import check_parameters  # the components' own ranges (substeps, period, ...)
+    from rhi.master.config.sources import check_parameters  # the components' own ranges (substeps, period, ...)
 
     check_parameters(config)
     check_step_size(config)  # after the components' ranges: it reads stimulus.period and [brain]
@@ -323,7 +323,7 @@ def check_step_size(config: dict) -> None:
     1/Sigma_p of paper eq. 6 with gamma = 0) and the action's time constant (brain.action_time_constant):
     explicit Euler on a decay of rate k is stable iff dt * k < 2 (the brain's own run-time check, which
     adds gamma's visual term)."""
-    from components.brain.integrator import STABILITY_LIMIT
+    from rhi.components.brain.integrator import STABILITY_LIMIT
 
     step, brain = config["experiment"]["step_size"], config["brain"]
     if step > config["stimulus"]["period"]:

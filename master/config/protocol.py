@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from components.body import kinematics
+from rhi.components.body import kinematics
 
 HALF_RANGES = (40.0, 50.0)  # deg: shoulder, elbow, about the rest pose: the arm's working ranges in every task, and so
 #                                the decoders' training ranges (docs/design.md)
@@ -47,7 +47,7 @@ def make_trial(config: dict, decoder: str, condition: str, stimulation: str, ind
     view, and its stimulation's delay law, touch and blocks.
 
     overrides: ``((key, value), ...)``, the trial's own values of parameter keys in a batch of several
-    configurations (:func:`master.config.sources.parameters` gives them to the components per trial).
+    configurations (:func:`rhi.master.config.sources.parameters` gives them to the components per trial).
     """
     delays = config["stimulations"][stimulation]
     return Trial(decoder, condition, stimulation, index,

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import math
 
-from components.stimulus import MAX_BLOCKS
-from master.cosim import ConfigError
+from rhi.components.stimulus import MAX_BLOCKS
+from rhi.master.cosim import ConfigError
 
 
 def trial_length(config: dict) -> float:

@@ -1,7 +1,7 @@
 """Where every component parameter's value comes from, and the values for a batch of trials.
 
 :data:`TASK_SOURCES` says it for the task's components and each model's ``parameter_sources`` for its brain
-(:mod:`master.models`); :func:`parameters` follows both, and tests/test_defaults.py checks that they cover
+(:mod:`rhi.master.models`); :func:`parameters` follows both, and tests/test_defaults.py checks that they cover
 every component parameter and that each plain key of ``defaults.toml`` equals the component's start value.
 :func:`check_parameters` sets them on the components before any work, so a value out of a component's range
 is refused naming its key.
@@ -10,20 +10,20 @@ from __future__ import annotations
 
 import numpy as np
 
-from components.body import kinematics
-from components.body.camera import Camera
-from components.body.plant import ArmPlant
-from components.body.rubber_arm import RubberArm
-from components.component import ComponentError
-from components.stimulus import Stimulus, block_rows
-from master import models
-from master.config.protocol import HALF_RANGES, Trial, per_trial, plan
-from master.cosim import ConfigError, System
-from master.models.base import TrialValues, config_key
-from master.models.paper import BRAIN_SOURCES
+from rhi.components.body import kinematics
+from rhi.components.body.camera import Camera
+from rhi.components.body.plant import ArmPlant
+from rhi.components.body.rubber_arm import RubberArm
+from rhi.components.component import ComponentError
+from rhi.components.stimulus import Stimulus, block_rows
+from rhi.master import models
+from rhi.master.config.protocol import HALF_RANGES, Trial, per_trial, plan
+from rhi.master.cosim import ConfigError, System
+from rhi.master.models.base import TrialValues, config_key
+from rhi.master.models.paper import BRAIN_SOURCES
 
 # component.parameter -> where its value comes from, for the task's components (the model's brain declares its
-# own: master.models.Model.parameter_sources). A source is one of:
+# own: rhi.master.models.Model.parameter_sources). A source is one of:
 #   "table.key"                  a key of defaults.toml (or the user's config), passed as is by parameters();
 #   "table.<name>... (per trial)" the trial's own value, from the [conditions]/[stimulations] entry it runs;
 #   "table.key (... )"           the key, used otherwise (hashed per trial, or given to the constructor);
@@ -41,7 +41,7 @@ TASK_SOURCES = {
     "stimulus.stroke_duration": "stimulus.stroke_duration",
     "stimulus.touch": "stimulations.<stimulation>.touch (per trial: the trial's stimulation)",
     "stimulus.blocks": "stimulations.<stimulation>.blocks (per trial: the trial's stimulation, as "
-                       "components.stimulus.block_rows lays them out)",
+                       "rhi.components.stimulus.block_rows lays them out)",
     "camera.arm_visible": "rubber_arm.hidden_conditions (per trial: false where the trial's condition is listed)",
     "camera.resolution": "experiment.resolution (structural: build_system gives it to Camera(resolution=...))",
     "camera.blur": "camera.blur",
@@ -50,9 +50,9 @@ TASK_SOURCES = {
     "decoder.relinearise_tolerance": "decoder.relinearise_tolerance (fast mode only: decoders.decoder_component "
                                      "gives it to LinearisedDecoder(relinearise_tolerance=...))",
     "body.held": "body.held",
-    "body.q0_shoulder": "derived: the rest pose's shoulder, components.body.kinematics.REST_POSE[0]; the real arm "
+    "body.q0_shoulder": "derived: the rest pose's shoulder, rhi.components.body.kinematics.REST_POSE[0]; the real arm "
                         "starts at rest (docs/design.md fixes the geometry; the decoders are trained around it)",
-    "body.q0_elbow": "derived: the rest pose's elbow, components.body.kinematics.REST_POSE[1]; the real arm "
+    "body.q0_elbow": "derived: the rest pose's elbow, rhi.components.body.kinematics.REST_POSE[1]; the real arm "
                      "starts at rest (docs/design.md fixes the geometry; the decoders are trained around it)",
     "body.substeps": "body.substeps",
     "body.servo_gain": "body.servo_gain",
@@ -154,7 +154,7 @@ def trial_values(config: dict, seeds, value) -> TrialValues:
 
 
 def model_parameters(config: dict, seeds, value) -> dict:
-    """The model's brain parameters for trials of these ``seeds`` (:meth:`master.models.Model.parameters`)."""
+    """The model's brain parameters for trials of these ``seeds`` (:meth:`rhi.master.models.Model.parameters`)."""
     return models.of(config).parameters(trial_values(config, seeds, value))
 
 
@@ -214,7 +214,7 @@ def declared_range(config: dict, key: str) -> tuple[str, float | None, float | N
             continue
         name, _, variable = path.partition(".")
         if name == "decoder":  # built around a trained network: its one parameter's range, without one
-            from components.vision.component import MIN_VISUAL_VARIANCE
+            from rhi.components.vision.component import MIN_VISUAL_VARIANCE
 
             return (path, MIN_VISUAL_VARIANCE, None, "1") if variable == "visual_variance" else None
         makers = {"rubber_arm": RubberArm, "stimulus": Stimulus, "body": ArmPlant, "brain": model.brain,

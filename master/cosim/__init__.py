@@ -10,13 +10,13 @@ resolved into per-component input setters), ``initialization`` (the FMI initiali
 per :meth:`~Session.step` set inputs, step, check the status, record; terminate in any case), ``loop``
 (:func:`simulate`: a session stepped over the tick grid), ``errors``.
 """
-from master.cosim.errors import ConfigError, SimulationError
-from master.cosim.initialization import initialize
-from master.cosim.links import Inputs, Links
-from master.cosim.loop import simulate, step_count, tick_times
-from master.cosim.session import Result, Session
-from master.cosim.recorder import Recorder
-from master.cosim.system import Connection, System
+from rhi.master.cosim.errors import ConfigError, SimulationError
+from rhi.master.cosim.initialization import initialize
+from rhi.master.cosim.links import Inputs, Links
+from rhi.master.cosim.loop import simulate, step_count, tick_times
+from rhi.master.cosim.session import Result, Session
+from rhi.master.cosim.recorder import Recorder
+from rhi.master.cosim.system import Connection, System
 
 __all__ = ["System", "Connection", "simulate", "Session", "step_count", "tick_times", "Result", "ConfigError",
            "SimulationError", "Links", "Inputs", "Recorder", "initialize"]

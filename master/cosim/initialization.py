@@ -1,9 +1,9 @@
 """The FMI 2.0 initialization sequence of every component of a system, in step order."""
 from __future__ import annotations
 
-from master.cosim.errors import ConfigError, SimulationError
-from master.cosim.links import Links
-from master.cosim.system import System, split
+from rhi.master.cosim.errors import ConfigError, SimulationError
+from rhi.master.cosim.links import Links
+from rhi.master.cosim.system import System, split
 
 
 def initialize(system: System, links: Links, batch_size: int, start_time: float, stop_time: float,

@@ -12,7 +12,7 @@ Example::
 """
 from __future__ import annotations
 
-from master.cosim.system import System, split
+from rhi.master.cosim.system import System, split
 
 
 class Inputs:

@@ -1,12 +1,12 @@
-"""The fixed-step master algorithm: a :class:`~master.cosim.session.Session` stepped on an integer tick counter."""
+"""The fixed-step master algorithm: a :class:`~rhi.master.cosim.session.Session` stepped on an integer tick counter."""
 from __future__ import annotations
 
 import math
 import numpy as np
 
-from master.cosim.errors import ConfigError
-from master.cosim.session import Result, Session, check_request  # noqa: F401 (re-exported: their old home)
-from master.cosim.system import System
+from rhi.master.cosim.errors import ConfigError
+from rhi.master.cosim.session import Result, Session, check_request  # noqa: F401 (re-exported: their old home)
+from rhi.master.cosim.system import System
 
 
 def step_count(start_time: float, stop_time: float, step_size: float) -> int:
@@ -57,7 +57,7 @@ def simulate(system: System, stop_time: float, step_size: float = 0.02, start_ti
              record: list[str] = (), progress=None) -> Result:
     """Run ``system`` from ``start_time`` to ``stop_time`` in fixed steps and return what was recorded.
 
-    A :class:`~master.cosim.session.Session` stepped over the integer tick grid :func:`tick_times`.
+    A :class:`~rhi.master.cosim.session.Session` stepped over the integer tick grid :func:`tick_times`.
 
     Parameters
     ----------

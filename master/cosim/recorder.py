@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from master.cosim.system import System, split
+from rhi.master.cosim.system import System, split
 
 
 class Recorder:

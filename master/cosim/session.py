@@ -1,9 +1,9 @@
 """A system initialized once and then stepped one communication step at a time.
 
 :class:`Session` is the master algorithm's one loop body: it validates the request, runs the FMI
-initialization sequence (:func:`~master.cosim.initialization.initialize`) once, and then each
+initialization sequence (:func:`~rhi.master.cosim.initialization.initialize`) once, and then each
 :meth:`Session.step` sets the connected inputs (Jacobi or Gauss-Seidel), steps every component in
-order, checks its status and records. :func:`~master.cosim.loop.simulate` is a session stepped
+order, checks its status and records. :func:`~rhi.master.cosim.loop.simulate` is a session stepped
 over a fixed grid of ticks; an outer master that owns the clock (an FMU's ``fmi2DoStep``) steps a
 session with the times it is given.
 
@@ -22,12 +22,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from components.component import Status
-from master.cosim.errors import ConfigError, SimulationError
-from master.cosim.initialization import initialize
-from master.cosim.links import Links
-from master.cosim.recorder import Recorder
-from master.cosim.system import System, split
+from rhi.components.component import Status
+from rhi.master.cosim.errors import ConfigError, SimulationError
+from rhi.master.cosim.initialization import initialize
+from rhi.master.cosim.links import Links
+from rhi.master.cosim.recorder import Recorder
+from rhi.master.cosim.system import System, split
 
 
 @dataclass

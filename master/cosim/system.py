@@ -3,8 +3,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from components.component import Component
-from master.cosim.errors import ConfigError
+from rhi.components.component import Component
+from rhi.master.cosim.errors import ConfigError
 
 SCHEMES = ("jacobi", "gauss-seidel")
 

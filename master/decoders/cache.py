@@ -5,7 +5,7 @@ trained with the ``[train]`` settings at the experiment's resolution on the came
 ``[camera] blur``, named by a hash of what made it (the settings, and the blur when it is not the
 default): the package ships the checkpoints of the default settings (``SHIPPED``, which `rhi train`
 reproduces byte for byte, docs/decoders.md), and any other is trained once, the decoders side by side
-(:mod:`master.runtime.pool`), and cached under ``$RHI_CACHE`` (default ``~/.cache/rhi``),
+(:mod:`rhi.master.runtime.pool`), and cached under ``$RHI_CACHE`` (default ``~/.cache/rhi``),
 so a changed setting trains a new one and an unchanged one is reused.
 Either way a loaded checkpoint is checked against the camera at the configured blur.
 """
@@ -22,14 +22,14 @@ from pathlib import Path
 
 import numpy as np
 
-from components.body import camera, kinematics
-from components.vision.checkpoint import CheckpointError
-from components.vision.component import Decoder, GenerativeModel, jacobian_images
-from master import models
-from master.config import file_problem
-from master.cosim import ConfigError
-from master.runtime.pool import Workers, run_jobs
-from master.decoders.training import load_decoder, prepare_data, train_decoder, train_settings
+from rhi.components.body import camera, kinematics
+from rhi.components.vision.checkpoint import CheckpointError
+from rhi.components.vision.component import Decoder, GenerativeModel, jacobian_images
+from rhi.master import models
+from rhi.master.config import file_problem
+from rhi.master.cosim import ConfigError
+from rhi.master.runtime.pool import Workers, run_jobs
+from rhi.master.decoders.training import load_decoder, prepare_data, train_decoder, train_settings
 
 KINDS = ("conv", "vae")  # the decoder slots of [decoder] and experiment.decoders
 SHIPPED = Path(__file__).parent / "checkpoints"  # the default decoders, named as the cache names them
@@ -69,7 +69,7 @@ def checkpoint_path(kind: str, config: dict, must_exist: bool = False, device: s
 
 def shipped_pose_encoder(kind: str, resolution: int, stem: str = "pose-{kind}") -> Path:
     """The shipped pose encoder of decoder slot ``kind`` at ``resolution`` px: ``checkpoints/STEM-rRES.pt``, the
-    stem a model's :attr:`~master.models.base.Model.pose_encoder_stem` (default ``pose-KIND``)."""
+    stem a model's :attr:`~rhi.master.models.base.Model.pose_encoder_stem` (default ``pose-KIND``)."""
     return SHIPPED / f"{stem.format(kind=kind)}-r{resolution}.pt"
 
 
@@ -86,7 +86,7 @@ def pose_encoder_path(kind: str, config: dict) -> str:
         key = model.pose_encoder_key.format(kind=kind)
         raise ConfigError(f"{what}: the brain or the reach's goal reads the seen arm's pose ("
                           + (f"name one in {key}, or " if key else "") + "make the shipped ones with "
-                          "`python -m master.decoders.pose_encoders [--ownership] FOLDER`)")
+                          "`python -m rhi.master.decoders.pose_encoders [--ownership] FOLDER`)")
     return str(path)
 
 
@@ -183,7 +183,7 @@ def decoder_component(kind: str, path: str, config: dict, fast: bool | None = No
     model = loaded(path, config["experiment"]["resolution"], config["camera"]["blur"])
     check_kind(kind, path, model)
     if config["decoder"]["fast"] if fast is None else fast:
-        from components.vision.fast import LinearisedDecoder
+        from rhi.components.vision.fast import LinearisedDecoder
         return LinearisedDecoder(model, name=name, relinearise_tolerance=config["decoder"]["relinearise_tolerance"],
                                  threads=threads, device=device)
     return Decoder(model, name=name, threads=threads, device=device)

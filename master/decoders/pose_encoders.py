@@ -1,14 +1,14 @@
 """The causal and ownership models' pose encoders: trained (conv) or taken from the VAE (vae), calibrated, shipped.
 
 For each decoder the causal model reads the seen arm's pose with an encoder
-(:mod:`components.vision.pose_encoder`): the ``vae`` slot uses the VAE's own trained encoder, the
+(:mod:`rhi.components.vision.pose_encoder`): the ``vae`` slot uses the VAE's own trained encoder, the
 ``conv`` slot an encoder of the same shape trained by Gaussian NLL on the same rendered data as the
-decoders (:func:`master.decoders.training.prepare_data`, the ``[train]`` settings). Both are then
+decoders (:func:`rhi.master.decoders.training.prepare_data`, the ``[train]`` settings). Both are then
 calibrated on CALIBRATION_POSES held-out poses (their own seed) and their coverage is measured on
 COVERAGE_POSES others (another seed). The held-out images are those the brain sees: the arm with
 the ball somewhere on its way to the hand (:func:`held_out`).
 
-``python -m master.decoders.pose_encoders OUT_FOLDER`` trains and calibrates both at the default
+``python -m rhi.master.decoders.pose_encoders OUT_FOLDER`` trains and calibrates both at the default
 settings and prints their coverage (the shipped files, master/decoders/checkpoints/pose-*.pt).
 
 The ownership model reads rubber arms far beyond the decoders' ranges (its distance study puts the hand up
@@ -17,7 +17,7 @@ calibrated over OWNERSHIP_BOX, which holds the rubber arm's poses over the arm's
 real arm's working range: conv trained from scratch, vae the VAE's encoder trained on from its own weights
 (:func:`build_ownership`; the ``ownership`` model's ``pose_encoder_stem``), both on images drawn as the
 decoders' are (the arm alone, :func:`box_data`) and calibrated as above over the box.
-``python -m master.decoders.pose_encoders --ownership OUT_FOLDER`` makes both (pose-ownership-*.pt) and
+``python -m rhi.master.decoders.pose_encoders --ownership OUT_FOLDER`` makes both (pose-ownership-*.pt) and
 prints their calibration and their reading of the rubber arm at each offset of OFFSETS, theirs and the
 shipped encoders'.
 """
@@ -32,14 +32,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from components.body import camera, kinematics
-from components.vision import checkpoint
-from components.vision.networks import preset
-from components.vision.pose_encoder import PoseModel, coverage, load_encoder, save_encoder, train_encoder, \
+from rhi.components.body import camera, kinematics
+from rhi.components.vision import checkpoint
+from rhi.components.vision.networks import preset
+from rhi.components.vision.pose_encoder import PoseModel, coverage, load_encoder, save_encoder, train_encoder, \
     variance_scale
-from master.config.protocol import HALF_RANGES, rubber_pose
-from master.decoders import training_data
-from master.decoders.training import prepare_data, train_settings
+from rhi.master.config.protocol import HALF_RANGES, rubber_pose
+from rhi.master.decoders import training_data
+from rhi.master.decoders.training import prepare_data, train_settings
 
 CALIBRATION_POSES, CALIBRATION_SEED = 500, 101
 COVERAGE_POSES, COVERAGE_SEED = 500, 202
@@ -122,7 +122,7 @@ def renormalised(encoder, rest_pose, half_ranges, centre, new_half_ranges):
     """A copy of ``encoder`` whose outputs, read about ``centre`` +- ``new_half_ranges``, are the same angles
     and variances (deg) as the original's read about ``rest_pose`` +- ``half_ranges``.
 
-    The last layer is linear (:class:`components.vision.networks.Encoder`), so the change of units is exact:
+    The last layer is linear (:class:`rhi.components.vision.networks.Encoder`), so the change of units is exact:
     mean' = (rest - centre) / h' + mean h / h', log-variance' = log-variance + 2 log(h / h') per joint.
     """
     result = copy.deepcopy(encoder)
@@ -139,7 +139,7 @@ def renormalised(encoder, rest_pose, half_ranges, centre, new_half_ranges):
 
 def box_data(samples: int, seed: int, resolution: int, blur: float) -> tuple[np.ndarray, np.ndarray]:
     """Training pairs over OWNERSHIP_BOX: poses (N, 2) deg, uniform, and their images as the decoders' training
-    images are drawn (:func:`master.decoders.training_data.generate`: the arm alone, no ball, at ``blur``)."""
+    images are drawn (:func:`rhi.master.decoders.training_data.generate`: the arm alone, no ball, at ``blur``)."""
     poses = training_data.sample_poses(samples, seed, OWNERSHIP_CENTRE, OWNERSHIP_HALF_RANGES)
     images = np.concatenate([camera.render(poses[i:i + training_data.CHUNK], resolution, None, blur=blur)
                              for i in range(0, samples, training_data.CHUNK)])
@@ -215,8 +215,8 @@ def print_table(name: str, rows: list[dict]) -> None:
 def main_ownership(out: Path) -> int:
     """``--ownership OUT_FOLDER``: both ownership pose encoders into ``out``; their calibration and their and the
     shipped encoders' readings at OFFSETS on stdout."""
-    from master import config as configuration, models
-    from master.decoders.cache import checkpoint_path, shipped_pose_encoder
+    from rhi.master import config as configuration, models
+    from rhi.master.decoders.cache import checkpoint_path, shipped_pose_encoder
 
     torch.set_num_threads(1)  # each thread count rounds its own way: one, as [train] threads = 1
     config = configuration.load(model_name="ownership")
@@ -242,14 +242,14 @@ def main_ownership(out: Path) -> int:
 
 
 def main(argv: list[str]) -> int:
-    """``python -m master.decoders.pose_encoders [--ownership] OUT_FOLDER``: build both pose encoders at the default
+    """``python -m rhi.master.decoders.pose_encoders [--ownership] OUT_FOLDER``: build both pose encoders at the default
     settings (the ownership model's with ``--ownership``) into the folder and print their calibration; returns
     the exit status, 0 (2 and a usage line for other arguments)."""
-    from master import config as configuration
-    from master.decoders.cache import cache_folder, checkpoint_path, shipped_pose_encoder
+    from rhi.master import config as configuration
+    from rhi.master.decoders.cache import cache_folder, checkpoint_path, shipped_pose_encoder
 
     if not argv or argv[-1].startswith("-") or argv[:-1] not in ([], ["--ownership"]):
-        print("usage: python -m master.decoders.pose_encoders [--ownership] OUT_FOLDER", file=sys.stderr)
+        print("usage: python -m rhi.master.decoders.pose_encoders [--ownership] OUT_FOLDER", file=sys.stderr)
         return 2
     out = Path(argv[-1])
     out.mkdir(parents=True, exist_ok=True)

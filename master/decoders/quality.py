@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from components.body import camera, kinematics
-from components.vision.component import GenerativeModel
+from rhi.components.body import camera, kinematics
+from rhi.components.vision.component import GenerativeModel
 
 QUALITY_SEED = 12345        # held-out poses for the hand error, distinct from any training seed
 STOP_SEED = 54321           # held-out poses of the hand-error check that may stop training, distinct from both

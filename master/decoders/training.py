@@ -21,15 +21,15 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from components.body import camera, kinematics
-from components.component import ComponentError
-from components.vision import checkpoint, training
-from components.vision.component import GenerativeModel, resolve_device
-from components.vision.optimised import optimised
-from master.cosim import ConfigError
-from master.decoders import training_data
-from master.decoders.quality import hand_error, read_off_error
-from master.outputs.files import atomic_write, check_output_file
+from rhi.components.body import camera, kinematics
+from rhi.components.component import ComponentError
+from rhi.components.vision import checkpoint, training
+from rhi.components.vision.component import GenerativeModel, resolve_device
+from rhi.components.vision.optimised import optimised
+from rhi.master.cosim import ConfigError
+from rhi.master.decoders import training_data
+from rhi.master.decoders.quality import hand_error, read_off_error
+from rhi.master.outputs.files import atomic_write, check_output_file
 
 SIGNATURE_TOLERANCE = 1e-3  # relative; the signature moves by far more when the camera changes
 STOP_POSES = 30             # held-out poses of the hand-error check that may stop training (a few s at 256 x 256)

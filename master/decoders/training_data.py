@@ -23,10 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
-from components.body import camera, kinematics
-from master.config.protocol import HALF_RANGES
-from master.cosim import ConfigError
-from master.outputs.files import atomic_write
+from rhi.components.body import camera, kinematics
+from rhi.master.config.protocol import HALF_RANGES
+from rhi.master.cosim import ConfigError
+from rhi.master.outputs.files import atomic_write
 
 CHUNK = 256                 # poses rendered per call (bounds memory at 256 x 256)
 

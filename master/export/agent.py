@@ -1,8 +1,8 @@
 """The agent (stimulus, rubber arm, camera, decoder, brain, wired as in the experiment) as ONE component.
 
 :class:`Agent` is a component whose inside is the experiment's system without its body
-(:func:`master.tasks.illusion.wiring.build_system`, every connection that does not touch the body), run
-by a :class:`master.cosim.Session` one communication step per :meth:`Agent.step`. Its ports are
+(:func:`rhi.master.tasks.illusion.wiring.build_system`, every connection that does not touch the body), run
+by a :class:`rhi.master.cosim.Session` one communication step per :meth:`Agent.step`. Its ports are
 scalars, so that it can be an FMI 2.0 FMU (``master/export/agent_fmu.py``):
 
 - inputs: what the body feeds the inside (the sensed joint angles, and the felt hand that only the
@@ -17,7 +17,7 @@ Units, ranges and descriptions come from the inner components' declared variable
 truth. With the body after the agent, Gauss-Seidel, ``System([agent, body])`` is the experiment's
 system, step for step (tests/test_agent.py checks it bitwise). A task of its own is a subclass that
 chooses the whole system (:meth:`Agent.whole_system`), the parameters and how they reach the inside
-(:class:`master.export.reach_agent.ReachAgent`, the free arm reaching to a seen goal).
+(:class:`rhi.master.export.reach_agent.ReachAgent`, the free arm reaching to a seen goal).
 
 Example::
 
@@ -28,14 +28,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from components.body import kinematics
-from components.component import Component, ComponentError, StepFailure
-from components.variables import Variable
-from master.cosim import Connection, SimulationError, Session, System
-from master.tasks.illusion import wiring
-from master.config.protocol import make_trial
-from master.config import sources as parameter_sources
-from master.config.sources import sources
+from rhi.components.body import kinematics
+from rhi.components.component import Component, ComponentError, StepFailure
+from rhi.components.variables import Variable
+from rhi.master.cosim import Connection, SimulationError, Session, System
+from rhi.master.tasks.illusion import wiring
+from rhi.master.config.protocol import make_trial
+from rhi.master.config import sources as parameter_sources
+from rhi.master.config.sources import sources
 
 BODY = "body"  # the experiment's name for the body component
 SEED = "stimulus.seed"
@@ -97,7 +97,7 @@ def without_body(whole: System) -> System:
 
 
 def touches_body(connection) -> bool:
-    """Whether a :class:`~master.cosim.Connection` has the body at either end."""
+    """Whether a :class:`~rhi.master.cosim.Connection` has the body at either end."""
     return BODY in (connection.source.partition(".")[0], connection.target.partition(".")[0])
 
 
@@ -107,7 +107,7 @@ def body_links(connections=None) -> list[tuple[str, str]]:
     Parameters
     ----------
     connections : iterable, optional
-        ``(source, target)`` pairs or :class:`~master.cosim.Connection` objects of a whole system
+        ``(source, target)`` pairs or :class:`~rhi.master.cosim.Connection` objects of a whole system
         (default: the experiment's, ``wiring.CONNECTIONS``).
     """
     pairs = [(c.source, c.target) if isinstance(c, Connection) else tuple(c)
@@ -132,7 +132,7 @@ def agent_connections(agent: str = "agent", body: str = BODY, links=None) -> lis
 
 def parameter_paths(system: System, config: dict) -> list[str]:
     """The inner parameters that are the agent's parameters: every scalar one the experiment sets
-    (:data:`master.config.sources.PARAMETER_SOURCES`) but those fixed when the agent is built (constructor arguments,
+    (:data:`rhi.master.config.sources.PARAMETER_SOURCES`) but those fixed when the agent is built (constructor arguments,
     the blur the decoder was trained on) and the derived ones (the brain's start belief, the rest pose)."""
     return [f"{name}.{variable.name}" for name, component in system.components.items()
             for variable in component.variables.values()
@@ -142,7 +142,7 @@ def parameter_paths(system: System, config: dict) -> list[str]:
 
 def exposed(path: str, config: dict) -> bool:
     """Whether parameter ``path`` (``component.variable``) is an agent parameter under ``config``: set from the
-    configuration (the task's sources and the model's, :func:`master.config.sources.sources`), not the body's, not
+    configuration (the task's sources and the model's, :func:`rhi.master.config.sources.sources`), not the body's, not
     fixed when the agent is built, not derived."""
     source = sources(config).get(path)
     return (source is not None and not path.startswith(BODY + ".") and path not in parameter_sources.CONSTRUCTED
@@ -168,7 +168,7 @@ class Agent(Component):
     kind : str
         ``conv`` or ``vae``: the decoder's kind (checked against the checkpoint).
     config : dict
-        A loaded configuration (``master.config.load``): the resolution, the camera's blur,
+        A loaded configuration (``rhi.master.config.load``): the resolution, the camera's blur,
         the decoder's mode, and the start values of the parameters.
     name : str
         The component's name.
@@ -199,7 +199,7 @@ class Agent(Component):
 
     def whole_system(self) -> System:
         """The task's whole system, its body included, with new components: here the experiment's."""
-        from master.decoders.cache import decoder_component  # torch only when an agent is built
+        from rhi.master.decoders.cache import decoder_component  # torch only when an agent is built
 
         return wiring.build_system(decoder_component(self.kind, self.checkpoint, self.config), self.config)
 
@@ -261,7 +261,7 @@ class Agent(Component):
     # -- the inner session ----------------------------------------------------------------------
     def inner_parameters(self) -> dict:
         """The inner system's parameters for this agent's current values: the experiment's
-        (:func:`master.config.sources.parameters`) for what the agent does not expose, the agent's own for the rest."""
+        (:func:`rhi.master.config.sources.parameters`) for what the agent does not expose, the agent's own for the rest."""
         trial = make_trial(self.config, self.kind, self.config["experiment"]["conditions"][0],
                            self.config["experiment"]["stimulations"][0], 0)
         given = {path: value for path, value in parameter_sources.parameters([trial], self.config).items()

@@ -19,9 +19,9 @@ import shutil
 import tempfile
 from pathlib import Path
 
-from master import models
-from master.cosim import ConfigError
-from master.export.fmu_files import build_with_pythonfmu, built_beside, check_target, staged_script
+from rhi.master import models
+from rhi.master.cosim import ConfigError
+from rhi.master.export.fmu_files import build_with_pythonfmu, built_beside, check_target, staged_script
 
 MANIFEST = "rhi_agent.json"
 CHECKPOINT = "decoder.pt"
@@ -35,17 +35,17 @@ def ports(agent) -> list[list[str]]:
 
 
 def make_agent(checkpoint: str, kind: str, config: dict, task: str = "illusion", name: str = "agent"):
-    """The agent component of ``task`` (``master.export.tasks``): ``Agent`` or ``ReachAgent``, built as they are."""
+    """The agent component of ``task`` (``rhi.master.export.tasks``): ``Agent`` or ``ReachAgent``, built as they are."""
     import importlib
 
-    from master.export.tasks import task as task_named
+    from rhi.master.export.tasks import task as task_named
 
     module, _, class_name = task_named(task).agent.partition(":")
     return getattr(importlib.import_module(module), class_name)(checkpoint, kind, config, name=name)
 
 
 def agent_from_resources(resources: str):
-    """The :class:`~master.export.agent.Agent` an agent FMU's resources describe, checked against them.
+    """The :class:`~rhi.master.export.agent.Agent` an agent FMU's resources describe, checked against them.
 
     Parameters
     ----------
@@ -62,7 +62,7 @@ def agent_from_resources(resources: str):
     RuntimeError
         This rhi's agent declares other ports than the FMU's (it was built by another version).
     """
-    from master.export.tasks import TASKS
+    from rhi.master.export.tasks import TASKS
 
     with open(os.path.join(resources, MANIFEST), encoding="utf-8") as file:
         manifest = json.load(file)
@@ -108,9 +108,9 @@ def build_agent_fmu(out, kind: str, config: dict, checkpoint: str, task: str = "
     checkpoint : str
         The decoder's checkpoint, copied into the FMU's resources.
     task : str
-        ``illusion`` or ``reach`` (``master.export.tasks``).
+        ``illusion`` or ``reach`` (``rhi.master.export.tasks``).
     fmi : str
-        ``2.0`` (pythonfmu) or ``3.0`` (pythonfmu3, :mod:`master.export.agent_fmi3`; the illusion's agent).
+        ``2.0`` (pythonfmu) or ``3.0`` (pythonfmu3, :mod:`rhi.master.export.agent_fmi3`; the illusion's agent).
 
     Returns
     -------
@@ -164,9 +164,9 @@ def export_agent(out, config: dict, kind: str | None = None, task: str = "illusi
     (Path, str)
         The FMU and the checkpoint it carries.
     """
-    from master.decoders.cache import check_decoders, ensure_checkpoints
-    from master.config.sources import check_parameters
-    from master.export.tasks import task as task_named
+    from rhi.master.decoders.cache import check_decoders, ensure_checkpoints
+    from rhi.master.config.sources import check_parameters
+    from rhi.master.export.tasks import task as task_named
 
     kind = kind or config["experiment"]["decoders"][0]
     if kind not in ("conv", "vae"):
@@ -190,7 +190,7 @@ def export_agent(out, config: dict, kind: str | None = None, task: str = "illusi
 
 def check_carried(config: dict) -> None:
     """The reach agent FMU carries the decoder only: the goal's term must be the pixel attractor."""
-    from master.tasks.reach import task as reach
+    from rhi.master.tasks.reach import task as reach
 
     if reach.attractor(config) != "pixels":
         raise ConfigError(f"reach.attractor = {config['reach']['attractor']!r} reads the goal with a pose encoder, "

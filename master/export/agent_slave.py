@@ -1,4 +1,4 @@
-"""The pythonfmu slave of the agent FMU: :class:`master.export.agent.Agent` behind the FMI 2.0 co-simulation API.
+"""The pythonfmu slave of the agent FMU: :class:`rhi.master.export.agent.Agent` behind the FMI 2.0 co-simulation API.
 
 This file is the agent FMU's main script (``master/export/agent_fmu.py`` builds it). Unlike the body
 FMU, it carries no copy of the code: it imports the ``rhi`` package (``master``, ``components``) of
@@ -6,15 +6,15 @@ the Python that loads it, which must have rhi and its dependencies (torch, ...) 
 resources hold the decoder checkpoint and ``rhi_agent.json``: the task (the illusion's agent or the
 reach's), the decoder's kind, the configuration it was built with and the ports it declared; a package whose agent declares other ports is refused
 when the FMU is instantiated. One FMU instance is one trial (batch size 1); the slave base,
-:class:`components.fmu_slave_base.ComponentSlaveBase`, registers the variables and runs the lifecycle.
+:class:`rhi.components.fmu_slave_base.ComponentSlaveBase`, registers the variables and runs the lifecycle.
 pythonfmu takes the class of this file that has ``Fmi2Slave`` deepest among its bases.
 """
 from __future__ import annotations
 
 try:
-    from components.fmu_slave_base import ComponentSlaveBase
-    from components.model_description import xml_value
-    from master.export.agent_fmu import agent_from_resources
+    from rhi.components.fmu_slave_base import ComponentSlaveBase
+    from rhi.components.model_description import xml_value
+    from rhi.master.export.agent_fmu import agent_from_resources
 except ImportError as error:
     raise ImportError(f"the agent FMU needs a Python with the rhi package installed ({error})") from None
 

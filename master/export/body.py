@@ -1,10 +1,10 @@
 """``rhi export-body``: the body plant as a co-simulation FMU: FMI 2.0, built with pythonfmu, or FMI 3.0, built
-with pythonfmu3 (the C body, :mod:`master.export.c_body`, for either).
+with pythonfmu3 (the C body, :mod:`rhi.master.export.c_body`, for either).
 
 The FMU carries its own copy of the ``components`` package (Python sources
 only) next to the slave script (``components/body/fmu_slave.py``; for FMI 3.0
 ``components/body/fmu_slave3.py``, its ports the body contract's arrays,
-``components.body.contract.FMI3_ARRAYS``), so it runs without this checkout, in
+``rhi.components.body.contract.FMI3_ARRAYS``), so it runs without this checkout, in
 any Python that has numpy and pymunk (the builder puts its runtime in the FMU). A
 resource file tells the slave which component class to wrap.
 
@@ -20,9 +20,9 @@ import shutil
 import tempfile
 from pathlib import Path
 
-from components.fmu_bundle import COMPONENT_FILE
-from master.cosim import ConfigError
-from master.export.fmu_files import build_with_pythonfmu, built_beside, check_target, staged_script
+from rhi.components.fmu_bundle import COMPONENT_FILE
+from rhi.master.cosim import ConfigError
+from rhi.master.export.fmu_files import build_with_pythonfmu, built_beside, check_target, staged_script
 
 # variant -> (model name, which is also the FMI model identifier; component class as module:Class)
 VARIANTS = {
@@ -70,7 +70,7 @@ def export_body(out, variant: str = "native", fmi: str = "2.0") -> Path:
     (VARIANTS), or the body written in C (C_VARIANT)."""
     check_fmi(variant, fmi)
     if variant == C_VARIANT:
-        from master.export.c_body import build_c_fmu
+        from rhi.master.export.c_body import build_c_fmu
         return build_c_fmu(out, fmi)
     return build_fmu(out, variant, fmi=fmi)
 

@@ -1,10 +1,10 @@
 """A body written in C, built into an FMI 2.0 or FMI 3.0 co-simulation FMU with gcc and the FMI headers fmpy ships.
 
 The source, ``bodies/kinematic_c/kinematic_arm.c``, is the ideal kinematic arm of
-:class:`components.body.variants.KinematicArm` (free: q follows the command; held: the servo's
+:class:`rhi.components.body.variants.KinematicArm` (free: q follows the command; held: the servo's
 statics give the hand force); ``-DFMI_VERSION=3`` selects its FMI 3.0 interface. Its
 ``modelDescription.xml`` is written from the Python arm's own declarations, for FMI 2.0
-(:mod:`components.model_description`) or FMI 3.0 (:mod:`components.model_description3`, the pairs in
+(:mod:`rhi.components.model_description`) or FMI 3.0 (:mod:`rhi.components.model_description3`, the pairs in
 ARRAYS as Float64 arrays), and its start values and FMI 3.0 array sizes are compiled in from the same
 declarations, so the bodies declare the same variables, units, ranges and starts.
 
@@ -22,12 +22,12 @@ import tempfile
 import zipfile
 from pathlib import Path
 
-from components.body.contract import FMI3_ARRAYS
-from components.body.variants import KinematicArm
-from components.model_description3 import sizes, to_xml3
-from master.cosim import ConfigError
-from master.export.fmu_files import check_target
-from master.outputs.files import atomic_write
+from rhi.components.body.contract import FMI3_ARRAYS
+from rhi.components.body.variants import KinematicArm
+from rhi.components.model_description3 import sizes, to_xml3
+from rhi.master.cosim import ConfigError
+from rhi.master.export.fmu_files import check_target
+from rhi.master.outputs.files import atomic_write
 
 SOURCE = Path(__file__).resolve().parents[2] / "bodies" / "kinematic_c" / "kinematic_arm.c"
 MODEL_IDENTIFIER = "KinematicArmC"  # the FMI model identifier, which names the shared library

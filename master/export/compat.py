@@ -1,25 +1,25 @@
 """The compatibility matrix: every FMU rhi exports (the bodies native, kinematic, kinematic-c, FMI 2.0 and 3.0; the
 illusion's and the reach's agents, FMI 2.0 and, the illusion's, 3.0) x every check
-(:data:`master.export.fmi_checks.CHECKS`, the SSP schemas), every master (FMPy, libcosim, Ecos), an instantiation after a freed one and a reference trajectory,
+(:data:`rhi.master.export.fmi_checks.CHECKS`, the SSP schemas), every master (FMPy, libcosim, Ecos), an instantiation after a freed one and a reference trajectory,
 each cell ``pass``, ``fail`` or ``not supported``, with the reason of every cell that is not a pass.
 
 A master's cell: the FMU alone, its inputs held (a body's command at its start, 0; an agent's sensed arm at the
 resting pose, bound as a parameter set; the reach agent's goal its start, the plan's first), stepped
 :data:`STEPS` steps of :data:`STEP` s: FMPy's ``simulate_fmu``, libcosim and Ecos on a one-component SSP package
-(:mod:`master.export.compat_run`, a child process each). It passes when every step is done and no output is NaN
+(:mod:`rhi.master.export.compat_run`, a child process each). It passes when every step is done and no output is NaN
 (the agent's event times are -inf before the first event), and, for an FMI 3.0 FMU, every output equals its FMI
 2.0 twin's under FMPy to the last bit (an array element by element). A master that cannot load the FMU, or shows
 an array as fewer values than it holds, is ``not supported``, in its own words.
 
-The other columns (:mod:`master.export.compat_checks`): ``SSP schema``, that package's SystemStructure.ssd and
+The other columns (:mod:`rhi.master.export.compat_checks`): ``SSP schema``, that package's SystemStructure.ssd and
 parameter set read against the SSP 1.0 schemas; ``instantiate-free-instantiate``, two instances one after the
 other in one fresh process, the second's first step the first's to the bit and the process's exit clean;
 ``reference trajectory``, FMPy's run of :data:`REFERENCE_STEPS` steps within ``fmpy.util.validate_result``'s
 band of the shipped CSV in :data:`REFERENCES` (written by ``--write-references``).
 
-``python -m master.export.compat [--write-references]`` measures the whole matrix (about 50 s on 2 cores: it
+``python -m rhi.master.export.compat [--write-references]`` measures the whole matrix (about 50 s on 2 cores: it
 builds every FMU and starts every master) into :data:`RESULTS`; docs/fmi.md's table is written from that file
-by ``python -m master.reference``, and tests/test_compat.py measures a cheap part of it again.
+by ``python -m rhi.master.reference``, and tests/test_compat.py measures a cheap part of it again.
 """
 from __future__ import annotations
 
@@ -32,9 +32,9 @@ from pathlib import Path
 
 import numpy as np
 
-from master.export.compat_checks import package, reference_problems, run_child, schema_problems, twice_problems
-from master.export.compat_checks import write_reference
-from master.export.fmi_checks import CHECKS
+from rhi.master.export.compat_checks import package, reference_problems, run_child, schema_problems, twice_problems
+from rhi.master.export.compat_checks import write_reference
+from rhi.master.export.fmi_checks import CHECKS
 
 RESULTS = Path(__file__).resolve().parents[2] / "docs" / "fmi" / "compat.json"
 REFERENCES = RESULTS.parent / "reference"  # a CSV per row, named by :func:`reference_path`
@@ -65,9 +65,9 @@ def build(folder, config: dict, rows=ROWS) -> dict:
     """The FMUs of ``rows`` built into ``folder``: ``{row: path}`` (``config``: the illusion agent's --quick
     configuration, its conv checkpoint named; the reach agent's is ``rhi reach --quick``'s with that checkpoint,
     as ``rhi export-agent --task reach --quick`` loads it)."""
-    from master.export.agent_fmu import build_agent_fmu
-    from master.export.body import export_body
-    from master.tasks.reach import task as reach
+    from rhi.master.export.agent_fmu import build_agent_fmu
+    from rhi.master.export.body import export_body
+    from rhi.master.tasks.reach import task as reach
 
     folder, fmus = Path(folder), {}
     for row in rows:
@@ -88,7 +88,7 @@ def held_inputs(fmu) -> dict:
     body's command at its start (none given)."""
     from fmpy import read_model_description
 
-    from components.body import kinematics
+    from rhi.components.body import kinematics
 
     rest = {"q_shoulder": kinematics.REST_POSE[0], "q_elbow": kinematics.REST_POSE[1],
             "hand_x": kinematics.REST_HAND[0], "hand_y": kinematics.REST_HAND[1]}
@@ -146,7 +146,7 @@ def twin_equal(values: dict, twin: dict) -> list[str]:
     """The outputs of an FMI 3.0 run ``values`` that differ from its FMI 2.0 twin's run ``twin`` in any bit: an
     array (a body's ``q``: ``q_shoulder``, ``q_elbow``) element by element; an output the twin lacks (the
     agent's ``image``) is not compared."""
-    from components.body.contract import FMI3_ARRAYS as ARRAYS
+    from rhi.components.body.contract import FMI3_ARRAYS as ARRAYS
 
     differ = []
     for name, value in values.items():
@@ -200,7 +200,7 @@ def check_cell(column: str, row, fmu, folder: Path, write: bool = False) -> list
     if write:
         write_reference(path, result)
     if not path.is_file():
-        return [f"no reference {path.name} (python -m master.export.compat --write-references writes it)"]
+        return [f"no reference {path.name} (python -m rhi.master.export.compat --write-references writes it)"]
     return reference_problems(result, read_csv(path))
 
 
@@ -251,21 +251,21 @@ def table(matrix: dict) -> str:
 
 
 def stored_table() -> str:
-    """docs/fmi.md's table, from :data:`RESULTS` (``python -m master.reference`` writes it)."""
+    """docs/fmi.md's table, from :data:`RESULTS` (``python -m rhi.master.reference`` writes it)."""
     return table(json.loads(RESULTS.read_text(encoding="utf-8"))["matrix"])
 
 
 def main(argv: list[str]) -> int:
-    """``python -m master.export.compat [--write-references]``: build every FMU (the --quick conv decoder for the
+    """``python -m rhi.master.export.compat [--write-references]``: build every FMU (the --quick conv decoder for the
     agents, trained if not cached), measure the matrix (``--write-references``: each row's reference CSV written
-    from this run first) and write :data:`RESULTS`; then ``python -m master.reference`` updates the docs."""
-    from master import config as configuration
-    from master.decoders.cache import ensure_checkpoints
-    from master.outputs.files import atomic_write
+    from this run first) and write :data:`RESULTS`; then ``python -m rhi.master.reference`` updates the docs."""
+    from rhi.master import config as configuration
+    from rhi.master.decoders.cache import ensure_checkpoints
+    from rhi.master.outputs.files import atomic_write
 
     unknown = [a for a in argv if a != "--write-references"]
     if unknown:
-        print(f"python -m master.export.compat: unknown argument {unknown[0]!r} (only --write-references)",
+        print(f"python -m rhi.master.export.compat: unknown argument {unknown[0]!r} (only --write-references)",
               file=sys.stderr)
         return 2
     config = configuration.load(quick=True)

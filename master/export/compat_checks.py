@@ -1,4 +1,4 @@
-"""The compatibility matrix's checks beyond the masters' runs (:mod:`master.export.compat`): the one-component SSP
+"""The compatibility matrix's checks beyond the masters' runs (:mod:`rhi.master.export.compat`): the one-component SSP
 package each FMU is run in under libcosim and Ecos (:func:`package`), read against the SSP 1.0 schemas
 (:func:`schema_problems`); an FMU instantiated, freed and instantiated again in one fresh process
 (:func:`twice_problems`); and an FMU's trajectory held to a reference CSV (:func:`reference_problems`).
@@ -83,7 +83,7 @@ def schema_problems(ssp: Path) -> list[str]:
 
 
 def twice_problems(fmu, held: dict, read: list[str], step: float, folder: Path, timeout: float = 300) -> list[str]:
-    """``fmu`` under FMPy's FMU2Slave or FMU3Slave in one fresh child process (:func:`master.export.compat_run.twice`):
+    """``fmu`` under FMPy's FMU2Slave or FMU3Slave in one fresh child process (:func:`rhi.master.export.compat_run.twice`):
     instantiated, initialized with ``held`` set, stepped once by ``step``, terminated and freed, then the same
     again. Problems: an exit status other than 0, anything on stderr (no warning is allowed: none appears), an
     output of ``read`` whose value after the second instance's step is not the first's to the bit."""
@@ -108,11 +108,11 @@ def twice_problems(fmu, held: dict, read: list[str], step: float, folder: Path, 
 
 
 def run_child(request: Path, scratch: Path, timeout: float) -> subprocess.CompletedProcess:
-    """``python -m master.export.compat_run REQUEST`` with this checkout importable and ``scratch`` as TMPDIR."""
+    """``python -m rhi.master.export.compat_run REQUEST`` with this checkout importable and ``scratch`` as TMPDIR."""
     root = str(Path(__file__).resolve().parents[2])
     env = {**os.environ, "TMPDIR": str(scratch),
            "PYTHONPATH": os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")]))}
-    return subprocess.run([sys.executable, "-m", "master.export.compat_run", str(request)], capture_output=True,
+    return subprocess.run([sys.executable, "-m", "rhi.master.export.compat_run", str(request)], capture_output=True,
                           text=True, timeout=timeout, env=env)
 
 

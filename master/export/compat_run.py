@@ -1,5 +1,5 @@
-"""``python -m master.export.compat_run REQUEST.json``: one FMU, alone in an SSP package, stepped by libcosim or Ecos
-for the compatibility matrix (:mod:`master.export.compat`), in a child process of its own (a master's crash or
+"""``python -m rhi.master.export.compat_run REQUEST.json``: one FMU, alone in an SSP package, stepped by libcosim or Ecos
+for the compatibility matrix (:mod:`rhi.master.export.compat`), in a child process of its own (a master's crash or
 refusal must not take the matrix down); or (``twice``) instantiated, freed and instantiated again under FMPy.
 
 The request names the master, the unpacked package's folder (one component, ``fmu``, its bound parameter set
@@ -14,7 +14,7 @@ import sys
 
 import numpy as np
 
-from master.outputs.processes import error_line, exit_child
+from rhi.master.outputs.processes import error_line, exit_child
 
 COMPONENT, SET = "fmu", "inputs"  # the component's name in the package; the name of its parameter set
 

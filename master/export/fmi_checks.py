@@ -4,7 +4,7 @@ table of the FMI standard (:func:`initial_problems`).
 
 Example::
 
-    from master.export.fmi_checks import CHECKS
+    from rhi.master.export.fmi_checks import CHECKS
     {name: check("Body.fmu") for name, check in CHECKS.items()}   # {"validate_fmu": [], ...}
 """
 from __future__ import annotations

@@ -9,8 +9,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-from master.cosim import ConfigError
-from master.outputs.files import check_output_file, umask
+from rhi.master.cosim import ConfigError
+from rhi.master.outputs.files import check_output_file, umask
 
 
 def check_target(out) -> Path:

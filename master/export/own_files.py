@@ -5,7 +5,7 @@ deletes anything rhi did not write).
 Each check reads only what identifies the file (a zip's directory and one small member, a CSV's first lines,
 within bounds) and returns None for a file rhi wrote, else what it is not. A file is rhi's:
 
-- ``.fmu``: a zip archive (checked: components.archives) whose ``modelDescription.xml`` names the
+- ``.fmu``: a zip archive (checked: rhi.components.archives) whose ``modelDescription.xml`` names the
   generationTool ``rhi`` (the C body, every component's own description), or a pythonfmu FMU whose slave
   module is rhi's (``resources/slavemodule.txt`` names ``rhi_fmu_slave_*`` beside ``resources/rhi_component.txt``:
   a body; ``rhi_agent_slave_*`` or ``rhi_agent_slave3_*`` (FMI 3.0) beside ``resources/rhi_agent.json``: an
@@ -32,7 +32,7 @@ SLAVES = {"rhi_fmu_slave_": "resources/rhi_component.txt", "rhi_agent_slave_": "
 def _zip_member(path: Path, member: str) -> tuple[set[str], bytes | None] | str:
     """(the archive's member names, ``member``'s bytes or None if it has none), or what makes ``path`` not a sound
     zip archive."""
-    from components.archives import ArchiveError, check_archive
+    from rhi.components.archives import ArchiveError, check_archive
 
     if not zipfile.is_zipfile(path):
         return "not a zip archive"
@@ -77,7 +77,7 @@ def fmu_problem(path: str | os.PathLike) -> str | None:
 
 def ssp_problem(path: str | os.PathLike) -> str | None:
     """None if ``path`` is an SSP package rhi exported (module notes), else what it is not."""
-    from master.export.ssp_package import SSD
+    from rhi.master.export.ssp_package import SSD
 
     found = _zip_member(Path(path), SSD)
     if isinstance(found, str):

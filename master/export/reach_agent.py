@@ -1,7 +1,7 @@
 """The reach agent (goal arm, goal camera, goal decoder, brain, wired as ``rhi reach``) as ONE component.
 
-:class:`ReachAgent` is :class:`~master.export.agent.Agent` with the reach system inside
-(:func:`master.tasks.reach.task.build_system` without its body), for the free arm (``body.held = false``)
+:class:`ReachAgent` is :class:`~rhi.master.export.agent.Agent` with the reach system inside
+(:func:`rhi.master.tasks.reach.task.build_system` without its body), for the free arm (``body.held = false``)
 reaching to a goal it sees (docs/reach.md). Its ports:
 
 - inputs: what the body feeds the inside (the sensed joint angles), as the illusion agent's;
@@ -10,13 +10,13 @@ reaching to a goal it sees (docs/reach.md). Its ports:
 - parameters: the goal pose ``goal_shoulder``, ``goal_elbow`` (absolute joint angles, deg; start: the
   reach plan's first goal, the same for both decoders), the goal's ``precision_ratio`` w, the seen image's
   ``visual_variance`` (the goal image's is visual_variance / w) and the other scalar parameters the
-  illusion agent exposes of the components inside (:func:`~master.export.agent.parameter_paths`: the brain's).
+  illusion agent exposes of the components inside (:func:`~rhi.master.export.agent.parameter_paths`: the brain's).
 
 Each parameter but the goal stands for a configuration key: the inner parameters are
-:func:`master.tasks.reach.task.parameters` of the configuration with the agent's values in those keys,
+:func:`rhi.master.tasks.reach.task.parameters` of the configuration with the agent's values in those keys,
 and the goal pose as given, so that ``System([agent, body])`` is ``rhi reach``'s system step for step
 (tests/test_reach_agent.py checks it bitwise). A goal outside the joint ranges the decoders know
-(:func:`master.tasks.reach.task.goal_problem`) fails the initialization, naming the joint.
+(:func:`rhi.master.tasks.reach.task.goal_problem`) fails the initialization, naming the joint.
 
 Example::
 
@@ -29,14 +29,14 @@ import functools
 
 import numpy as np
 
-from components.component import ComponentError
-from components.variables import Variable
-from master.cosim import System
-from master.tasks.reach import task as reach
-from master.tasks.illusion import wiring
-from master.config.sources import config_key, sources
-from master.decoders.training_data import HALF_RANGES
-from master.export.agent import OBSERVED, Agent, parameter_paths
+from rhi.components.component import ComponentError
+from rhi.components.variables import Variable
+from rhi.master.cosim import System
+from rhi.master.tasks.reach import task as reach
+from rhi.master.tasks.illusion import wiring
+from rhi.master.config.sources import config_key, sources
+from rhi.master.decoders.training_data import HALF_RANGES
+from rhi.master.export.agent import OBSERVED, Agent, parameter_paths
 
 GOAL = {"goal_shoulder": "goal.shoulder", "goal_elbow": "goal.elbow"}  # FMI name -> the goal arm's parameter
 RATIO, RATIO_KEY = "precision_ratio", "reach.precision_ratio"
@@ -59,7 +59,7 @@ class ReachAgent(Agent):
     """The reach agent (goal arm, goal camera, goal decoder or encoder, brain) as one component with scalar ports.
 
     Its parameters are :class:`Agent`'s, but ``config`` is a reach configuration
-    (``master.tasks.reach.task.load``): the resolution, the camera's blur, the decoder's mode, the goal's term
+    (``rhi.master.tasks.reach.task.load``): the resolution, the camera's blur, the decoder's mode, the goal's term
     and view, and the start values of the parameters.
     """
 
@@ -124,7 +124,7 @@ class ReachAgent(Agent):
             raise ComponentError(f"{self.name}: {problem}")
 
     def inner_parameters(self) -> dict:
-        """:func:`master.tasks.reach.task.parameters` of the configuration with this agent's values in their
+        """:func:`rhi.master.tasks.reach.task.parameters` of the configuration with this agent's values in their
         keys, and the goal pose as given (checked first: :meth:`check_parameters`)."""
         self.check_parameters()
         config = dict(self.config)

@@ -10,10 +10,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
-from master.cosim import ConfigError
-from master.export.ssp_package import (AGENT, NS, SSD, TRIALS, declared_ranges, declared_variables, parse_value,
+from rhi.master.cosim import ConfigError
+from rhi.master.export.ssp_package import (AGENT, NS, SSD, TRIALS, declared_ranges, declared_variables, parse_value,
                                        qualified)
-from master.outputs.scratch import scratch_folder
+from rhi.master.outputs.scratch import scratch_folder
 
 
 @dataclass
@@ -80,8 +80,8 @@ def read_ssp(path) -> Package:
         parameter value not of its type (not finite, an Integer beyond a C int, a Boolean not true or
         false) or outside the range its FMU declares.
     """
-    from components.archives import ArchiveError, check_archive
-    from components.fmu import check_contract
+    from rhi.components.archives import ArchiveError, check_archive
+    from rhi.components.fmu import check_contract
 
     path, name = os.fspath(path), os.path.basename(os.fspath(path))
     if not os.path.isfile(path):

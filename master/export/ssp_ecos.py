@@ -1,5 +1,5 @@
 """Ecos (``ecospy``), the third FMI master of someone else's that runs an SSP package: its fixed-step algorithm,
-unchanged, in the child process of :mod:`master.export.ssp_runner`.
+unchanged, in the child process of :mod:`rhi.master.export.ssp_runner`.
 
 Ecos reads the SSD and its parameter files itself and applies one named parameter set, the sets of that name
 bound to any component, at initialization (``sim.init(parameter_set=NAME)``). The package binds the agent's
@@ -20,7 +20,7 @@ from xml.etree import ElementTree as ET
 
 import numpy as np
 
-from master.export.ssp_package import AGENT, SSD, qualified
+from rhi.master.export.ssp_package import AGENT, SSD, qualified
 
 ECOS_LOG = "ecos.log"  # beside the request's out: Ecos's log
 ECOS_FAILED = ("a component failed as it started; Ecos neither checks an FMU's status nor passes on its messages "

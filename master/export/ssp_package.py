@@ -26,11 +26,11 @@ from xml.etree import ElementTree as ET
 
 import numpy as np
 
-from master.cosim import ConfigError
-from master.config.sources import shared_parameters
-from master.export.agent import agent_connections
-from master.export.tasks import task as task_named
-from master.outputs.files import atomic_write, check_output_file
+from rhi.master.cosim import ConfigError
+from rhi.master.config.sources import shared_parameters
+from rhi.master.export.agent import agent_connections
+from rhi.master.export.tasks import task as task_named
+from rhi.master.outputs.files import atomic_write, check_output_file
 
 NS = {"ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
       "ssc": "http://ssp-standard.org/SSP1/SystemStructureCommon",
@@ -153,7 +153,7 @@ def start_values(fmu: str) -> dict[str, float]:
 def system_description(agent: dict, body: dict, bound: str, step_size: float, stop_time: float, name: str,
                        description: str = "the rubber-hand agent and a body", links=None) -> bytes:
     """SystemStructure.ssd: the agent and body components (every input and output a connector), their
-    connections (:func:`~master.export.agent.agent_connections` of the body's ``links``, default the
+    connections (:func:`~rhi.master.export.agent.agent_connections` of the body's ``links``, default the
     experiment's), the bound parameter files and the default experiment (libcosim's fixed-step algorithm
     annotation carries the step size)."""
     root = ET.Element(qualified("ssd:SystemStructureDescription"), {"version": "1.0", "name": name, "generationTool": "rhi"})
@@ -201,7 +201,7 @@ def build_ssp(out, agent_fmu: str, body_fmu: str, config: dict, kind: str, bound
     bound : Trial or ReachTrial, optional
         The trial the SSD binds (default: the task's first of ``kind``).
     task : str
-        ``illusion`` or ``reach`` (``master.export.tasks``).
+        ``illusion`` or ``reach`` (``rhi.master.export.tasks``).
 
     Returns
     -------

@@ -1,7 +1,7 @@
-"""``python -m master.export.ssp_runner REQUEST.json``: one SSP package run by FMPy's, libcosim's or Ecos's master
-(:mod:`master.export.ssp_ecos`).
+"""``python -m rhi.master.export.ssp_runner REQUEST.json``: one SSP package run by FMPy's, libcosim's or Ecos's master
+(:mod:`rhi.master.export.ssp_ecos`).
 
-:func:`master.export.system.run_ssp` starts this in a child process and writes the request: the
+:func:`rhi.master.export.system.run_ssp` starts this in a child process and writes the request: the
 package, the master, the steps and step size, each component's parameters (as the package binds
 them, or the trial asked for) and the connectors to record. The result, ``time`` and
 ``component.variable`` arrays of one row per step, goes to the request's ``out`` (.npz). A failure is
@@ -19,7 +19,7 @@ import sys
 
 import numpy as np
 
-from master.outputs.processes import die_with_parent, error_line, exit_child
+from rhi.master.outputs.processes import die_with_parent, error_line, exit_child
 
 # libcosim's log line of a message an FMU logged with status error or fatal
 LOGGED = re.compile(r"\[FMI status=(?:error|fatal), category=[^\]]*\] (.*)")
@@ -43,7 +43,7 @@ def refusal(folder: str, stderr: str) -> str | None:
     when no step was done; under Ecos, whose process ends (Ecos steps on past an FMU's failed initialization)
     before a first step, that a component failed, without its reason (Ecos keeps the FMUs' messages to
     itself)."""
-    from master.export.ssp_ecos import ECOS_FAILED, ECOS_LOG
+    from rhi.master.export.ssp_ecos import ECOS_FAILED, ECOS_LOG
 
     lines = [line for line in stderr.splitlines() if line.strip()]
     if lines and lines[-1].startswith(REFUSED):
@@ -200,7 +200,7 @@ def main(path: str) -> int:
     with open(path, encoding="utf-8") as file:
         request = json.load(file)
     if request["master"] == "ecos":
-        from master.export.ssp_ecos import ecos_run  # after die_with_parent: its imports take seconds
+        from rhi.master.export.ssp_ecos import ecos_run  # after die_with_parent: its imports take seconds
 
         result = ecos_run(request, os.path.join(os.path.dirname(request["out"]), STEPPED))
     else:

@@ -1,9 +1,9 @@
 """``rhi export-system`` and ``rhi run-system``: the experiment (or the reach) as an SSP 1.0 package of agent and
 body FMUs.
 
-:func:`export_system` builds the package (:mod:`master.export.ssp_package`); :func:`run_ssp` checks it
-(:mod:`master.export.ssp_check`) and runs it, unchanged, under FMPy's SSP master (``fmpy.ssp``), libcosim
-(``libcosimpy``) or Ecos (``ecospy``, :mod:`master.export.ssp_ecos`), in a child process (``python -m master.export.ssp_runner``): the masters load the FMUs'
+:func:`export_system` builds the package (:mod:`rhi.master.export.ssp_package`); :func:`run_ssp` checks it
+(:mod:`rhi.master.export.ssp_check`) and runs it, unchanged, under FMPy's SSP master (``fmpy.ssp``), libcosim
+(``libcosimpy``) or Ecos (``ecospy``, :mod:`rhi.master.export.ssp_ecos`), in a child process (``python -m rhi.master.export.ssp_runner``): the masters load the FMUs'
 native libraries, and a crash there must not take the command down.
 """
 from __future__ import annotations
@@ -16,13 +16,13 @@ from pathlib import Path
 
 import numpy as np
 
-from components.body import kinematics
-from master.cosim import ConfigError, SimulationError
-from master.export.ssp_check import Package, read_ssp, trial_parameters
-from master.export.ssp_package import AGENT, BODY, MASTERS, MAX_STEPS, build_ssp
-from master.export.ssp_runner import refusal
-from master.outputs.files import atomic_write, check_output_file
-from master.outputs.scratch import scratch_folder
+from rhi.components.body import kinematics
+from rhi.master.cosim import ConfigError, SimulationError
+from rhi.master.export.ssp_check import Package, read_ssp, trial_parameters
+from rhi.master.export.ssp_package import AGENT, BODY, MASTERS, MAX_STEPS, build_ssp
+from rhi.master.export.ssp_runner import refusal
+from rhi.master.outputs.files import atomic_write, check_output_file
+from rhi.master.outputs.scratch import scratch_folder
 
 
 def run_ssp(path, master: str, trial: str | None = None, steps: int | None = None, timeout: float | None = None) -> dict:
@@ -64,7 +64,7 @@ def run_ssp(path, master: str, trial: str | None = None, steps: int | None = Non
     if master == "libcosim" and importlib.util.find_spec("libcosimpy") is None:
         raise ConfigError("--master libcosim needs libcosimpy (pip install libcosimpy==0.0.6, in the test extra)")
     if master == "ecos":
-        from master.export.ssp_ecos import missing
+        from rhi.master.export.ssp_ecos import missing
         if (reason := missing()) is not None:
             raise ConfigError(reason)
     package = read_ssp(path)
@@ -98,7 +98,7 @@ def run_ssp(path, master: str, trial: str | None = None, steps: int | None = Non
                "PYTHONPATH": os.pathsep.join(filter(None, [str(Path(__file__).resolve().parents[2]),
                                                            os.environ.get("PYTHONPATH")]))}
         try:
-            done = subprocess.run([sys.executable, "-m", "master.export.ssp_runner", str(request)], capture_output=True,
+            done = subprocess.run([sys.executable, "-m", "rhi.master.export.ssp_runner", str(request)], capture_output=True,
                                   text=True, timeout=timeout, env=env)
         except subprocess.TimeoutExpired:
             raise SimulationError(master, 0.0, f"did not finish within {timeout:g} s", "error") from None
@@ -116,10 +116,10 @@ def run_ssp(path, master: str, trial: str | None = None, steps: int | None = Non
 
 def unpack(package: Package, folder: Path) -> tuple[Path, dict]:
     """The checked package unpacked for a master: ``folder/ssp`` holds it (every member checked,
-    :func:`components.archives.extract`), each component's FMU unpacked (checked) into ``folder/fmus/N``
+    :func:`rhi.components.archives.extract`), each component's FMU unpacked (checked) into ``folder/fmus/N``
     and, at its place in the package, packed again from those checked files (libcosim takes an FMU only
     as a zip archive, and unpacks it itself). Returns the package's folder and ``{source: FMU folder}``."""
-    from components.archives import ArchiveError, extract, pack
+    from rhi.components.archives import ArchiveError, extract, pack
 
     ssp, fmus = folder / "ssp", {}
     try:
@@ -135,14 +135,14 @@ def unpack(package: Package, folder: Path) -> tuple[Path, dict]:
 
 def final_drift_cm(values: dict, agent: str = AGENT, body: str = BODY) -> float:
     """The drift after the last step (cm): x of the forward kinematics of the agent's mu minus x of the body's
-    sensed angles, as ``master.tasks.illusion.measures`` computes it."""
+    sensed angles, as ``rhi.master.tasks.illusion.measures`` computes it."""
     perceived, _ = kinematics.forward(values[f"{agent}.mu_shoulder"][-1], values[f"{agent}.mu_elbow"][-1])
     real, _ = kinematics.forward(values[f"{body}.q_shoulder"][-1], values[f"{body}.q_elbow"][-1])
     return float(100.0 * (perceived - real))
 
 
 def final_goal_distance_cm(values: dict, agent: str = AGENT, body: str = BODY) -> float:
-    """The hand's distance to the goal's after the last step (cm), as ``master.tasks.reach.task.measures``
+    """The hand's distance to the goal's after the last step (cm), as ``rhi.master.tasks.reach.task.measures``
     computes it: the body's hand and the reach agent's goal hand."""
     return float(100.0 * np.hypot(values[f"{body}.hand_x"][-1] - values[f"{agent}.goal_hand_x"][-1],
                                   values[f"{body}.hand_y"][-1] - values[f"{agent}.goal_hand_y"][-1]))
@@ -169,18 +169,18 @@ def export_system(out, config: dict, kind: str | None = None, variant: str = "na
         ``CONDITION/STIMULATION/INDEX`` (the reach: ``BAND/INDEX``): the trial the SSD binds (default: the
         protocol's first, or the reach plan's).
     task : str
-        ``illusion`` or ``reach`` (``master.export.tasks``).
+        ``illusion`` or ``reach`` (``rhi.master.export.tasks``).
 
     Returns
     -------
     Path
         ``out``.
     """
-    from components.body.contract import BODY_CONTRACT
-    from components.fmu import check_contract
-    from master.export.agent_fmu import export_agent
-    from master.export.body import VARIANT_NAMES, export_body
-    from master.export.tasks import task as task_named
+    from rhi.components.body.contract import BODY_CONTRACT
+    from rhi.components.fmu import check_contract
+    from rhi.master.export.agent_fmu import export_agent
+    from rhi.master.export.body import VARIANT_NAMES, export_body
+    from rhi.master.export.tasks import task as task_named
 
     out = check_output_file(out, "SSP file", ".ssp")
     kind = kind or config["experiment"]["decoders"][0]

@@ -6,24 +6,24 @@
   ``reach.load`` (``body.held = false``), one parameter file per goal of the reach plan (``conv_near_0``:
   the goal pose).
 
-Each gives :func:`master.export.ssp_package.build_ssp` its trials, their names, the agent's parameters per
+Each gives :func:`rhi.master.export.ssp_package.build_ssp` its trials, their names, the agent's parameters per
 trial, the body's links and the system's name; the agent components are master/export/agent.py's.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from master.cosim import ConfigError
-from master import config as configuration
-from master.tasks.reach import task as reach
-from master.tasks.illusion import wiring
-from master.config.sources import parameters
-from master.config.protocol import Trial, make_trial, plan
-from master.export.agent import SEED, SEED_HIGH, SEED_LOW, body_links, exposed, split_seed
+from rhi.master.cosim import ConfigError
+from rhi.master import config as configuration
+from rhi.master.tasks.reach import task as reach
+from rhi.master.tasks.illusion import wiring
+from rhi.master.config.sources import parameters
+from rhi.master.config.protocol import Trial, make_trial, plan
+from rhi.master.export.agent import SEED, SEED_HIGH, SEED_LOW, body_links, exposed, split_seed
 
 
 def agent_parameters(trial: Trial, config: dict, declared: dict) -> dict:
-    """The agent FMU's parameters for ``trial``: ``{name: (type, value)}`` from :func:`master.config.sources.parameters`
+    """The agent FMU's parameters for ``trial``: ``{name: (type, value)}`` from :func:`rhi.master.config.sources.parameters`
     (the experiment's own values), the seed split into two Integers."""
     given = parameters([trial], config)
     values = {}
@@ -41,12 +41,12 @@ class Illusion:
     """The rubber-hand illusion: the experiment's protocol, trial by trial."""
 
     name = "illusion"
-    agent, model_name = "master.export.agent:Agent", "RubberHandAgent"  # the component; the FMI model identifier
+    agent, model_name = "rhi.master.export.agent:Agent", "RubberHandAgent"  # the component; the FMI model identifier
     system_name, system_description = "RubberHandIllusion", "the rubber-hand agent and a body"
     trial_form = "CONDITION/STIMULATION/INDEX, e.g. left/sync/0"
 
     def load(self, path, overrides: dict, quick: bool, model_name: str = "paper") -> dict:
-        """The experiment's configuration (``master.config.load``): the file ``path``, ``overrides``, ``quick``,
+        """The experiment's configuration (``rhi.master.config.load``): the file ``path``, ``overrides``, ``quick``,
         the model."""
         return configuration.load(path, overrides, quick=quick, model_name=model_name)
 
@@ -83,12 +83,12 @@ class Reach:
     """The free arm reaching to a seen goal: the reach plan, goal by goal."""
 
     name = "reach"
-    agent, model_name = "master.export.reach_agent:ReachAgent", "ReachAgent"
+    agent, model_name = "rhi.master.export.reach_agent:ReachAgent", "ReachAgent"
     system_name, system_description = "RubberHandReach", "the reach agent and a free body"
     trial_form = "BAND/INDEX, e.g. near/0"
 
     def load(self, path, overrides: dict, quick: bool, model_name: str = "paper") -> dict:
-        """The reach's configuration (``master.tasks.reach.task.load``): the file ``path``, overrides, quick, the
+        """The reach's configuration (``rhi.master.tasks.reach.task.load``): the file ``path``, overrides, quick, the
         model."""
         return reach.load(path, quick=quick, model_name=model_name, overrides=overrides)
 

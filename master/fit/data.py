@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from master.cosim import ConfigError
+from rhi.master.cosim import ConfigError
 
 MEASURES = ("drift_cm", "force_n")  # observed measures a fit can explain: trial outcomes of the same name
 NOISE = tuple(f"{measure}_sem" for measure in MEASURES)  # each measure's per-cell noise sd (its standard error)

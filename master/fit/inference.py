@@ -19,8 +19,8 @@ import time
 
 import numpy as np
 
-from master.cosim import SimulationError
-from master.fit.plan import Parameter
+from rhi.master.cosim import SimulationError
+from rhi.master.fit.plan import Parameter
 
 
 class TrainingError(SimulationError):

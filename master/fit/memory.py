@@ -1,12 +1,12 @@
 """`rhi fit` in memory, over arrays: simulate participants, train the estimator, sample a posterior.
 
 The three calls sbi's users know (simulate / train / sample), each on numpy arrays. ``rhi fit`` composes the same
-pieces with a resumable folder around them (:mod:`master.fit.run`: its simulations are a sweep folder, its
+pieces with a resumable folder around them (:mod:`rhi.master.fit.run`: its simulations are a sweep folder, its
 estimator a file); these run everything here, write nothing, and give the same numbers.
 
 Example::
 
-    from master.fit import memory
+    from rhi.master.fit import memory
     data = read_data("data.csv"); plan = read_plan("fit.toml", data)
     theta = memory.draw(plan, 200)                      # (200, P), the inference space
     x = memory.simulate(plan, data, theta)              # (200, cells x measures)
@@ -17,9 +17,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from master.fit.data import Data
-from master.fit.plan import FitPlan, draw_prior, simulation_seed
-from master.fit.simulate import participants_sweep, statistics, with_noise
+from rhi.master.fit.data import Data
+from rhi.master.fit.plan import FitPlan, draw_prior, simulation_seed
+from rhi.master.fit.simulate import participants_sweep, statistics, with_noise
 
 
 def draw(plan: FitPlan, count: int) -> np.ndarray:
@@ -33,7 +33,7 @@ def simulate(plan: FitPlan, data: Data, theta: np.ndarray, stream: str = "prior"
     Parameters
     ----------
     plan : FitPlan
-        The fit (:func:`master.fit.plan.read_plan`).
+        The fit (:func:`rhi.master.fit.plan.read_plan`).
     data : Data
         The data file whose design cells the participants are run over.
     theta : numpy.ndarray
@@ -47,7 +47,7 @@ def simulate(plan: FitPlan, data: Data, theta: np.ndarray, stream: str = "prior"
         (n, cells x measures): each participant's cell means, cell-major; NaN where a trial failed. Row k equals
         ``rhi fit``'s row k of the same stream (the same lockstep batches, the same seeds).
     """
-    from master.sweeps.runner import run_in_memory
+    from rhi.master.sweeps.runner import run_in_memory
 
     sweep = participants_sweep(plan, np.asarray(theta, dtype=float), stream)
     records = run_in_memory(sweep)
@@ -66,7 +66,7 @@ def train(plan: FitPlan, theta: np.ndarray, x: np.ndarray):
     x : numpy.ndarray
         (n, statistics), finite rows only.
     """
-    from master.fit import inference
+    from rhi.master.fit import inference
 
     seeds = [simulation_seed(plan.settings["seed"], k, "estimator") % 2**62 for k in range(plan.estimator["ensemble"])]
     estimators = [inference.train(plan.parameters, theta, x, plan.estimator, seed)[0].eval() for seed in seeds]
@@ -76,7 +76,7 @@ def train(plan: FitPlan, theta: np.ndarray, x: np.ndarray):
 def sample(plan: FitPlan, posterior, observed: np.ndarray, count: int, seed: int) -> np.ndarray:
     """(count, parameters) draws of the posterior given one participant's statistics ``observed`` (statistics,),
     in the parameters' own units."""
-    from master.fit import inference
-    from master.fit.report import natural
+    from rhi.master.fit import inference
+    from rhi.master.fit.report import natural
 
     return natural(plan.parameters, inference.sample(posterior, np.asarray(observed, dtype=float), count, seed))

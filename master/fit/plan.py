@@ -23,14 +23,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from master import models
-from master.cosim import ConfigError
-from master.runtime.pool import workers_problem
-from master import config as configuration
-from master.config.sources import TASK_SOURCES, batchable_keys
-from master.models.base import config_key
-from master.config.sources import declared_range
-from master.fit.data import MAX_NOISE_SD, MEASURES, Data, check_against
+from rhi.master import models
+from rhi.master.cosim import ConfigError
+from rhi.master.runtime.pool import workers_problem
+from rhi.master import config as configuration
+from rhi.master.config.sources import TASK_SOURCES, batchable_keys
+from rhi.master.models.base import config_key
+from rhi.master.config.sources import declared_range
+from rhi.master.fit.data import MAX_NOISE_SD, MEASURES, Data, check_against
 
 PRIORS = ("uniform", "log-uniform", "normal")
 FIT_KEYS = ("model", "quick", "simulations", "calibration", "calibration_design", "seed", "trials_per_cell",

@@ -1,6 +1,6 @@
 """A fit's tables and figures: posterior samples, estimates, calibration, recovery, posterior predictive checks.
 
-Every number is written with :func:`master.outputs.tables.number` (fixed formatting: the same numbers, the same
+Every number is written with :func:`rhi.master.outputs.tables.number` (fixed formatting: the same numbers, the same
 bytes); every file whole or absent (atomic writes).
 """
 from __future__ import annotations
@@ -13,12 +13,12 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from master.fit.calibration import (LEVELS, central_interval, rank_histogram, rank_tests_verdict,  # noqa: E402
+from rhi.master.fit.calibration import (LEVELS, central_interval, rank_histogram, rank_tests_verdict,  # noqa: E402
                                     verdict_words)
-from master.fit.plan import Parameter  # noqa: E402
-from master.outputs.figures import METADATA  # noqa: E402
-from master.outputs.files import atomic_write  # noqa: E402
-from master.outputs.tables import csv_text, number  # noqa: E402
+from rhi.master.fit.plan import Parameter  # noqa: E402
+from rhi.master.outputs.figures import METADATA  # noqa: E402
+from rhi.master.outputs.files import atomic_write  # noqa: E402
+from rhi.master.outputs.tables import csv_text, number  # noqa: E402
 
 # column -> meaning, for docs/fit.md (each file's columns)
 POSTERIOR_COLUMNS = {"participant": "the participant's label in the data file", "sample": "the sample's index",
@@ -79,7 +79,7 @@ def estimates_csv(parameters: list[Parameter], participants: list[str], samples:
 
 def calibration_csv(parameters: list[Parameter], result: dict) -> str:
     """calibration.csv: per parameter, the recovery (r, sd ratio), the coverage and the SBC rank tests of ``result``
-    (``master.fit.calibration.calibrate``'s), columns ``CALIBRATION_COLUMNS``."""
+    (``rhi.master.fit.calibration.calibrate``'s), columns ``CALIBRATION_COLUMNS``."""
     u, r = result["uniformity"], result["recovery"]
     rows = [[p.key, result["participants"], number(r["correlation"][d]), number(r["sd_ratio"][d]),
              number(result["coverage"][0.5][d]), number(result["coverage"][0.9][d]), u["bins"],

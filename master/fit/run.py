@@ -19,16 +19,16 @@ from pathlib import Path
 
 import numpy as np
 
-from master.cosim import ConfigError
-from master.fit import report
-from master.fit.calibration import calibrate
-from master.fit.data import Data, read_data
-from master.fit.plan import FitPlan, draw_participants, read_plan, simulation_seed
-from master.runtime.context import RunContext
-from master.fit.simulate import Pool, participants_sweep, simulate, statistics, with_noise
-from master.outputs.files import atomic_write
-from master.outputs.provenance import package_versions
-from master.sweeps.plan import canonical_hash
+from rhi.master.cosim import ConfigError
+from rhi.master.fit import report
+from rhi.master.fit.calibration import calibrate
+from rhi.master.fit.data import Data, read_data
+from rhi.master.fit.plan import FitPlan, draw_participants, read_plan, simulation_seed
+from rhi.master.runtime.context import RunContext
+from rhi.master.fit.simulate import Pool, participants_sweep, simulate, statistics, with_noise
+from rhi.master.outputs.files import atomic_write
+from rhi.master.outputs.provenance import package_versions
+from rhi.master.sweeps.plan import canonical_hash
 
 COMMAND = "rhi fit"
 # settings that change only what is computed from the trained estimator: not part of the fit's identity
@@ -66,7 +66,7 @@ def prepare_folder(out: Path, identity: str, simulations: str | None = None) -> 
     """DIR new, empty, or an earlier run of this same fit; ConfigError otherwise (before anything is written).
     Its simulations/ and predictive/, when not empty, must be sweeps rhi wrote there, simulations/ the sweep of
     fingerprint ``simulations`` (this fit's): rhi fit has no --force, and never writes over another's."""
-    from master.sweeps.folder import check_folder, only_leftovers, read_manifest
+    from rhi.master.sweeps.folder import check_folder, only_leftovers, read_manifest
 
     check_folder(out)
     manifest = out / "fit.json"
@@ -126,7 +126,7 @@ def fit(data_path: str, config_path: str, out: Path, model: str | None = None, c
 
 
 def _fit(data: Data, plan: FitPlan, drawn: np.ndarray, sweep, out: Path, pool, log, began, identity: str) -> dict:
-    from master.fit import inference
+    from rhi.master.fit import inference
 
     settings = plan.settings
     started = time.perf_counter()
@@ -181,7 +181,7 @@ def load_or_train(plan: FitPlan, theta, x, path: Path, identity: str):
     reads them back). Member k is trained from the seed ``simulation_seed(seed, k, "estimator")``."""
     import torch
 
-    from master.fit import inference
+    from rhi.master.fit import inference
 
     trained_on = canonical_hash({"fit": identity, "theta": theta.tolist(), "x": x.tolist()})
     seeds = [simulation_seed(plan.settings["seed"], k, "estimator") % 2**62 for k in range(plan.estimator["ensemble"])]
@@ -218,7 +218,7 @@ def load_or_train(plan: FitPlan, theta, x, path: Path, identity: str):
 def held_out_csv(data: Data, plan: FitPlan, x: np.ndarray, rows) -> str:
     """The held-out simulated participants as a data file (their statistics, noise included): a fit of it is a
     recovery of the parameters recovery.csv lists (participant simN: prior draw N)."""
-    from master.outputs.tables import csv_text, number
+    from rhi.master.outputs.tables import csv_text, number
 
     condition = "offset_m" if data.conditions else "condition"
     stimulation = "delay_s" if data.stimulations else "stimulation"
@@ -238,7 +238,7 @@ def held_out_csv(data: Data, plan: FitPlan, x: np.ndarray, rows) -> str:
 def predictive_check(data: Data, plan: FitPlan, posterior, out: Path, pool) -> dict | None:
     """Simulate ``fit.predictive_draws`` posterior draws of each of the first ``fit.predictive_participants``
     participants (a sweep in DIR/predictive); predictive.csv and figures/posterior_predictive.png."""
-    from master.fit import inference
+    from rhi.master.fit import inference
 
     settings = plan.settings
     count = min(settings["predictive_participants"], len(data.participants))
@@ -278,7 +278,7 @@ def run_record(data, plan, sweep, records, training, timing, calibration, predic
     the versions, and the calibration and the posterior predictive check when they ran."""
     import torch
 
-    from master.fit.calibration import LEVELS
+    from rhi.master.fit.calibration import LEVELS
 
     result = {
         "command": COMMAND, "data": data.path, "participants": data.participants, "design_cells": data.cells,

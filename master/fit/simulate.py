@@ -4,8 +4,8 @@ in lockstep batches of several participants, resumably, and read back as summary
 One simulated participant is one draw of the fitted parameters with its own master seed (its own tactile
 delays), run over every design cell of the data (``fit.trials_per_cell`` trials each). Its summary statistics
 are, per cell and measure, the mean of the trials' final values, cell-major as in
-:meth:`master.fit.data.Data.statistic_names`. The trials of ``fit.participants_per_batch`` consecutive
-participants share one lockstep batch (:func:`master.sweeps.plan.build`): their parameters differ per trial.
+:meth:`rhi.master.fit.data.Data.statistic_names`. The trials of ``fit.participants_per_batch`` consecutive
+participants share one lockstep batch (:func:`rhi.master.sweeps.plan.build`): their parameters differ per trial.
 """
 from __future__ import annotations
 
@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
-from master.fit.data import Data
-from master.fit.plan import FitPlan, simulation_seed
-from master.sweeps import plan as sweeps
+from rhi.master.fit.data import Data
+from rhi.master.fit.plan import FitPlan, simulation_seed
+from rhi.master.sweeps import plan as sweeps
 
 
 def participant_points(plan: FitPlan, inference_values: np.ndarray, stream: str) -> list[dict]:
@@ -40,8 +40,8 @@ def simulate(sweep: sweeps.Sweep, out: Path, client, label: str, replace: bool =
     """Run the sweep's missing trials into ``out`` (a sweep folder) on ``client()`` (a callable giving a checked
     dask Client); (every record by trial id, trials run now). replace: a different sweep in ``out`` is
     replaced, keeping the trials the two share (the posterior predictive's draws follow the data)."""
-    from master.runtime.context import RunContext
-    from master.sweeps.run import run_into
+    from rhi.master.runtime.context import RunContext
+    from rhi.master.sweeps.run import run_into
 
     return run_into(sweep, sweeps.resolve_task(sweep.task), out, RunContext(force=replace), label=label, plots=False,
                     client=client)
@@ -58,8 +58,8 @@ class Pool:
 
     def __call__(self):
         if self.client is None:
-            from master.sweeps.plan import DEFAULT_TASK
-            from master.sweeps.runner import check_workers, dask_client
+            from rhi.master.sweeps.plan import DEFAULT_TASK
+            from rhi.master.sweeps.runner import check_workers, dask_client
 
             self.client = self.stack.enter_context(dask_client(self.scheduler, self.workers, self.debug))
             check_workers(self.client, DEFAULT_TASK)
@@ -93,7 +93,7 @@ def statistics(sweep: sweeps.Sweep, records: dict[str, dict], data: Data, measur
 def with_noise(values: np.ndarray, data: Data, measures: list[str], noise: dict[str, float], seed: int,
                stream: str) -> np.ndarray:
     """``values`` plus the observation noise: a normal on each cell mean of sd the data's ``MEASURE_sem`` for that
-    cell where the data give it, else ``noise[measure]`` (:meth:`master.fit.data.Data.noise_sd`), drawn from the
+    cell where the data give it, else ``noise[measure]`` (:meth:`rhi.master.fit.data.Data.noise_sd`), drawn from the
     fit's seed and the stream's name (the same seed, the same noise)."""
     sd = data.noise_sd(measures, noise)
     if not sd.any():

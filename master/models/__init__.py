@@ -2,7 +2,7 @@
 
 A model is a :class:`Model`: it names its brain, the components it adds to a task's system (a pose
 encoder, say), the connections it adds (as data), the parameter sources it adds, and what it records.
-Every task (the tasks) assembles its system from a model through :func:`master.tasks.scene.assemble`,
+Every task (the tasks) assembles its system from a model through :func:`rhi.master.tasks.scene.assemble`,
 so a model written once runs in ``rhi experiment``, ``sweep``, ``phenomenon``, ``fit``, ``reach`` and
 ``export-agent`` with no other change.
 
@@ -19,7 +19,7 @@ that is not built in), so that worker processes resolve the same model: :func:`o
 
 Example::
 
-    from master import models
+    from rhi.master import models
     model = models.get("examples/my_model.py:FixedGamma")
     config = configuration.load(model_name="examples/my_model.py:FixedGamma")
     assert models.of(config).name == model.name
@@ -33,13 +33,13 @@ import sys
 from importlib import metadata
 from pathlib import Path
 
-from master.cosim import ConfigError
-from master.models.base import Model
+from rhi.master.cosim import ConfigError
+from rhi.master.models.base import Model
 
 __all__ = ["Model", "BUILT_IN", "ENTRY_POINT_GROUP", "get", "checked", "of", "names", "described", "spec_of"]
 
-BUILT_IN = {"paper": "master.models.paper:PaperModel", "causal": "master.models.causal:CausalModel",
-            "ownership": "master.models.ownership:OwnershipModel"}
+BUILT_IN = {"paper": "rhi.master.models.paper:PaperModel", "causal": "rhi.master.models.causal:CausalModel",
+            "ownership": "rhi.master.models.ownership:OwnershipModel"}
 ENTRY_POINT_GROUP = "rhi.models"
 _LOADED: dict[str, Model] = {}  # spec -> the model object, once per process
 
@@ -135,5 +135,5 @@ def _load(spec: str) -> Model:
         raise ConfigError(f"model {spec!r}: {where} has no {attribute}")
     model = found() if isinstance(found, type) else found
     if not isinstance(model, Model):
-        raise ConfigError(f"model {spec!r}: {attribute} is not a master.models.Model")
+        raise ConfigError(f"model {spec!r}: {attribute} is not a rhi.master.models.Model")
     return model

@@ -10,8 +10,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from components.component import Component
-from master.cosim import ConfigError
+from rhi.components.component import Component
+from rhi.master.cosim import ConfigError
 
 _PLAIN_KEY = re.compile(r"[a-z_]+\.[a-z_0-9]+")
 _PATH = re.compile(r"[a-z_][a-z_0-9]*\.[a-z_][a-z_0-9]*")
@@ -19,7 +19,7 @@ _PATH = re.compile(r"[a-z_][a-z_0-9]*\.[a-z_][a-z_0-9]*")
 
 def shipped_settings(file: str) -> dict:
     """A settings file shipped beside the built-in models (``master/models/FILE``)."""
-    with resources.files("master.models").joinpath(file).open("rb") as handle:
+    with resources.files("rhi.master.models").joinpath(file).open("rb") as handle:
         return tomllib.load(handle)
 
 
@@ -43,7 +43,7 @@ class Scene:
         torch threads for a network component (None: torch's default).
     pose_encoder : callable
         ``pose_encoder(name)``: a pose encoder component named ``name`` reading the camera's image of this
-        decoder slot (:class:`components.vision.pose_encoder.PoseEncoder`), built by the task.
+        decoder slot (:class:`rhi.components.vision.pose_encoder.PoseEncoder`), built by the task.
     """
 
     config: dict
@@ -118,7 +118,7 @@ class Model:
         ``"causal.{kind}_pose_encoder"``); "" or an empty value: the shipped one.
     pose_encoder_stem : str
         The shipped pose encoder's name of decoder slot ``{kind}`` without ``-rRES.pt``, in
-        master/decoders/checkpoints (:func:`master.decoders.cache.shipped_pose_encoder`): ``"pose-{kind}"``, the
+        master/decoders/checkpoints (:func:`rhi.master.decoders.cache.shipped_pose_encoder`): ``"pose-{kind}"``, the
         causal model's; a model trained over other poses names its own.
     source : str
         Set by the registry: "" for a built-in model, else the spec it was loaded from.
@@ -145,7 +145,7 @@ class Model:
     def settings(self) -> dict:
         """The keys merged over the defaults: the settings file's, and ``[model]`` naming the model (its
         ``source`` too when it is not built in). The defaults are the paper's model: its file is empty, and a
-        configuration with no ``[model]`` runs it (:func:`master.models.of`)."""
+        configuration with no ``[model]`` runs it (:func:`rhi.master.models.of`)."""
         given = {}
         if self.settings_file:
             given = shipped_settings(self.settings_file)

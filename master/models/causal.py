@@ -4,16 +4,16 @@ persistent common-cause state and a population of participants (docs/model.md).
 Its system is a task's with the pose encoder added (the camera's image in, the seen pose and its variance
 into the brain) and the causal brain in the paper brain's place. The causal brain declares no input for a
 simulator position, so the task's links that would hand it one (the rubber hand, the body's hand) are left
-out by the assembly (:func:`master.tasks.scene.assemble`). Its parameters the paper's brain also has come
+out by the assembly (:func:`rhi.master.tasks.scene.assemble`). Its parameters the paper's brain also has come
 from ``[brain]`` as for the paper; the rest from ``[causal]`` (master/models/causal.toml) or derived here.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from components.body import kinematics
-from master.models.base import Model, TrialValues
-from master.models.paper import rest_belief, with_paper_sources
+from rhi.components.body import kinematics
+from rhi.master.models.base import Model, TrialValues
+from rhi.master.models.paper import rest_belief, with_paper_sources
 
 OWN_SOURCES = {
     "brain.pixel_weight": "causal.pixel_weight",
@@ -40,12 +40,12 @@ def coupling_sd(peripersonal_sd: float) -> np.ndarray:
 
 
 def _brain_class():
-    from components.brain.causal_brain import CausalBrain
+    from rhi.components.brain.causal_brain import CausalBrain
     return CausalBrain
 
 
 class CausalModel(Model):
-    """The causal brain (:class:`components.brain.causal_brain.CausalBrain`) with the pose encoder."""
+    """The causal brain (:class:`rhi.components.brain.causal_brain.CausalBrain`) with the pose encoder."""
 
     name = "causal"
     summary = "the causal model: body-space vision, causal inference over space and time, a population"
@@ -58,7 +58,7 @@ class CausalModel(Model):
     record = ("brain.gamma_timing",)
 
     def brain(self):
-        """A new :class:`~components.brain.causal_brain.CausalBrain`."""
+        """A new :class:`~rhi.components.brain.causal_brain.CausalBrain`."""
         return _brain_class()()
 
     @property

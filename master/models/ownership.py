@@ -2,7 +2,7 @@
 
 Its system is a task's with the pose encoder added (the camera's image in, the seen pose into the brain) and
 the ownership brain in the paper brain's place; like the causal brain it declares no input for a simulator
-position, so the assembly (:func:`master.tasks.scene.assemble`) leaves out the links that would hand it one.
+position, so the assembly (:func:`rhi.master.tasks.scene.assemble`) leaves out the links that would hand it one.
 Its parameters the paper's brain also has come from ``[brain]`` as for the paper (its ownership prior is the
 paper's ``brain.gamma0``, its stroke period ``stimulus.period``); the rest from ``[ownership]``
 (master/models/ownership.toml) or derived here.
@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from master.cosim import ConfigError
-from master.models.base import Model, TrialValues
-from master.models.paper import rest_belief, with_paper_sources
+from rhi.master.cosim import ConfigError
+from rhi.master.models.base import Model, TrialValues
+from rhi.master.models.paper import rest_belief, with_paper_sources
 
 OWN_SOURCES = {
     "brain.ownership_prior": "brain.gamma0",
@@ -24,9 +24,9 @@ OWN_SOURCES = {
     "brain.peripersonal_sd": "derived: from ownership.peripersonal_boundary and the arm's reach, the spread at "
                              "which a touch seen that far from the felt one is neutral "
                              "(ownership_inference.peripersonal_sd_from_boundary)",
-    "brain.upper_arm_length": "derived: the body's upper arm, components.body.kinematics.UPPER_ARM (the brain's "
+    "brain.upper_arm_length": "derived: the body's upper arm, rhi.components.body.kinematics.UPPER_ARM (the brain's "
                               "body schema is the body's geometry)",
-    "brain.forearm_length": "derived: the body's forearm, components.body.kinematics.FOREARM",
+    "brain.forearm_length": "derived: the body's forearm, rhi.components.body.kinematics.FOREARM",
     "brain.realignment_weight": "ownership.realignment_weight",
     "brain.switching_rate": "ownership.switching_rate",
     "brain.realignment_rate": "ownership.realignment_rate",
@@ -58,12 +58,12 @@ def positive(trials: TrialValues, key: str, unit: str) -> np.ndarray:
 
 
 def _brain_class():
-    from components.brain.ownership_brain import OwnershipBrain
+    from rhi.components.brain.ownership_brain import OwnershipBrain
     return OwnershipBrain
 
 
 class OwnershipModel(Model):
-    """The ownership brain (:class:`components.brain.ownership_brain.OwnershipBrain`) with the pose encoder."""
+    """The ownership brain (:class:`rhi.components.brain.ownership_brain.OwnershipBrain`) with the pose encoder."""
 
     name = "ownership"
     summary = "the ownership model: ownership from accumulated timing evidence, drift as a slow realignment"
@@ -77,7 +77,7 @@ class OwnershipModel(Model):
     measures = {"ownership_onset_s": "brain.ownership_onset", "coupling": "brain.coupling"}
 
     def brain(self):
-        """A new :class:`~components.brain.ownership_brain.OwnershipBrain`."""
+        """A new :class:`~rhi.components.brain.ownership_brain.OwnershipBrain`."""
         return _brain_class()()
 
     @property
@@ -88,8 +88,8 @@ class OwnershipModel(Model):
     def parameters(self, trials: TrialValues) -> dict:
         """The plain sources' values, and the derived ones: timing_sd and peripersonal_sd per trial, the body
         schema's lengths, the seeds."""
-        from components.body.kinematics import FOREARM, UPPER_ARM
-        from components.brain.ownership_inference import peripersonal_sd_from_boundary, timing_sd_from_jnd
+        from rhi.components.body.kinematics import FOREARM, UPPER_ARM
+        from rhi.components.brain.ownership_inference import peripersonal_sd_from_boundary, timing_sd_from_jnd
 
         given = {**super().parameters(trials), "brain.mu0": rest_belief(trials)}
         jnd, boundary = (positive(trials, DERIVED_FROM[path], unit) for path, unit in

@@ -3,13 +3,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from master.models.base import Model, TrialValues
+from rhi.master.models.base import Model, TrialValues
 
-# brain.parameter -> where its value comes from (master.models.base.Model.parameter_sources).
+# brain.parameter -> where its value comes from (rhi.master.models.base.Model.parameter_sources).
 BRAIN_SOURCES = {
     "brain.proprioceptive_variance": "brain.proprioceptive_variance",
     "brain.gamma0": "brain.gamma0",
-    "brain.mu0": "derived: the rest pose, components.body.kinematics.REST_POSE; the belief starts where the "
+    "brain.mu0": "derived: the rest pose, rhi.components.body.kinematics.REST_POSE; the belief starts where the "
                  "real arm rests (docs/design.md fixes the geometry; the decoders are trained around it)",
     "brain.sync_sd": "brain.sync_sd",
     "brain.async_density": "brain.async_density",
@@ -32,7 +32,7 @@ def rest_belief(trials: TrialValues) -> np.ndarray:
 
 
 class PaperModel(Model):
-    """The paper's brain (:class:`components.brain.integrator.Brain`): vision as the decoder's pixel term,
+    """The paper's brain (:class:`rhi.components.brain.integrator.Brain`): vision as the decoder's pixel term,
     weighed by gamma from the touches' timing (eqs. 8-9)."""
 
     name = "paper"
@@ -41,8 +41,8 @@ class PaperModel(Model):
     parameter_sources = BRAIN_SOURCES
 
     def brain(self):
-        """A new :class:`~components.brain.integrator.Brain`."""
-        from components.brain.integrator import Brain
+        """A new :class:`~rhi.components.brain.integrator.Brain`."""
+        from rhi.components.brain.integrator import Brain
         return Brain()
 
     def parameters(self, trials: TrialValues) -> dict:

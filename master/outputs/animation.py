@@ -7,8 +7,8 @@ import io
 import numpy as np
 from PIL import Image
 
-from components.body import kinematics
-from components.body.camera import render
+from rhi.components.body import kinematics
+from rhi.components.body.camera import render
 
 
 def frames(mu: np.ndarray, rubber_pose, balls: np.ndarray, resolution: int, every: int = 10,

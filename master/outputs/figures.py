@@ -15,8 +15,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from master.outputs.files import atomic_write  # noqa: E402
-from master.outputs.tables import cells, mean_sd  # noqa: E402
+from rhi.master.outputs.files import atomic_write  # noqa: E402
+from rhi.master.outputs.tables import cells, mean_sd  # noqa: E402
 
 COLOURS = {"left": "tab:blue", "center": "tab:gray", "right": "tab:red"}
 STYLES = {"conv": "-", "vae": "--"}
@@ -140,10 +140,10 @@ def gamma_over_time(trials, times, gamma, path):
 def panel_jobs(folder: Path, trials, times, per_step: dict[str, np.ndarray], final: dict[str, np.ndarray],
                jacobians: dict | None) -> list[tuple]:
     """Every panel as a job ``(function, *arguments)`` that writes one file of ``folder``: :func:`write_all`
-    runs them in turn, the experiment on its workers (``master.runtime.pool.call``).
+    runs them in turn, the experiment on its workers (``rhi.master.runtime.pool.call``).
 
     per_step: the measures per step, (steps + 1, B); final: the per-trial values behind summary.csv
-    (master.tasks.illusion.measures.end_of_trial), so the bars show exactly what the table reports.
+    (rhi.master.tasks.illusion.measures.end_of_trial), so the bars show exactly what the table reports.
     jacobians: the images of panel h (None: no panel h).
     """
     accel = per_step["action_accel_x_m_s2"]

@@ -19,8 +19,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable
 
-from master.cosim import ConfigError
-from master.outputs.atomic import atomic_write, umask  # noqa: F401: re-exported, the place callers know
+from rhi.master.cosim import ConfigError
+from rhi.master.outputs.atomic import atomic_write, umask  # noqa: F401: re-exported, the place callers know
 
 
 OUTPUT_COMMAND = "rhi experiment"  # run.json's and the manifest's "command": an experiment's output
@@ -43,8 +43,8 @@ def cannot_write(where: Path, error: OSError) -> Exception:
 def foreign_entries(folder: Path) -> list[str]:
     """What in ``folder`` an earlier `rhi experiment` (or another of :data:`OUTPUT_COMMANDS`) cannot be shown to
     have written (empty: all of it is one of their outputs, as its manifest lists it, unchanged;
-    master.outputs.manifest). Without that manifest: every entry."""
-    from master.outputs.manifest import Manifest
+    rhi.master.outputs.manifest). Without that manifest: every entry."""
+    from rhi.master.outputs.manifest import Manifest
 
     try:
         names = sorted(entry.name for entry in folder.iterdir())
@@ -95,7 +95,7 @@ def check_output_file(out: str | os.PathLike, noun: str, suffix: str = "", force
     files (/proc, read-only, full: refused now, not after the work). A ConfigError names the problem.
 
     With ``ours`` (a command's --out FILE), an existing file is replaced only with ``force``, and only if
-    ``ours(path)`` says rhi wrote it (None; else what it is not: master.export.own_files); a link is never
+    ``ours(path)`` says rhi wrote it (None; else what it is not: rhi.master.export.own_files); a link is never
     replaced."""
     text = str(out)
     out = Path(out)
@@ -233,7 +233,7 @@ def output_folder(out: str | os.PathLike, force: bool):
         _ACTIVE[staging] = lock
         try:
             yield staging
-            from master.outputs.manifest import Manifest
+            from rhi.master.outputs.manifest import Manifest
 
             Manifest.of(staging, staged_command(staging)).save()  # the last file: what the run wrote, listed
             publish(staging, path, replacing=existed, force=force)

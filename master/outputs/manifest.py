@@ -21,7 +21,7 @@ import os
 import stat
 from pathlib import Path, PurePosixPath
 
-from master.outputs.atomic import atomic_write
+from rhi.master.outputs.atomic import atomic_write
 
 NAME = ".rhi-manifest.json"
 IGNORED = (NAME, ".rhi-staging")  # not listed: the manifest itself, a staging folder's mark (files.STAGING_MARK)

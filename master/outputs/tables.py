@@ -74,7 +74,7 @@ def mean_sd(values, axis: int = 0):
 def summary(trials, final: dict[str, np.ndarray], planned=None, probe_times=()) -> list[list]:
     """One row per decoder x condition x stimulation, from per-trial values (``final[key][trial]``).
 
-    ``final`` holds the end-of-trial values and the trial means of master.tasks.illusion.measures.end_of_trial:
+    ``final`` holds the end-of-trial values and the trial means of rhi.master.tasks.illusion.measures.end_of_trial:
     drift, force, gamma (mean only), then the action measure J a_dot (m/s^2): its mean over the
     trial and its final value, each as mean and sample sd over the cell's trials.
     planned: every cell the protocol planned, in order (default: those of ``trials``); a planned cell with no

@@ -1,7 +1,7 @@
 """Named protocols for the human phenomena the model is compared with (docs/design.md, Measures).
 
 Each phenomenon is a sweep file shipped beside this module (a user copies and edits it) and a
-report (:mod:`master.phenomena.report`) that reads the sweep's trial records and writes a table
+report (:mod:`rhi.master.phenomena.report`) that reads the sweep's trial records and writes a table
 and a figure with the human reference (``human.toml``, one source per number) beside the model:
 
 - ``temporal-window``: drift, force and gamma against a fixed visuo-tactile delay, 0 to 1 s;
@@ -31,9 +31,9 @@ NAMES = tuple(FILES)
 
 def sweep_file(name: str) -> Path:
     """The shipped sweep file of phenomenon ``name`` (``temporal-window`` -> ``temporal_window.toml``)."""
-    return Path(str(resources.files("master.phenomena").joinpath(FILES[name])))
+    return Path(str(resources.files("rhi.master.phenomena").joinpath(FILES[name])))
 
 
 def human_file() -> Path:
     """The human reference data, one source per number."""
-    return Path(str(resources.files("master.phenomena").joinpath("human.toml")))
+    return Path(str(resources.files("rhi.master.phenomena").joinpath("human.toml")))

@@ -4,8 +4,8 @@ The real arm (free) swings by itself at the shoulder; the rubber arm, the only a
 movement after a delay; no touch. The paper's brain perceives (its action is not fed to the body: the movement
 is the participant's own, and the released agent's illusion task ran without action); its gamma weighs the
 delay between the seen and the felt turning points of the movement by eqs. 8-9
-(:mod:`components.brain.turning_points`). Drift and gamma are the means over the last movement period.
-The task's system: :mod:`master.tasks.moving_hand`.
+(:mod:`rhi.components.brain.turning_points`). Drift and gamma are the means over the last movement period.
+The task's system: :mod:`rhi.master.tasks.moving_hand`.
 """
 from __future__ import annotations
 
@@ -15,17 +15,17 @@ from pathlib import Path
 
 import numpy as np
 
-from components.body import kinematics
-from master import config as configuration
-from master import models
-from master.cosim import ConfigError
-from master.decoders.cache import check_decoders, per_decoder
-from master.outputs import tables
-from master.outputs.files import atomic_write, output_folder
-from master.outputs.provenance import package_versions
-from master.runtime.context import RunContext
-from master.runtime.pool import Workers
-from master.tasks import moving_hand as task
+from rhi.components.body import kinematics
+from rhi.master import config as configuration
+from rhi.master import models
+from rhi.master.cosim import ConfigError
+from rhi.master.decoders.cache import check_decoders, per_decoder
+from rhi.master.outputs import tables
+from rhi.master.outputs.files import atomic_write, output_folder
+from rhi.master.outputs.provenance import package_versions
+from rhi.master.runtime.context import RunContext
+from rhi.master.runtime.pool import Workers
+from rhi.master.tasks import moving_hand as task
 
 NAME = task.NAME
 HUMAN_TABLE = "moving_hand"  # its human references in human.toml
@@ -35,7 +35,7 @@ COLUMNS = ["decoder", "delay_s", "drift_cm", "drift_relative", "gamma", "gamma_r
 def shipped_file() -> Path:
     """The shipped protocol file, master/phenomena/moving_hand.toml."""
     from importlib import resources
-    return Path(str(resources.files("master.phenomena").joinpath("moving_hand.toml")))
+    return Path(str(resources.files("rhi.master.phenomena").joinpath("moving_hand.toml")))
 
 
 def load(path=None, model_name: str = "paper") -> dict:
@@ -114,8 +114,8 @@ def rows(config: dict, found: dict[str, dict]) -> list[list]:
 def figure(config: dict, found: dict[str, dict], path: Path) -> None:
     """Write ``path`` (moving_hand.png): drift and gamma relative to 0 s against the delay, a line per decoder, with
     the human references."""
-    from master.outputs.figures import METADATA, plt
-    from master.phenomena.report import caption, draw_human, human_references
+    from rhi.master.outputs.figures import METADATA, plt
+    from rhi.master.phenomena.report import caption, draw_human, human_references
 
     delays = config["moving_hand"]["delays"]
     references = human_references(HUMAN_TABLE)

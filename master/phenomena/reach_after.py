@@ -3,7 +3,7 @@
 The experiment's trial (the held arm, the rubber arm in view, synchronous or asynchronous touch) runs to
 ``release``; then the touches stop, the load cell lets the hand go (``body.release_time``), and a target appears:
 the camera's image of the arm at the target pose, the `rhi reach` attractor (docs/reach.md), through a
-:class:`~components.brain.goal.GoalOnset`. The action law is the reach's (the released agent's integrator).
+:class:`~rhi.components.brain.goal.GoalOnset`. The action law is the reach's (the released agent's integrator).
 Measured: the drift at release, and the hand's x error from the target ``window`` seconds after release,
 signed toward the rubber hand.
 """
@@ -15,18 +15,18 @@ from pathlib import Path
 
 import numpy as np
 
-from components.body import kinematics
-from components.component import ComponentError
-from master import config as configuration
-from master import models
-from master.cosim import ConfigError
-from master.decoders.cache import check_decoders, per_decoder
-from master.outputs import tables
-from master.outputs.files import atomic_write, output_folder
-from master.outputs.provenance import package_versions
-from master.runtime.context import RunContext
-from master.runtime.pool import Workers
-from master.tasks import reach_after as task
+from rhi.components.body import kinematics
+from rhi.components.component import ComponentError
+from rhi.master import config as configuration
+from rhi.master import models
+from rhi.master.cosim import ConfigError
+from rhi.master.decoders.cache import check_decoders, per_decoder
+from rhi.master.outputs import tables
+from rhi.master.outputs.files import atomic_write, output_folder
+from rhi.master.outputs.provenance import package_versions
+from rhi.master.runtime.context import RunContext
+from rhi.master.runtime.pool import Workers
+from rhi.master.tasks import reach_after as task
 
 NAME = task.NAME
 COLUMNS = ["decoder", "condition", "stimulation", "n_trials", "drift_at_release_cm_mean", "endpoint_bias_cm_mean",
@@ -36,7 +36,7 @@ COLUMNS = ["decoder", "condition", "stimulation", "n_trials", "drift_at_release_
 def shipped_file() -> Path:
     """The shipped protocol file, master/phenomena/reach_after.toml."""
     from importlib import resources
-    return Path(str(resources.files("master.phenomena").joinpath("reach_after.toml")))
+    return Path(str(resources.files("rhi.master.phenomena").joinpath("reach_after.toml")))
 
 
 def load(path=None, model_name: str = "paper") -> dict:
@@ -54,7 +54,7 @@ def load(path=None, model_name: str = "paper") -> dict:
     for key in ("release", "window", "precision_ratio"):
         if not after[key] > 0:
             raise ConfigError(f"reach_after.{key} must be positive, got {after[key]}")
-    from master.tasks.reach.task import check_goal_variance
+    from rhi.master.tasks.reach.task import check_goal_variance
 
     check_goal_variance(config, "reach_after.precision_ratio", after["precision_ratio"])
     if len(after["target"]) != 2:

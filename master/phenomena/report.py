@@ -18,17 +18,17 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from master.cosim import ConfigError  # noqa: E402
-from master.outputs.figures import COLOURS, METADATA, STYLES  # noqa: E402
-from master.outputs.files import atomic_write  # noqa: E402
-from master.outputs.tables import csv_text, mean_sd, number  # noqa: E402
-from master import models as registry  # noqa: E402
-from master.phenomena import FILES, human_file  # noqa: E402
-from master.sweeps import plan as sweeps  # noqa: E402
-from master.sweeps.folder import read_records  # noqa: E402
+from rhi.master.cosim import ConfigError  # noqa: E402
+from rhi.master.outputs.figures import COLOURS, METADATA, STYLES  # noqa: E402
+from rhi.master.outputs.files import atomic_write  # noqa: E402
+from rhi.master.outputs.tables import csv_text, mean_sd, number  # noqa: E402
+from rhi.master import models as registry  # noqa: E402
+from rhi.master.phenomena import FILES, human_file  # noqa: E402
+from rhi.master.sweeps import plan as sweeps  # noqa: E402
+from rhi.master.sweeps.folder import read_records  # noqa: E402
 
 HUMAN = "tab:green"
-# per-trial outcome keys (master.tasks.illusion.trial_outcome) -> the table's mean (and sd) columns
+# per-trial outcome keys (rhi.master.tasks.illusion.trial_outcome) -> the table's mean (and sd) columns
 OUTCOMES = {"drift_cm": True, "force_n": True, "gamma_final": False, "action_accel_mean_x_m_s2": True,
             "drift_half_time_s": True, "drift_half_decay_s": True}
 POPULATION = ("drift_cm", "drift_half_time_s", "drift_half_decay_s")  # also as median, 25th and 75th percentile

@@ -1,11 +1,11 @@
-"""``python -m master.reference [--check]``: rewrite docs/'s generated tables from the code, or list stale ones."""
+"""``python -m rhi.master.reference [--check]``: rewrite docs/'s generated tables from the code, or list stale ones."""
 from __future__ import annotations
 
 import re
 import sys
 from pathlib import Path
 
-from master.reference.tables import TABLES
+from rhi.master.reference.tables import TABLES
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
 BLOCK = re.compile(r"(<!-- generated: ([\w-]+) -->\n)(.*?)(<!-- end generated: \2 -->)", re.S)
@@ -46,7 +46,7 @@ def main(argv: list[str]) -> int:
             if "--check" not in argv:
                 page.write_text(new)
     if "--check" in argv and stale:
-        print(f"stale generated tables in docs/{', docs/'.join(stale)}: run python -m master.reference", file=sys.stderr)
+        print(f"stale generated tables in docs/{', docs/'.join(stale)}: run python -m rhi.master.reference", file=sys.stderr)
         return 1
     print(("rewrote " + ", ".join(stale)) if stale and "--check" not in argv else "docs/ tables are current")
     return 0

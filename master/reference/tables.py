@@ -14,7 +14,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from components.body.contract import BODY_CONTRACT
+from rhi.components.body.contract import BODY_CONTRACT
 
 # What every output column means (the names say their units; none: dimensionless).
 MEANINGS = {
@@ -86,14 +86,14 @@ def columns(names: list[str]) -> str:
 
 def summary_columns() -> str:
     """summary.csv's columns and their meanings."""
-    from master.outputs.tables import SUMMARY_COLUMNS
+    from rhi.master.outputs.tables import SUMMARY_COLUMNS
     return columns(SUMMARY_COLUMNS)
 
 
 def trials_columns() -> str:
     """trials.csv's header, from the code that writes it, run on a recording of one step and one trial."""
-    from master.tasks.illusion.measures import measures
-    from master.outputs.tables import trials_csv
+    from rhi.master.tasks.illusion.measures import measures
+    from rhi.master.outputs.tables import trials_csv
 
     pairs = ("brain.mu", "brain.action_rate", "stimulus.ball")
 
@@ -108,7 +108,7 @@ def trials_columns() -> str:
 
 def sweep_columns() -> str:
     """A sweep folder's ``index.csv`` and ``summary.csv`` columns and their meanings, from the code that writes them."""
-    from master.sweeps import tables
+    from rhi.master.sweeps import tables
     sweep = SimpleNamespace(keys=["KEY"], trials=[], points=[])
     index = tables.index_rows(sweep, {}).splitlines()[0].split(",")
     summary = tables.summary_csv(sweep, list(tables.MEASURES), []).splitlines()[0].split(",")
@@ -117,7 +117,7 @@ def sweep_columns() -> str:
 
 def phenomenon_columns() -> str:
     """A phenomenon's table columns and their meanings (the swept quantity as ``x``)."""
-    from master.phenomena.report import PHENOMENA, table
+    from rhi.master.phenomena.report import PHENOMENA, table
     model, _, *rest = table(next(iter(PHENOMENA.values())), []).splitlines()[0].split(",")  # model, x, ...
     return columns([model, "x", *rest])
 
@@ -126,7 +126,7 @@ def commented_keys(name: str) -> list[tuple[str, str, str]]:
     """(dotted key, value as written, comment) for every key of the shipped ``master/NAME.toml``; a key
     without a comment of its own takes its table's; [quick]'s entries are keys whole."""
     rows, table, table_comment, last = [], "", [""], None
-    text = resources.files("master").joinpath(f"{name}.toml").read_text()
+    text = resources.files("rhi.master").joinpath(f"{name}.toml").read_text()
     for line in text.splitlines():
         header = re.match(r"^\[([\w.]+)\]\s*(?:#\s*(.*))?$", line)
         entry = re.match(r"^([\w\"-]+)\s*=\s*(.*?)\s*(?:#\s*(.*))?$", line)
@@ -190,10 +190,10 @@ PORTS = ["port", "causality", "type", "unit", "range", "start", "meaning"]
 
 
 def agent_ports(task: str = "illusion") -> str:
-    """The ports of ``task``'s agent (``master.export.tasks``), under the task's default configuration."""
-    from master.decoders.cache import checkpoint_path
-    from master.export.agent_fmu import make_agent
-    from master.export.tasks import TASKS
+    """The ports of ``task``'s agent (``rhi.master.export.tasks``), under the task's default configuration."""
+    from rhi.master.decoders.cache import checkpoint_path
+    from rhi.master.export.agent_fmu import make_agent
+    from rhi.master.export.tasks import TASKS
 
     defaults = TASKS[task].load(None, {}, False)
     agent = make_agent(checkpoint_path("conv", defaults, must_exist=True), "conv", defaults, task)
@@ -202,7 +202,7 @@ def agent_ports(task: str = "illusion") -> str:
 
 def body_ports() -> str:
     """The pymunk plant's ports, with whether the body contract requires each."""
-    from components.body.plant import ArmPlant
+    from rhi.components.body.plant import ArmPlant
     required = {v.name for v in BODY_CONTRACT}
     variables = list(ArmPlant().variables.values())
     return markdown(PORTS[:-1] + ["required", "meaning"],
@@ -211,10 +211,10 @@ def body_ports() -> str:
 
 
 def c_body_fmi3_ports() -> str:
-    """The C body's FMI 3.0 variables (master.export.c_body.ARRAYS over the Python arm's declarations), each with
+    """The C body's FMI 3.0 variables (rhi.master.export.c_body.ARRAYS over the Python arm's declarations), each with
     the FMI 2.0 ports it carries."""
-    from components.model_description3 import TYPES, layout
-    from master.export.c_body import ARRAYS, declared_body
+    from rhi.components.model_description3 import TYPES, layout
+    from rhi.master.export.c_body import ARRAYS, declared_body
 
     body = declared_body()
     rows = [["`time`", "Float64", "", str(len(body.variables)), "independent", "s", ""]]
@@ -226,8 +226,8 @@ def c_body_fmi3_ports() -> str:
 
 
 def worker_command() -> str:
-    """The `dask worker` command with :data:`master.sweeps.runner.WORKER_SETTINGS` as environment variables."""
-    from master.sweeps.runner import WORKER_SETTINGS
+    """The `dask worker` command with :data:`rhi.master.sweeps.runner.WORKER_SETTINGS` as environment variables."""
+    from rhi.master.sweeps.runner import WORKER_SETTINGS
     settings = [f"DASK_{key.upper().replace('.', '__').replace('-', '_')}={value}"
                 for key, value in WORKER_SETTINGS.items()]
     return "\n".join(["```", *(f"{setting} \\" for setting in settings),
@@ -235,9 +235,9 @@ def worker_command() -> str:
 
 
 def model_columns() -> str:
-    """The columns each built-in model adds to trials.csv (:attr:`master.models.base.Model.measures`), with the
+    """The columns each built-in model adds to trials.csv (:attr:`rhi.master.models.base.Model.measures`), with the
     description of the brain output each records."""
-    from master import models
+    from rhi.master import models
 
     rows = []
     for name in models.BUILT_IN:
@@ -252,11 +252,11 @@ def model_columns() -> str:
 def ownership_constants() -> str:
     """The ownership model's constants: each brain parameter, the key it comes from, its value (a derived one
     computed by the code that derives it) and its source, from master/models/ownership.toml's comments; the free
-    parameters with their prior ranges (master.models.ownership.FREE_PARAMETERS)."""
-    from components.body.kinematics import FOREARM, UPPER_ARM
-    from components.brain.ownership_inference import QUARTILE_Z, peripersonal_sd_from_boundary, timing_sd_from_jnd
-    from master import config as configuration
-    from master.models.ownership import DERIVED_FROM, FIT_FOLDER, FREE_PARAMETERS, OWN_SOURCES, SHARED_KEYS
+    parameters with their prior ranges (rhi.master.models.ownership.FREE_PARAMETERS)."""
+    from rhi.components.body.kinematics import FOREARM, UPPER_ARM
+    from rhi.components.brain.ownership_inference import QUARTILE_Z, peripersonal_sd_from_boundary, timing_sd_from_jnd
+    from rhi.master import config as configuration
+    from rhi.master.models.ownership import DERIVED_FROM, FIT_FOLDER, FREE_PARAMETERS, OWN_SOURCES, SHARED_KEYS
 
     config = configuration.load(model_name="ownership")
     comments = {key: comment for key, _, comment in commented_keys("models/ownership")}
@@ -297,8 +297,8 @@ def ownership_constants() -> str:
 
 
 def fmi_compat() -> str:
-    """docs/fmi.md's compatibility matrix, from the results ``python -m master.export.compat`` measured."""
-    from master.export.compat import stored_table
+    """docs/fmi.md's compatibility matrix, from the results ``python -m rhi.master.export.compat`` measured."""
+    from rhi.master.export.compat import stored_table
 
     return stored_table()
 

@@ -51,8 +51,8 @@ def check_scheduler_address(address: str) -> None:
     """Refuse a Dask scheduler address that no client could use, before any work: a ConfigError naming it.
 
     Only its form is checked here (scheme, host, a port in 1..65535); whether a scheduler answers there is
-    checked when the run connects (:func:`master.sweeps.runner.connect`)."""
-    from master.cosim.errors import ConfigError
+    checked when the run connects (:func:`rhi.master.sweeps.runner.connect`)."""
+    from rhi.master.cosim.errors import ConfigError
 
     scheme, _, location = address.rpartition("://")
     host, _, port = location.rpartition(":")

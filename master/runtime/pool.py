@@ -18,9 +18,12 @@ Example::
 """
 from __future__ import annotations
 
+import ast
+import logging
 import multiprocessing
 import os
 import signal
+import sys
 
 JOB_THREADS = 1  # torch threads per job; the parallelism is across jobs
 
@@ -61,6 +64,44 @@ def process_count(jobs: int, processes: int | None = None) -> int:
     return max(1, min(processes or usable_cores(), jobs))
 
 
+def main_module_guarded() -> bool:
+    """Whether a spawned process may import this program's ``__main__`` without running it again: true for an
+    interactive session, a notebook, ``python -c`` or ``-m rhi`` (nothing of the user's to re-import), and for a
+    script whose top level runs its work under ``if __name__ == "__main__":``; false for a script with no such
+    guard, which each spawned worker would run again from the top (multiprocessing's "safe importing of main
+    module" rule), so that a pool started from it would never finish."""
+    main = sys.modules.get("__main__")
+    path = getattr(main, "__file__", None)
+    if path is None or (getattr(main, "__spec__", None) is not None
+                        and main.__spec__.name.partition(".")[0] == "rhi"):
+        return True
+    try:
+        tree = ast.parse(open(path, encoding="utf-8").read())
+    except (OSError, SyntaxError, ValueError):
+        return False
+    return any(isinstance(node, ast.If) and "__main__" in ast.unparse(node.test) and "__name__" in ast.unparse(node.test)
+               for node in tree.body)
+
+
+def may_spawn() -> bool:
+    """Whether worker processes may start here: not in a spawned worker or a daemon process (a Dask worker, a
+    pool's worker), and not from an unguarded script (:func:`main_module_guarded`)."""
+    here = multiprocessing.current_process()
+    return not here.daemon and multiprocessing.parent_process() is None and main_module_guarded()
+
+
+_WARNED = []
+
+
+def _run_here_instead() -> None:
+    if not _WARNED:
+        _WARNED.append(True)
+        logging.getLogger("rhi").info(
+            "rhi: running the jobs in this process, one after the other: worker processes cannot start here (a "
+            "script without an `if __name__ == \"__main__\":` guard, or a worker process); put the script's work "
+            "under such a guard to use every core")
+
+
 def call(function, *arguments):
     """``function(*arguments)``: a job for rounds whose jobs call different functions."""
     return function(*arguments)
@@ -68,7 +109,7 @@ def call(function, *arguments):
 
 def _start_worker() -> None:
     """A worker leaves Ctrl-C to the parent (which terminates it) and uses one torch thread, whose OpenMP
-    waits yield the core (as `rhi` sets for itself, master.commands.cli) rather than spin."""
+    waits yield the core (as `rhi` sets for itself, rhi.master.commands.cli) rather than spin."""
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     import torch
 
@@ -107,7 +148,11 @@ class Workers:
             Each job's result, in the order of ``jobs``. A job's exception is raised here (and the
             workers are terminated).
         """
-        if process_count(len(jobs), self.processes) <= 1 or (not start and self._pool is None):
+        here = process_count(len(jobs), self.processes) <= 1 or (not start and self._pool is None)
+        if not here and self._pool is None and not may_spawn():
+            _run_here_instead()
+            here = True
+        if here:
             import torch
 
             threads = torch.get_num_threads()

@@ -4,7 +4,7 @@ DIR holds sweep.json (the plan's fingerprint, points and configurations), trials
 per finished trial, written atomically as it arrives), index.csv, summary.csv and figures/.
 A DIR holding a different sweep is refused unless ``force``, which keeps only the trials the new
 sweep shares with it and removes only what the older sweep wrote (its .rhi-manifest.json lists each file
-rhi wrote, with its sha256: master.outputs.manifest);
+rhi wrote, with its sha256: rhi.master.outputs.manifest);
 a DIR whose sweep.json rhi did not write, or holding a link where a sweep writes, is refused even with
 ``force``.
 """
@@ -18,12 +18,12 @@ import stat
 from contextlib import contextmanager
 from pathlib import Path
 
-from master.cosim import ConfigError
-from master.outputs.files import atomic_write, check_name_length
-from master.outputs.provenance import package_versions
-from master.outputs.manifest import NAME as MANIFEST, Manifest
-from master.sweeps.plan import DEFAULT_TASK, Sweep
-from master.sweeps.tables import MEASURES
+from rhi.master.cosim import ConfigError
+from rhi.master.outputs.files import atomic_write, check_name_length
+from rhi.master.outputs.provenance import package_versions
+from rhi.master.outputs.manifest import NAME as MANIFEST, Manifest
+from rhi.master.sweeps.plan import DEFAULT_TASK, Sweep
+from rhi.master.sweeps.tables import MEASURES
 
 COMMAND = "rhi sweep"  # sweep.json's "command": the folder is a sweep's output
 OUTPUTS = ("sweep.json", "trials", "figures", "index.csv", "summary.csv")  # what a sweep writes into DIR

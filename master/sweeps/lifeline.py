@@ -13,7 +13,7 @@ def dask_setup(worker) -> None:
     """Dask's preload hook, run in each new worker: the worker process dies with the rhi process whose pool it is."""
     import dask
 
-    from master.outputs.processes import die_with_parent
+    from rhi.master.outputs.processes import die_with_parent
 
     parent = dask.config.get(PARENT_KEY, None)
     die_with_parent(int(parent) if parent is not None else None)

@@ -42,16 +42,16 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from master import models
-from master import config as configuration
-from master.cosim import ConfigError
-from master.runtime.pool import workers_problem
-from master.tasks import illusion as experiment
+from rhi.master import models
+from rhi.master import config as configuration
+from rhi.master.cosim import ConfigError
+from rhi.master.runtime.pool import workers_problem
+from rhi.master.tasks import illusion as experiment
 
 # The default task's name. It is part of every trial's identity (its id, a folder's fingerprint), so it keeps
 # the name it had before the experiment became master/tasks/illusion; MOVED_TASKS says where it lives now.
 DEFAULT_TASK = "master.experiment:trial_outcome"
-MOVED_TASKS = {DEFAULT_TASK: "master.tasks.illusion:trial_outcome"}
+MOVED_TASKS = {DEFAULT_TASK: "rhi.master.tasks.illusion:trial_outcome"}
 
 
 def task_location(name: str) -> str:
@@ -237,9 +237,9 @@ def chunk_cells(configs: list[dict], batch: int | None,
 
 def check_batchable(configs: list[dict], points_per_batch: int) -> None:
     """ConfigError unless the points of each group of ``points_per_batch`` differ only where a lockstep batch
-    lets its trials differ: the batchable parameter keys (:func:`master.config.sources.batchable_keys`),
+    lets its trials differ: the batchable parameter keys (:func:`rhi.master.config.sources.batchable_keys`),
     the master seed, the conditions' offsets and the stimulations' delays (each trial's own)."""
-    from master.config.sources import batchable_keys
+    from rhi.master.config.sources import batchable_keys
 
     def shared(config: dict) -> str:
         kept = {table: dict(values) if isinstance(values, dict) else values for table, values in config.items()

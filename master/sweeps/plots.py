@@ -13,7 +13,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from master.outputs.figures import save  # noqa: E402
+from rhi.master.outputs.figures import save  # noqa: E402
 
 OUTCOMES = {"drift_cm": "final drift (cm)", "force_n": "final force (N)", "gamma_final": "final gamma"}
 MAX_LEGEND = 12

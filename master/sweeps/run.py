@@ -7,13 +7,13 @@ import time
 from contextlib import nullcontext
 from pathlib import Path
 
-from master.outputs.files import atomic_write
-from master.runtime.context import RunContext
-from master.sweeps.folder import sweep_folder, written_by
-from master.sweeps.plan import Sweep
-from master.sweeps.plots import plot_sweep
-from master.sweeps.runner import check_decoders, check_workers, dask_client, execute, prepare_decoders
-from master.sweeps.tables import index_rows, write_tables
+from rhi.master.outputs.files import atomic_write
+from rhi.master.runtime.context import RunContext
+from rhi.master.sweeps.folder import sweep_folder, written_by
+from rhi.master.sweeps.plan import Sweep
+from rhi.master.sweeps.plots import plot_sweep
+from rhi.master.sweeps.runner import check_decoders, check_workers, dask_client, execute, prepare_decoders
+from rhi.master.sweeps.tables import index_rows, write_tables
 
 INDEX_EVERY_S = 2.0
 

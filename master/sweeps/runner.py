@@ -22,12 +22,12 @@ import uuid
 from contextlib import contextmanager
 from pathlib import Path
 
-from master.cosim import ConfigError
-from master.tasks.illusion.runner import failed_record
-from master.outputs.files import atomic_write
-from master.sweeps import lifeline
-from master.sweeps.folder import record_problem
-from master.sweeps.plan import DEFAULT_TASK, Sweep, TrialSpec, task_location
+from rhi.master.cosim import ConfigError
+from rhi.master.tasks.illusion.runner import failed_record
+from rhi.master.outputs.files import atomic_write
+from rhi.master.sweeps import lifeline
+from rhi.master.sweeps.folder import record_problem
+from rhi.master.sweeps.plan import DEFAULT_TASK, Sweep, TrialSpec, task_location
 
 # Dask's settings for workers whose tasks are long, single-threaded and CPU-bound (docs/sweeps.md): no
 # statistical profiler (by default it takes the GIL every 10 ms to walk the running task's stack), and
@@ -59,10 +59,16 @@ def dask_client(scheduler: str | None, workers: int | None, debug: bool):
         return
     # Not ERROR: a worker's heartbeat that races the pool's own shutdown logs one, with a traceback; a trial's
     # failure reaches the caller through its future and is reported there.
+    from rhi.master.runtime.pool import may_spawn
+
+    if not may_spawn():  # its nannies would import an unguarded __main__ again, and the cluster never start
+        raise ConfigError("a local Dask cluster cannot start from here (a script without an "
+                          "`if __name__ == \"__main__\":` guard, or a worker process): put the script's work under "
+                          "such a guard, or give a running scheduler's address")
     quiet = False if debug else logging.CRITICAL
     # Only this machine: listen on loopback; the scheduler's small HTTP server on any free port. The
     # nannies hand the settings in force when they start to their workers.
-    # Each worker dies with this process, even by SIGKILL (master.sweeps.lifeline, a worker preload).
+    # Each worker dies with this process, even by SIGKILL (rhi.master.sweeps.lifeline, a worker preload).
     with dask.config.set({**WORKER_SETTINGS, lifeline.PARENT_KEY: os.getpid()}), \
             LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
                          host="127.0.0.1", dashboard_address=None, silence_logs=quiet, preload=[lifeline.__name__],
@@ -166,9 +172,9 @@ def check_decoders(sweep: Sweep) -> None:
     for the experiment's own trial function; a ConfigError naming the point otherwise."""
     if sweep.task != DEFAULT_TASK:
         return
-    from master.decoders.cache import check_decoders as check
+    from rhi.master.decoders.cache import check_decoders as check
 
-    from master.sweeps.plan import describe
+    from rhi.master.sweeps.plan import describe
     for number, config in enumerate(sweep.configs):
         try:
             check(config)
@@ -181,7 +187,7 @@ def prepare_decoders(sweep: Sweep) -> None:
     the workers (a remote worker must see the same checkpoint paths, see docs/sweeps.md)."""
     if sweep.task != DEFAULT_TASK:
         return
-    from master.decoders.cache import ensure_checkpoints
+    from rhi.master.decoders.cache import ensure_checkpoints
 
     for config in sweep.configs:  # a checkpoint already there is not trained again
         ensure_checkpoints(config)
@@ -224,14 +230,14 @@ def run_trial(task, config: dict, trial: TrialSpec) -> dict:
 def run_chunk(config: dict, trials: list[TrialSpec], configs: list[dict] | None = None) -> list[dict]:
     """Runs on a worker: the chunk's trials (one point, or with ``configs`` each trial's point's configuration,
     one decoder) in one lockstep batch, each failure isolated to its trial
-    (:func:`master.tasks.illusion.runner.batch_outcomes`); one result per trial, in order. Never raises.
+    (:func:`rhi.master.tasks.illusion.runner.batch_outcomes`); one result per trial, in order. Never raises.
     ``elapsed_s`` is the whole chunk's time, the worker's one-time imports excluded (as the experiment's
     batches count theirs)."""
-    from master.tasks.illusion import make_trial
-    from master.tasks.illusion.runner import batch_outcomes
-    from master.config.sources import batchable_keys
+    from rhi.master.tasks.illusion import make_trial
+    from rhi.master.tasks.illusion.runner import batch_outcomes
+    from rhi.master.config.sources import batchable_keys
 
-    importlib.import_module("master.decoders.cache")  # torch: once per worker, before the clock starts
+    importlib.import_module("rhi.master.decoders.cache")  # torch: once per worker, before the clock starts
 
     steady_malloc()
     started, began, cpu = time.time(), time.perf_counter(), time.process_time()

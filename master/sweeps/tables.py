@@ -4,9 +4,9 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from master.outputs.files import atomic_write
-from master.outputs.tables import cells, csv_text, mean_sd, number
-from master.sweeps.plan import Sweep
+from rhi.master.outputs.files import atomic_write
+from rhi.master.outputs.tables import cells, csv_text, mean_sd, number
+from rhi.master.sweeps.plan import Sweep
 
 MEASURES = ("drift_cm", "force_n", "gamma_final")  # what summary.csv and the figures show
 NOT_MEASURES = ("seed",)  # numbers in an outcome that identify the trial rather than measure it

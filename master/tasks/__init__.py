@@ -1,6 +1,6 @@
-"""Tasks: what the agent does, each described as data (a :class:`master.tasks.scene.Scenario`: the task's
-components, links and records) and built around any registered model (:mod:`master.models`) by one function,
-:func:`master.tasks.scene.build`.
+"""Tasks: what the agent does, each described as data (a :class:`rhi.master.tasks.scene.Scenario`: the task's
+components, links and records) and built around any registered model (:mod:`rhi.master.models`) by one function,
+:func:`rhi.master.tasks.scene.build`.
 
 :data:`TASKS` registers them: the command that runs each and the function that describes its scenario. Every
 task runs every model (``tests/test_models.py`` runs each registered task with each registered model from the
@@ -24,7 +24,7 @@ class Task:
     command : tuple of str
         The ``rhi`` command (and its first arguments) that runs it, into ``--out DIR``, with ``--model``.
     scenario : str
-        ``module:function`` returning its :class:`~master.tasks.scene.Scenario` (documentation: where to look;
+        ``module:function`` returning its :class:`~rhi.master.tasks.scene.Scenario` (documentation: where to look;
         the command imports it).
     """
 
@@ -36,11 +36,11 @@ class Task:
 
 TASKS = {task.name: task for task in (
     Task("illusion", "the paper's protocol: the hidden arm held, the rubber arm seen and touched, in time or late",
-         ("experiment",), "master.tasks.illusion.wiring:scenario"),
+         ("experiment",), "rhi.master.tasks.illusion.wiring:scenario"),
     Task("reach", "the free arm reaching to a seen goal, near and far", ("reach",),
-         "master.tasks.reach.task:scenario"),
+         "rhi.master.tasks.reach.task:scenario"),
     Task("moving-hand", "the free arm swinging, the rubber arm repeating the movement after a delay, no touch",
-         ("phenomenon", "moving-hand"), "master.tasks.moving_hand:scenario"),
+         ("phenomenon", "moving-hand"), "rhi.master.tasks.moving_hand:scenario"),
     Task("reach-after", "the illusion's trial, then a reach to a target once the touches stop",
-         ("phenomenon", "reach-after"), "master.tasks.reach_after:scenario"),
+         ("phenomenon", "reach-after"), "rhi.master.tasks.reach_after:scenario"),
 )}

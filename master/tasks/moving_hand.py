@@ -2,22 +2,22 @@
 view, repeats the movement after a delay per trial; no touch.
 
 The brain perceives (its action is not fed to the body: the movement is the participant's own); the seen and
-felt turning points of the movement stand in for the touches (:mod:`components.brain.turning_points`). The
-protocol and its report: :mod:`master.phenomena.moving_hand`.
+felt turning points of the movement stand in for the touches (:mod:`rhi.components.brain.turning_points`). The
+protocol and its report: :mod:`rhi.master.phenomena.moving_hand`.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from components.body.camera import Camera
-from components.body.movement import MirroredArm, Movement
-from components.body.plant import ArmPlant
-from components.brain.turning_points import TurningPoints
-from master.config.protocol import rubber_pose, trial_seed
-from master.config.sources import model_parameters, shared_parameters
-from master.decoders.cache import decoder_component
-from master.runtime.pool import JOB_THREADS
-from master.tasks.scene import Scenario, declared, run
+from rhi.components.body.camera import Camera
+from rhi.components.body.movement import MirroredArm, Movement
+from rhi.components.body.plant import ArmPlant
+from rhi.components.brain.turning_points import TurningPoints
+from rhi.master.config.protocol import rubber_pose, trial_seed
+from rhi.master.config.sources import model_parameters, shared_parameters
+from rhi.master.decoders.cache import decoder_component
+from rhi.master.runtime.pool import JOB_THREADS
+from rhi.master.tasks.scene import Scenario, declared, run
 
 NAME = "moving-hand"
 CONNECTIONS = [

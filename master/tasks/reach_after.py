@@ -1,24 +1,24 @@
 """The reach-after task: the illusion's trial, then, once the touches stop, a reach to a seen target.
 
-The illusion's system (:func:`master.tasks.illusion.wiring.scenario`) runs to ``reach_after.release``; then the
+The illusion's system (:func:`rhi.master.tasks.illusion.wiring.scenario`) runs to ``reach_after.release``; then the
 touches stop, the load cell lets the hand go (``body.release_time``), and a target appears: the camera's image
 of the arm at the target pose, the `rhi reach` attractor (docs/reach.md), through a
-:class:`~components.brain.goal.GoalOnset`. The protocol and its report: :mod:`master.phenomena.reach_after`.
+:class:`~rhi.components.brain.goal.GoalOnset`. The protocol and its report: :mod:`rhi.master.phenomena.reach_after`.
 """
 from __future__ import annotations
 
 import dataclasses
 
-from components.body import kinematics
-from components.body.arm_pose import PosedArm
-from components.body.camera import Camera
-from components.brain.goal import GoalOnset
-from master.config.protocol import plan
-from master.config.sources import parameters as task_parameters
-from master.decoders.cache import decoder_component
-from master.runtime.pool import JOB_THREADS
-from master.tasks.illusion import wiring
-from master.tasks.scene import Scenario, declared, run
+from rhi.components.body import kinematics
+from rhi.components.body.arm_pose import PosedArm
+from rhi.components.body.camera import Camera
+from rhi.components.brain.goal import GoalOnset
+from rhi.master.config.protocol import plan
+from rhi.master.config.sources import parameters as task_parameters
+from rhi.master.decoders.cache import decoder_component
+from rhi.master.runtime.pool import JOB_THREADS
+from rhi.master.tasks.illusion import wiring
+from rhi.master.tasks.scene import Scenario, declared, run
 
 NAME = "reach-after"
 GOAL_LINKS = [("goal.pose", "goal_camera.arm_pose"), ("goal_camera.image", "goal_decoder.image"),

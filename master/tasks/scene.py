@@ -5,17 +5,17 @@ components after the brain (the body), its links and what it records. :func:`bui
 makes a system of a scenario and the configuration's model: the world, the model's parts and brain
 (:func:`model_parts`), the body, wired by the task's links and then the model's (:func:`assemble`);
 :func:`run` simulates it at the experiment's step for a batch, given the task's parameters and the model's
-(:func:`master.config.sources.model_parameters`; :func:`declared` keeps those the system's components declare).
+(:func:`rhi.master.config.sources.model_parameters`; :func:`declared` keeps those the system's components declare).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-from master import config as configuration
-from master import models
-from master.cosim import ConfigError, System, simulate
-from master.decoders.cache import pose_encoder_path
-from master.models.base import Scene
+from rhi.master import config as configuration
+from rhi.master import models
+from rhi.master.cosim import ConfigError, System, simulate
+from rhi.master.decoders.cache import pose_encoder_path
+from rhi.master.models.base import Scene
 
 
 @dataclass(frozen=True)
@@ -51,7 +51,7 @@ class Scenario:
 
 
 def reads_pixels(config: dict, trials=()) -> bool:
-    """Whether the model's brain reads the decoder's pixel term (:meth:`master.models.Model.reads_pixels`) in the
+    """Whether the model's brain reads the decoder's pixel term (:meth:`rhi.master.models.Model.reads_pixels`) in the
     configuration, or in any of ``trials`` with values of their own (``Trial.overrides``, a fit's batch)."""
     model = models.of(config)
     own = {trial.overrides for trial in trials if getattr(trial, "overrides", ())}
@@ -87,7 +87,7 @@ def run(scenario: Scenario, config: dict, parameters, batch_size: int, progress=
 
     Returns
     -------
-    master.cosim.Result
+    rhi.master.cosim.Result
         ``times`` (T,) s and ``values[path]`` (T, B, ...) of ``scenario.record`` (less the components left out;
         their parameters are not given).
     """
@@ -134,9 +134,9 @@ def assemble(parts: list, links) -> System:
 
 def pose_encoders(config: dict, kind: str, threads: int | None):
     """``make(name)``: a pose encoder component reading decoder slot ``kind``'s image at the run's resolution
-    (the model's own checkpoint or the shipped one, :func:`master.decoders.cache.pose_encoder_path`)."""
+    (the model's own checkpoint or the shipped one, :func:`rhi.master.decoders.cache.pose_encoder_path`)."""
     def make(name: str):
-        from components.vision.pose_encoder import PoseEncoder, load_encoder
+        from rhi.components.vision.pose_encoder import PoseEncoder, load_encoder
         return PoseEncoder(load_encoder(pose_encoder_path(kind, config)), name=name,
                            resolution=config["experiment"]["resolution"], threads=threads)
     return make

@@ -19,14 +19,14 @@ from pathlib import Path
 
 import numpy as np
 
-from master.cosim import ConfigError
-from master.decoders.cache import SHIPPED, cache_folder, check_cache_folder, decoder_component
-from master.tasks.illusion.measures import end_of_trial, measures
-from master.runtime.pool import JOB_THREADS, Workers, run_jobs
-from master.config.protocol import make_trial
-from master.tasks.illusion.runner import bar_positions, step_bar
-from master.tasks.illusion.wiring import run_batch
-from master.outputs.files import atomic_write
+from rhi.master.cosim import ConfigError
+from rhi.master.decoders.cache import SHIPPED, cache_folder, check_cache_folder, decoder_component
+from rhi.master.tasks.illusion.measures import end_of_trial, measures
+from rhi.master.runtime.pool import JOB_THREADS, Workers, run_jobs
+from rhi.master.config.protocol import make_trial
+from rhi.master.tasks.illusion.runner import bar_positions, step_bar
+from rhi.master.tasks.illusion.wiring import run_batch
+from rhi.master.outputs.files import atomic_write
 
 DRIFT_BOUND = 0.01  # largest final-drift error of the fast mode, relative to the largest exact drift checked
 NOT_TRIAL_SETTINGS = {"experiment": {"decoders", "trials", "batch_trials"}, "decoder": {"conv_checkpoint", "vae_checkpoint", "fast"},

@@ -3,19 +3,19 @@ from __future__ import annotations
 
 import numpy as np
 
-from components.body import kinematics
-from master.outputs.tables import probe_name
+from rhi.components.body import kinematics
+from rhi.master.outputs.tables import probe_name
 
 def measures(result, model=None) -> dict[str, np.ndarray]:
     """Per step and trial (shape steps+1 x B): drift (cm), force (N), the action measure, and the rest, and
-    ``model``'s own measures (:attr:`master.models.base.Model.measures`: a column per recorded output).
+    ``model``'s own measures (:attr:`rhi.master.models.base.Model.measures`: a column per recorded output).
 
     Drift = x of the perceived hand (forward kinematics of mu) minus x of the real hand, in cm;
     negative is to the left (docs/design.md, Measures). The action measure of the paper's Fig. 3 d-f,
     ``action_accel_x_m_s2``, is the horizontal hand acceleration J a_dot: eq. 7's a_dot (deg/s^2)
     through the arm Jacobian at the sensed angles (m/deg), in m/s^2; 0 in row 0, before any step.
     Every key ends in its unit (none: dimensionless); docs/configuration.md lists them (from this function).
-    ``visual_error`` is NaN where no decoder ran (a model that reads no pixel term, :func:`master.tasks.scene.build`).
+    ``visual_error`` is NaN where no decoder ran (a model that reads no pixel term, :func:`rhi.master.tasks.scene.build`).
     """
     values = result.values
     mu = values["brain.mu"]
@@ -88,7 +88,7 @@ PROBE_TOLERANCE = 1e-9  # s: a probe at 60.0 is read at the step ending at 60.0 
 def probes(times: np.ndarray, drift: np.ndarray, probe_times) -> dict[str, np.ndarray]:
     """Per trial (B,): the drift (cm) read at each of ``probe_times`` (s), as a participant's pointing would read
     the felt hand then: the row of the first communication step that ends at or after the time (the rule by
-    which an event is observed, components/stimulus.py), under :func:`master.outputs.tables.probe_name`."""
+    which an event is observed, components/stimulus.py), under :func:`rhi.master.outputs.tables.probe_name`."""
     times = np.asarray(times)
     rows = np.minimum(np.searchsorted(times, np.asarray(probe_times, dtype=float) - PROBE_TOLERANCE), len(times) - 1)
     return {probe_name(time): drift[row] for time, row in zip(probe_times, rows)}

@@ -2,7 +2,7 @@
 train what is missing, run the protocol, write every result file.
 
 DIR is written in a staging folder beside it and renamed into place when complete
-(:mod:`master.outputs.files`), so it holds either a whole run or nothing from this one.
+(:mod:`rhi.master.outputs.files`), so it holds either a whole run or nothing from this one.
 """
 from __future__ import annotations
 
@@ -12,19 +12,19 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from master import models
-from master.tasks.illusion import runner as experiment
-from master.runtime.context import RunContext
-from master.tasks.illusion.runner import body_factory
-from master.decoders.cache import check_decoders, ensure_checkpoints, jacobian_pair
-from master.tasks.illusion.fast_check import verdicts
-from master.runtime.pool import Workers, call
-from master.tasks.illusion.measures import end_of_trial
-from master.config.protocol import plan, rubber_pose
-from master.outputs import figures, tables
-from master.outputs.files import atomic_write, check_output, output_folder
-from master.outputs.provenance import package_versions
-from master.outputs.animation import frames, gif_bytes
+from rhi.master import models
+from rhi.master.tasks.illusion import runner as experiment
+from rhi.master.runtime.context import RunContext
+from rhi.master.tasks.illusion.runner import body_factory
+from rhi.master.decoders.cache import check_decoders, ensure_checkpoints, jacobian_pair
+from rhi.master.tasks.illusion.fast_check import verdicts
+from rhi.master.runtime.pool import Workers, call
+from rhi.master.tasks.illusion.measures import end_of_trial
+from rhi.master.config.protocol import plan, rubber_pose
+from rhi.master.outputs import figures, tables
+from rhi.master.outputs.files import atomic_write, check_output, output_folder
+from rhi.master.outputs.provenance import package_versions
+from rhi.master.outputs.animation import frames, gif_bytes
 
 
 @dataclass
@@ -40,11 +40,11 @@ class ExperimentResult:
     times : numpy.ndarray
         (steps + 1,) s.
     per_step : dict of str to numpy.ndarray
-        Each measure per step and trial, (steps + 1, len(trials)) (:func:`master.tasks.illusion.measures.measures`).
+        Each measure per step and trial, (steps + 1, len(trials)) (:func:`rhi.master.tasks.illusion.measures.measures`).
     final : dict of str to numpy.ndarray
         Each measure at the end of the trial, (len(trials),).
     summary : list of list
-        The rows of summary.csv (columns ``master.outputs.tables.summary_columns``).
+        The rows of summary.csv (columns ``rhi.master.outputs.tables.summary_columns``).
     failures : dict
         Each failed trial and its error.
     provenance : dict
@@ -100,7 +100,7 @@ def run_experiment(config: dict | None = None, body: str | None = None, context:
     Parameters
     ----------
     config : dict, optional
-        A configuration (:func:`master.config.load`); any registered model (``[model]``).
+        A configuration (:func:`rhi.master.config.load`); any registered model (``[model]``).
     body : str, optional
         An FMU to use as the body (default: the native pymunk plant).
     context : RunContext, optional
@@ -114,12 +114,12 @@ def run_experiment(config: dict | None = None, body: str | None = None, context:
 
     Example::
 
-        from master.tasks.illusion import run_experiment
-        from master import config
+        from rhi.master.tasks.illusion import run_experiment
+        from rhi.master import config
         result = run_experiment(config.load(quick=True, model_name="causal"))
         result.final["drift_cm"]         # (trials,) cm
     """
-    from master import config as configuration
+    from rhi.master import config as configuration
 
     began = time.perf_counter()
     config = configuration.load() if config is None else config

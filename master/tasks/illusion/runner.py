@@ -2,7 +2,7 @@
 
 One batch per decoder: every condition x stimulation x trial of that decoder advances together
 (the batch dimension), so one decoder call serves them all; the decoders' batches run side by side,
-each in its own process (:mod:`master.runtime.pool`).
+each in its own process (:mod:`rhi.master.runtime.pool`).
 """
 from __future__ import annotations
 
@@ -12,13 +12,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from master import models
-from master.cosim import SimulationError
-from master.tasks.illusion.measures import end_of_trial, measures
-from master.runtime.context import RunContext
-from master.runtime.pool import JOB_THREADS, Workers, process_count, run_jobs
-from master.config.protocol import Trial, make_trial, plan
-from master.tasks.illusion.wiring import run_batch
+from rhi.master import models
+from rhi.master.cosim import SimulationError
+from rhi.master.tasks.illusion.measures import end_of_trial, measures
+from rhi.master.runtime.context import RunContext
+from rhi.master.runtime.pool import JOB_THREADS, Workers, process_count, run_jobs
+from rhi.master.config.protocol import Trial, make_trial, plan
+from rhi.master.tasks.illusion.wiring import run_batch
 
 
 def without_failures(run_trials, trials: list[Trial]):
@@ -131,7 +131,7 @@ def decoder_batch(job: BatchJob):
 
     Returns (kept trials, {"times", "measures"} or None, seconds, {failed trial: error}).
     """
-    from master.decoders.cache import decoder_component  # torch is imported only when a run needs it
+    from rhi.master.decoders.cache import decoder_component  # torch is imported only when a run needs it
 
     config, kind, checkpoint, trials, body, progress = (job.config, job.kind, job.checkpoint, job.trials, job.body,
                                                         job.progress)
@@ -162,8 +162,8 @@ def body_factory(path, config: dict | None = None):
     """
     if path is None:
         return None, None
-    from components.body.contract import BODY_CONTRACT
-    from components.fmu import FMUComponent
+    from rhi.components.body.contract import BODY_CONTRACT
+    from rhi.components.fmu import FMUComponent
 
     limit = (config or {}).get("fmu", {}).get("step_timeout_s") or None
     probe = FMUComponent(path, "body", BODY_CONTRACT, step_timeout=limit)
@@ -198,7 +198,7 @@ def batch_outcomes(config: dict, decoder: str, trials: list[Trial], checkpoint: 
     """
     import traceback
 
-    from master.decoders.cache import checkpoint_path, decoder_component
+    from rhi.master.decoders.cache import checkpoint_path, decoder_component
 
     def run_trials(batch: list[Trial]) -> list[dict]:
         path = checkpoint or checkpoint_path(decoder, config, must_exist=True)
@@ -250,7 +250,7 @@ def bar_positions(jobs: int, progress: bool, processes: int | None = None,
 @contextmanager
 def step_bar(description: str, total: int, position: int | None):
     """A progress bar of ``total`` steps on line ``position`` of the terminal, removed when done; yields its
-    ``update(done, total)`` callback for :func:`master.tasks.illusion.wiring.run_batch` (None, and no bar,
+    ``update(done, total)`` callback for :func:`rhi.master.tasks.illusion.wiring.run_batch` (None, and no bar,
     when ``position`` is None)."""
     if position is None:
         yield None

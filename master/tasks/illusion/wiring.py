@@ -1,20 +1,20 @@
 """The rubber-hand system: its components, their connections in step order, and one lockstep batch of it.
 
-Its parameters come from :mod:`master.config.sources` (their table and values).
+Its parameters come from :mod:`rhi.master.config.sources` (their table and values).
 """
 from __future__ import annotations
 
 import numpy as np
 
-from components.body.camera import Camera
-from components.body.plant import ArmPlant
-from components.body.rubber_arm import RubberArm
-from components.stimulus import Stimulus
-from master import models
-from master.cosim import System
-from master.config.protocol import Trial
-from master.config.sources import parameters, undeclared
-from master.tasks.scene import Scenario, build, run
+from rhi.components.body.camera import Camera
+from rhi.components.body.plant import ArmPlant
+from rhi.components.body.rubber_arm import RubberArm
+from rhi.components.stimulus import Stimulus
+from rhi.master import models
+from rhi.master.cosim import System
+from rhi.master.config.protocol import Trial
+from rhi.master.config.sources import parameters, undeclared
+from rhi.master.tasks.scene import Scenario, build, run
 
 # Gauss-Seidel order within one step (docs/design.md): the decoder reads the brain's mu of time t and the
 # image of time t; the brain then integrates; the body finally receives the new action.

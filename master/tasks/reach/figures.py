@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from master.outputs.figures import plt, save
-from master.outputs.tables import cells
+from rhi.master.outputs.figures import plt, save
+from rhi.master.outputs.tables import cells
 
 BAND_COLOURS = {"near": "tab:blue", "far": "tab:orange"}
 
@@ -97,9 +97,9 @@ def write_figures(folder: Path, trials, times, per_step, final, radius_cm) -> No
     times : numpy.ndarray
         (steps + 1,) s.
     per_step : dict of str to numpy.ndarray
-        (steps + 1, B) each, ``master.tasks.reach.task.measures``: hand and goal in m, distances in cm.
+        (steps + 1, B) each, ``rhi.master.tasks.reach.task.measures``: hand and goal in m, distances in cm.
     final : dict of str to numpy.ndarray
-        (B,) each, ``master.tasks.reach.task.outcomes``: distances in cm, reached.
+        (B,) each, ``rhi.master.tasks.reach.task.outcomes``: distances in cm, reached.
     radius_cm : float
         The success radius, cm.
     """

@@ -7,17 +7,17 @@ import time
 
 import numpy as np
 
-from master import models
-from master.cosim import SimulationError
-from master.tasks.reach import task as reach
-from master.decoders.cache import check_decoders, ensure_checkpoints
-from master.decoders.cache import pose_encoder_path
-from master.runtime.context import RunContext
-from master.runtime.pool import JOB_THREADS, Workers, run_jobs
-from master.tasks.illusion.runner import bar_positions, step_bar, without_failures
-from master.outputs import tables
-from master.outputs.files import atomic_write, check_output, output_folder
-from master.outputs.provenance import package_versions
+from rhi.master import models
+from rhi.master.cosim import SimulationError
+from rhi.master.tasks.reach import task as reach
+from rhi.master.decoders.cache import check_decoders, ensure_checkpoints
+from rhi.master.decoders.cache import pose_encoder_path
+from rhi.master.runtime.context import RunContext
+from rhi.master.runtime.pool import JOB_THREADS, Workers, run_jobs
+from rhi.master.tasks.illusion.runner import bar_positions, step_bar, without_failures
+from rhi.master.outputs import tables
+from rhi.master.outputs.files import atomic_write, check_output, output_folder
+from rhi.master.outputs.provenance import package_versions
 
 # The released agent's reaching logs (thomasroodnl/active-inference-rhi, active-inference-agent/model_operation/
 # operation_logs/reach_results, 40 runs per file set): the runs whose last logged cartesian_distance is under
@@ -92,7 +92,7 @@ def trials_text(trials, times, per_step: dict[str, np.ndarray], every: int) -> s
 def run_into(out, config: dict, context: RunContext | None = None) -> dict:
     """Run every reach of ``config`` and write DIR = ``out`` (context: force, progress); returns {failed trial:
     error}."""
-    from master.tasks.reach.figures import write_figures
+    from rhi.master.tasks.reach.figures import write_figures
 
     started, context = time.perf_counter(), context or RunContext()
     force, progress = context.force, context.progress

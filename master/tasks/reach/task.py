@@ -1,7 +1,7 @@
 """The reach task: its configuration, its goals, its system, and one lockstep batch of it (docs/reach.md).
 
 The free arm (``body.held = false``) starts at rest and reaches to a goal it sees: the camera's image of the
-arm at the goal pose (a :class:`~components.body.arm_pose.PosedArm` in front of a second camera), the released
+arm at the goal pose (a :class:`~rhi.components.body.arm_pose.PosedArm` in front of a second camera), the released
 agent's attractor image. The goal pulls the belief (through the decoder in pixels, or through the pose
 encoder in joint angles), the proprioceptive error mu - s_p drives the action, and the arm follows.
 """
@@ -15,17 +15,17 @@ from importlib import resources
 
 import numpy as np
 
-from components.body import kinematics
-from components.body.arm_pose import JointPose, PosedArm
-from components.body.camera import Camera
-from components.body.plant import ArmPlant
-from master import models
-from master.cosim import ConfigError, System
-from master import config as configuration
-from master.config.protocol import per_trial
-from master.decoders.training_data import HALF_RANGES
-from master.config.sources import model_parameters, shared_parameters
-from master.tasks.scene import Scenario, build, declared, pose_encoders, run
+from rhi.components.body import kinematics
+from rhi.components.body.arm_pose import JointPose, PosedArm
+from rhi.components.body.camera import Camera
+from rhi.components.body.plant import ArmPlant
+from rhi.master import models
+from rhi.master.cosim import ConfigError, System
+from rhi.master import config as configuration
+from rhi.master.config.protocol import per_trial
+from rhi.master.decoders.training_data import HALF_RANGES
+from rhi.master.config.sources import model_parameters, shared_parameters
+from rhi.master.tasks.scene import Scenario, build, declared, pose_encoders, run
 
 ATTRACTORS = ("auto", "pixels", "body")
 VIEWS = ("auto", "on", "off")
@@ -54,7 +54,7 @@ class ReachTrial:
 # -- configuration -----------------------------------------------------------------------------------------
 def task() -> dict:
     """master/reach.toml: the task's own table [reach] (and its [quick]), and the keys it changes elsewhere."""
-    with resources.files("master").joinpath("reach.toml").open("rb") as file:
+    with resources.files("rhi.master").joinpath("reach.toml").open("rb") as file:
         return tomllib.load(file)
 
 
@@ -131,7 +131,7 @@ def validate(config: dict) -> None:
 def check_goal_variance(config: dict, key: str, ratio: float) -> None:
     """The goal image's visual variance, decoder.visual_variance / ``ratio`` (the attractor image's Sigma_v / w),
     within the decoder's range (at least MIN_VISUAL_VARIANCE); a ConfigError naming ``key`` otherwise."""
-    from components.vision.component import MIN_VISUAL_VARIANCE
+    from rhi.components.vision.component import MIN_VISUAL_VARIANCE
 
     variance = config["decoder"]["visual_variance"] / ratio
     if not variance >= MIN_VISUAL_VARIANCE:
@@ -144,7 +144,7 @@ def check_goal_variance(config: dict, key: str, ratio: float) -> None:
 def memory_needed(config: dict) -> int:
     """About how many bytes the reach of ``config`` needs at its peak: each decoder's reaches (reach.goals per
     band) run in one lockstep batch, recorded at every step, with two cameras (the goal's and the seen arm's),
-    by the experiment's bounds per trial step and per batch pixel (:func:`master.config.memory_needed`)."""
+    by the experiment's bounds per trial step and per batch pixel (:func:`rhi.master.config.memory_needed`)."""
     experiment, reaches = config["experiment"], config["reach"]["goals"] * len(config["reach"]["bands"])
     decoders = len(experiment["decoders"])
     recorded = (experiment["steps"] + 1) * reaches * decoders * configuration.BYTES_PER_TRIAL_STEP
@@ -270,7 +270,7 @@ def scenario(kind: str, path: str, config: dict, threads: int = 1, extra=()) -> 
     """The reach task of decoder ``kind`` (checkpoint ``path``) as data: the goal's arm and camera and its term
     (:func:`links`), the seen arm and its camera when in view, before the model; the free body after it;
     :data:`RECORD`, the goal's hand and the ``extra`` paths recorded."""
-    from master.decoders.cache import check_kind, decoder_component, loaded
+    from rhi.master.decoders.cache import check_kind, decoder_component, loaded
 
     resolution = config["experiment"]["resolution"]
     check_kind(kind, path, loaded(path, resolution, config["camera"]["blur"]))  # whether or not a decoder is used
@@ -282,7 +282,7 @@ def scenario(kind: str, path: str, config: dict, threads: int = 1, extra=()) -> 
     if attractor(config) == "pixels":
         world.append(decoder("goal_decoder"))
     else:
-        from components.brain.goal import GoalAttractor
+        from rhi.components.brain.goal import GoalAttractor
         world += [pose_encoders(config, kind, threads)("goal_encoder"), GoalAttractor()]
     if view(config):
         world += [JointPose("arm_pose"), Camera("camera", resolution=resolution)]
@@ -298,7 +298,7 @@ def build_system(kind: str, path: str, config: dict, threads: int = 1) -> System
 
 def parameters(trials: list[ReachTrial], config: dict, system: System) -> dict:
     """Every parameter of the reach system: the experiment's sources for the body, cameras and decoders
-    (:data:`master.config.sources.TASK_SOURCES`), the model's for its brain, the goal per trial, and the
+    (:data:`rhi.master.config.sources.TASK_SOURCES`), the model's for its brain, the goal per trial, and the
     goal's precision."""
     given = shared_parameters(config, ("body", "camera", "decoder"))
     for key in ("blur", "ball_radius"):
