@@ -26,6 +26,13 @@ from __future__ import annotations
 
 import importlib
 from importlib import metadata
+from pathlib import Path
+
+# Installed, rhi.components and rhi.master are the folders components/ and master/ (setup.py maps them). Run from a
+# source tree that is not installed (a checkout on PYTHONPATH), they are found beside this folder.
+_TREE = Path(__file__).resolve().parent.parent
+if (_TREE / "master" / "__init__.py").is_file() and (_TREE / "components" / "__init__.py").is_file():
+    __path__.append(str(_TREE))
 
 try:
     __version__ = metadata.version("rhi")

@@ -91,7 +91,7 @@ def test_a_bad_output_path_is_named(tmp_path):
 
 
 def test_rhi_export_body_builds_the_c_variant(tmp_path):
-    done = subprocess.run([sys.executable, "-m", "master", "export-body", "--variant", "kinematic-c", "--out",
+    done = subprocess.run([sys.executable, "-m", "rhi", "export-body", "--variant", "kinematic-c", "--out",
                            str(tmp_path / "C.fmu")], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert "variant kinematic-c" in done.stdout and validate_fmu(str(tmp_path / "C.fmu")) == []

@@ -13,7 +13,7 @@ COMMANDS = ("train", "experiment", "export-body", "export-agent", "export-system
 
 
 def rhi(*args, cwd=None, env=None):
-    return subprocess.run([sys.executable, "-m", "master", *args], capture_output=True, text=True, cwd=cwd, env=env,
+    return subprocess.run([sys.executable, "-m", "rhi", *args], capture_output=True, text=True, cwd=cwd, env=env,
                           timeout=300)
 
 

@@ -310,7 +310,7 @@ def run_case(case: Case, resources: Resources, root: Path) -> Result:
         return Result(done.status, done.stdout, done.stderr, before, snapshot(folder), cached, work,
                       time.monotonic() - began)
     env = {**ENV, "RHI_CACHE": str(cache), "RHI_TEST_HANG_MARKER": str(marker)}
-    command = [sys.executable] + (["-c", case.python] if case.python else ["-m", "master"])
+    command = [sys.executable] + (["-c", case.python] if case.python else ["-m", "rhi"])
     command += [expand(argument, resources) for argument in case.args]
     reader, stdout = None, subprocess.PIPE
     if case.stdout == "closed":

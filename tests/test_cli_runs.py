@@ -24,7 +24,7 @@ def start(resources, work, *args, marker=None):
     env = {**ENV, "RHI_CACHE": str(work.parent / "cache")}
     if marker is not None:
         env["RHI_TEST_HANG_MARKER"] = str(marker)
-    return subprocess.Popen([sys.executable, "-m", "master", *[expand(a, resources) for a in args]], cwd=work,
+    return subprocess.Popen([sys.executable, "-m", "rhi", *[expand(a, resources) for a in args]], cwd=work,
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 

@@ -20,7 +20,7 @@ def rhi(*args, cache, one_core=False, **environment):
     after the other, in the command's own process)."""
     environment = {**os.environ, "RHI_CACHE": str(cache), **environment}
     pin = (lambda: os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})) if one_core else None
-    return subprocess.run([sys.executable, "-m", "master", *args], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "rhi", *args], capture_output=True, text=True,
                           env=environment, timeout=600, preexec_fn=pin)
 
 

@@ -165,7 +165,7 @@ DATA = "participant,condition,stimulation,drift_cm,force_n\np1,left,sync,-0.3,-0
 def rhi(*arguments, cwd, env=None):
     environment = {**os.environ, **(env or {}),
                    "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
-    return subprocess.run([sys.executable, "-m", "master", *arguments], capture_output=True, text=True, cwd=cwd,
+    return subprocess.run([sys.executable, "-m", "rhi", *arguments], capture_output=True, text=True, cwd=cwd,
                           env=environment, timeout=300)
 
 

@@ -153,7 +153,7 @@ def test_the_fmi3_body_refuses_a_wrong_count_of_values(twins, tmp_path):
 
 
 def export(*args, cwd):
-    return subprocess.run([sys.executable, "-m", "master", "export-body", *args], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "rhi", "export-body", *args], capture_output=True, text=True,
                           timeout=120, cwd=cwd)
 
 

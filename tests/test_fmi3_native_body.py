@@ -186,7 +186,7 @@ def test_a_set_of_half_an_array_or_more_is_refused(bodies, tmp_path):
 
 
 def test_rhi_export_body_fmi_3(tmp_path):
-    done = subprocess.run([sys.executable, "-m", "master", "export-body", "--fmi", "3.0", "--out", "B3.fmu"],
+    done = subprocess.run([sys.executable, "-m", "rhi", "export-body", "--fmi", "3.0", "--out", "B3.fmu"],
                           capture_output=True, text=True, timeout=120, cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     assert "variant native, FMI 3.0" in done.stdout

@@ -47,7 +47,7 @@ def run(work: Path, *args, python: str | None = None, timeout=120):
     for name in ("tmp", "cache"):
         (work.parent / name).mkdir(exist_ok=True)
     env = {**ENV, "TMPDIR": str(work.parent / "tmp"), "RHI_CACHE": str(work.parent / "cache")}
-    command = [sys.executable, *(["-c", python] if python else ["-m", "master"]), *map(str, args)]
+    command = [sys.executable, *(["-c", python] if python else ["-m", "rhi"]), *map(str, args)]
     return subprocess.run(command, cwd=work, env=env, capture_output=True, text=True, timeout=timeout)
 
 

@@ -283,7 +283,7 @@ def test_run_system_s_child_dies_with_its_parent(body_fmu, tmp_path):
         (tmp_path / name).mkdir()
     long_run = ONE_BODY.replace('stopTime="0.05"', 'stopTime="9000"')  # 900,000 steps: minutes
     write_zip(work / "L.ssp", [("SystemStructure.ssd", long_run), ("resources/body.fmu", body_fmu.read_bytes())])
-    parent = subprocess.Popen([sys.executable, "-m", "master", "run-system", "L.ssp", "--out", "l.csv"], cwd=work,
+    parent = subprocess.Popen([sys.executable, "-m", "rhi", "run-system", "L.ssp", "--out", "l.csv"], cwd=work,
                               env={**ENV, "TMPDIR": str(tmp_path / "tmp")}, stderr=subprocess.DEVNULL)
 
     def children():

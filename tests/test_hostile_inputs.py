@@ -254,7 +254,7 @@ def test_the_local_pool_s_workers_die_with_a_killed_sweep(tmp_path):
     marker = tmp_path / "stuck"
     env = {**ENV, "TMPDIR": str(tmp_path / "tmp"), "RHI_CACHE": str(tmp_path / "cache"),
            "RHI_TEST_STUCK_MARKER": str(marker)}
-    sweep = subprocess.Popen([sys.executable, "-m", "master", "sweep", "--config", "s.toml", "--out", "out"],
+    sweep = subprocess.Popen([sys.executable, "-m", "rhi", "sweep", "--config", "s.toml", "--out", "out"],
                              cwd=tmp_path / "work", env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     descendants = []
     try:

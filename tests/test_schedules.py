@@ -137,7 +137,7 @@ def test_bad_schedules_are_refused_in_one_line(tmp_path, text, fragment):
 def test_the_command_refuses_a_bad_schedule_with_status_2(tmp_path):
     path = tmp_path / "bad.toml"
     path.write_text("[stimulations.sync]\nblocks = [[0, 10], [5, 20]]\n")
-    done = subprocess.run([sys.executable, "-m", "master", "experiment", "--config", str(path), "--out",
+    done = subprocess.run([sys.executable, "-m", "rhi", "experiment", "--config", str(path), "--out",
                            str(tmp_path / "out")], capture_output=True, text=True, timeout=300)
     assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1 and "overlaps" in done.stderr
     assert not (tmp_path / "out").exists()

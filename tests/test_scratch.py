@@ -54,7 +54,7 @@ def test_run_system_killed_by_sigkill_leaves_a_folder_the_next_run_removes(body_
     write_zip(work / "L.ssp", [("SystemStructure.ssd", long_run), ("resources/body.fmu", body_fmu.read_bytes())])
     one_body_package(body_fmu, work / "S.ssp")  # 5 steps
     env = {**ENV, "TMPDIR": str(tmp)}
-    killed = subprocess.Popen([sys.executable, "-m", "master", "run-system", "L.ssp", "--out", "l.csv"], cwd=work,
+    killed = subprocess.Popen([sys.executable, "-m", "rhi", "run-system", "L.ssp", "--out", "l.csv"], cwd=work,
                               env=env, stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + 30
     while not list(tmp.glob("rhi_ssp_run_*/request.json")) and time.monotonic() < deadline:
@@ -66,7 +66,7 @@ def test_run_system_killed_by_sigkill_leaves_a_folder_the_next_run_removes(body_
     assert len(left) == 1 and left[0].startswith("rhi_ssp_run_"), left
     time.sleep(0.5)  # the child ends with its parent (tests/test_hostile_files.py checks it)
     # the next run, even one refused after the package's check (which has a scratch folder of its own)
-    done = subprocess.run([sys.executable, "-m", "master", "run-system", "S.ssp", "--trial", "none", "--out", "s.csv"],
+    done = subprocess.run([sys.executable, "-m", "rhi", "run-system", "S.ssp", "--trial", "none", "--out", "s.csv"],
                           cwd=work, env=env, capture_output=True, text=True, timeout=120)
     assert done.returncode == 2 and "has no trial 'none'" in done.stderr, done.stderr[-2000:]
     assert list(tmp.iterdir()) == []

@@ -55,7 +55,7 @@ def test_rhi_train_makes_the_checkpoint_the_experiment_trains_side_by_side(quick
     monkeypatch.setenv("RHI_CACHE", str(quick_cache))  # its training set is rendered there already
     for kind in ("conv", "vae"):
         out = tmp_path / f"{kind}.pt"
-        done = subprocess.run([sys.executable, "-m", "master", "train", "--decoder", kind, "--config", str(given),
+        done = subprocess.run([sys.executable, "-m", "rhi", "train", "--decoder", kind, "--config", str(given),
                                "--out", str(out)], cwd=ROOT, capture_output=True, text=True, timeout=600)
         assert done.returncode == 0, done.stderr[-2000:]
         assert out.read_bytes() == open(checkpoint_path(kind, config, must_exist=True), "rb").read()

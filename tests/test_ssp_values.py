@@ -42,7 +42,7 @@ def with_value(package, target, member, name, value):  # noqa: F811
 
 
 def rhi(*args):
-    return subprocess.run([sys.executable, "-m", "master", *args], capture_output=True, text=True, timeout=120)
+    return subprocess.run([sys.executable, "-m", "rhi", *args], capture_output=True, text=True, timeout=120)
 
 
 BAD_VALUES = [  # (file, parameter, text, what the refusal says)
