@@ -209,6 +209,6 @@ def test_the_baseline_takes_nothing_from_the_integrator_or_the_experiment():
             imported |= {alias.name for alias in node.names}
         elif isinstance(node, ast.ImportFrom):
             imported.add(node.module)
-    project = {name for name in imported if name.split(".")[0] in ("components", "master", "tests")}
+    project = {name for name in imported if name.split(".")[0] in ("rhi", "tests")}
     assert project == {"rhi.components.body.camera", "rhi.components.body.kinematics", "rhi.components.body.plant",
                        "rhi.components.body.rubber_arm", "rhi.components.stimulus"}, project

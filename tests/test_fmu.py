@@ -30,7 +30,7 @@ from tests.toys import Constant
 OUTPUTS = ("q_shoulder", "q_elbow", "hand_x", "hand_y", "force_x", "force_y")
 BROKEN_PLANTS = '''
 import numpy as np
-from rhi.components.body.plant import ArmPlant
+from components.body.plant import ArmPlant  # the FMU's own copy (resources/components)
 
 class NanArmPlant(ArmPlant):
     """Puts NaN into hand_y from t = 0.1 s on, only where q0_shoulder > 150 deg."""

@@ -246,11 +246,11 @@ def test_fit_estimator_threads_over_the_limit_is_refused_by_the_command_before_a
 # 10. A loss that becomes NaN while the estimator trains: one line, exit status 1 (a failure during the work)
 # ======================================================================================================
 def test_a_loss_that_becomes_nan_in_training_is_one_line_and_exit_status_1(tmp_path, monkeypatch):
-    import rhi.master.fit.plan
+    from rhi.master.fit import plan as fit_plan
     import tests.test_hostile_folders as folders
 
     # the bound that refuses learning_rate = 1e30 before any work, lifted: here, where rhi runs (in this process)
-    monkeypatch.setattr(rhi.master.fit.plan, "MAX_LEARNING_RATE", float("inf"))
+    monkeypatch.setattr(fit_plan, "MAX_LEARNING_RATE", float("inf"))
     monkeypatch.setattr(folders, "FIT", folders.FIT.replace("threads = 1\n", "threads = 1\nlearning_rate = 1e30\n"))
     work = prepared(tmp_path)
     out = folders.fit_folder(work)  # every simulation made up: the fit goes straight to the training
@@ -477,7 +477,7 @@ class Planned(Exception):
 def test_the_causal_participants_of_a_phenomenon_s_config_file_count(tmp_path, monkeypatch, participants):
     import argparse
 
-    import rhi.master.commands.sweep
+    from rhi.master.commands import sweep as sweep_command
     from rhi.master.commands.phenomenon import run as run_phenomenon
     from rhi.master.sweeps import plan
     from tests.faults import REPO
@@ -491,7 +491,7 @@ def test_the_causal_participants_of_a_phenomenon_s_config_file_count(tmp_path, m
         given.update(trials=trials)
         raise Planned
 
-    monkeypatch.setattr(rhi.master.commands.sweep, "sweep_and_report", sweep_and_report)
+    monkeypatch.setattr(sweep_command, "sweep_and_report", sweep_and_report)
     with pytest.raises(Planned):
         run_phenomenon(argparse.Namespace(name="distance", config=str(path), scheduler=None, out=str(tmp_path / "out"),
                                           force=False, model="causal", debug=False))
