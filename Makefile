@@ -4,7 +4,7 @@ PYTHON ?= python3
 VENV := .venv
 STAMP := $(VENV)/.installed
 
-$(STAMP): pyproject.toml constraints.txt setup.py components/body/_servo.c
+$(STAMP): pyproject.toml constraints.txt setup.py components/body/_servo.c components/body/_arm.c
 	$(PYTHON) -m venv $(VENV)
 	$(VENV)/bin/pip install --quiet torch==2.13.0
 	$(VENV)/bin/pip install --quiet -c constraints.txt -e '.[test]'

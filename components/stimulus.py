@@ -18,6 +18,10 @@ metres forward of it (+y), linearly, and reaches it at the event; between stroke
 the period, between blocks, after the last block) it rests where the last touch left it, and before
 the first stroke it waits ``ball_distance`` forward of the target. Until ``stop_time`` the ball heads
 for the blocks' next event even if ``stop_time`` cancels it (as the stimulus always did).
+
+The schedule (the visual events, the ball's stroke) is a function of the trial's schedule parameters alone, so
+it is computed once per distinct schedule of the batch (a cohort's cell has one) and gathered to its trials;
+only the delays, and so the tactile events, are each trial's own.
 """
 from __future__ import annotations
 
@@ -101,6 +105,12 @@ class Stimulus(Component):
         v = self.values
         self._generators = [np.random.default_rng(int(seed)) for seed in v["seed"]]
         self._delays = np.empty((self.batch_size, 0))
+        # the batch's distinct schedules: each one's first trial, and each trial's schedule
+        rows = np.concatenate([v["period"][:, None], v["blocks"].reshape(self.batch_size, -1), v["stop_time"][:, None],
+                               v["stroke_duration"][:, None], v["ball_distance"][:, None]], axis=1)
+        _, self._schedules, self._schedule_of = np.unique(np.ascontiguousarray(rows).view(
+            np.dtype((np.void, rows.shape[1] * 8))).ravel(), return_index=True, return_inverse=True)
+        self._schedule_of = self._schedule_of.reshape(-1)
         self._publish(self.start_time)
 
     def step(self, t, h):
@@ -125,19 +135,20 @@ class Stimulus(Component):
     def _publish(self, now: float):
         """Set the outputs for time ``now`` (s) from the schedule (:func:`schedule`) and the ball's stroke."""
         v = self.values
-        period = v["period"]
-        counts, sizes, starts, visual, next_event = schedule(now, period, v["blocks"], v["stop_time"])
+        first, of = self._schedules, self._schedule_of  # the schedule's work on its distinct rows, then gathered
+        period, stop_time = v["period"][first], v["stop_time"][first]
+        counts, sizes, starts, visual, next_event = schedule(now, period, v["blocks"][first], stop_time)
         total = counts.sum(axis=1)
         latest = int(total.max())
-        tactile = event_times(latest, period, starts, sizes) + self.delays(latest)
+        tactile = event_times(latest, period, starts, sizes)[of] + self.delays(latest)
         index = np.arange(1, latest + 1)
-        observed = (tactile <= now + TOLERANCE) & (index[None, :] <= total[:, None]) & v["touch"][:, None]
-        v["visual_time"] = visual
+        observed = (tactile <= now + TOLERANCE) & (index[None, :] <= total[of, None]) & v["touch"][:, None]
+        v["visual_time"] = visual[of]
         v["tactile_time"] = np.where(observed, tactile, -np.inf).max(axis=1, initial=-np.inf)
         ball = np.array(v["target"], dtype=np.float64, copy=True)
-        stopped = now + TOLERANCE > v["stop_time"]
-        ball[:, 1] += v["ball_distance"] * stroke_position(now, period, v["stroke_duration"], visual, next_event,
-                                                           stopped)
+        stopped = now + TOLERANCE > stop_time
+        ball[:, 1] += (v["ball_distance"][first] * stroke_position(now, period, v["stroke_duration"][first], visual,
+                                                                   next_event, stopped))[of]
         v["ball"] = ball
 
 

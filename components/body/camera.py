@@ -248,7 +248,8 @@ class Camera(Component):
     """The camera as a component: arm pose and ball in, image out (direct feedthrough).
 
     Trials whose pose and ball are the same bytes share one drawing (the image is a function of
-    them), and the arm layers and ball windows come from the drawings the process keeps
+    them; when every trial of the batch shares one, ``image`` is that drawing broadcast to the batch, a
+    read-only view), and the arm layers and ball windows come from the drawings the process keeps
     (:func:`kept_arm_layer`, :func:`kept_ball_alpha`, keyed by the blur and radius too, so a run
     with another ``blur`` never reuses them). ``blur`` and ``ball_radius`` are one value for the
     whole batch (the trials share drawings); differing per-trial values are a ComponentError
@@ -312,14 +313,23 @@ class Camera(Component):
             raise StepFailure(f"{self.name}.arm_pose is not finite: {poses.tolist()}")
         # Trials whose (pose, ball) are the same bytes share one drawing: the distinct rows of the raw bytes, each
         # drawn once in the order of its first trial, then gathered to every trial in one copy.
-        rows = np.ascontiguousarray(np.concatenate([poses, balls], axis=1)).view(np.dtype((np.void, 32))).ravel()
-        _, firsts, which = np.unique(rows, return_index=True, return_inverse=True)
+        pose_ball = np.ascontiguousarray(np.concatenate([poses, balls], axis=1))
+        if (pose_ball.view(np.uint64) == pose_ball[:1].view(np.uint64)).all():  # one picture (a cohort's cell)
+            firsts, which = np.zeros(1, int), np.zeros(len(pose_ball), int)
+        else:
+            _, firsts, which = np.unique(pose_ball.view(np.dtype((np.void, 32))).ravel(), return_index=True,
+                                         return_inverse=True)
         drawn = np.empty((len(firsts), self.resolution, self.resolution), np.float32)
         for position in np.argsort(firsts, kind="stable"):
             trial = firsts[position]
             composite(kept_arm_layer(poses[trial].tobytes(), self.resolution, self._blur_sigma),
                       kept_ball_alpha(balls[trial].tobytes(), self.resolution, self._blur_sigma, self._ball_radius),
                       out=drawn[position])
+        if len(drawn) == 1 and self.batch_size > 1 and self.values["arm_visible"].all():
+            # one picture for the whole batch (a cell of a cohort): every trial's row is a view of it, read-only,
+            # drawn once and never copied (a reader that needs its own rows makes them, as a decoder does)
+            self.values["image"] = np.broadcast_to(drawn[0], (self.batch_size, *drawn.shape[1:]))
+            return
         images = drawn[which.reshape(-1)]
         self._hide_arms(images, balls)
         self.values["image"] = images

@@ -38,6 +38,8 @@ def distinct(images: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     inverse : numpy.ndarray
         (B,) int: each trial's position in ``first``.
     """
+    if len(images) > 1 and images.strides[0] == 0:  # one picture broadcast to the batch (the camera's view)
+        return np.zeros(1, int), np.zeros(len(images), int)
     rows = np.ascontiguousarray(images).reshape(len(images), -1).view(np.uint32)
     probes = rows[:, np.linspace(0, rows.shape[1] - 1, min(PROBES, rows.shape[1])).astype(int)]
     seen: dict[bytes, int] = {}

@@ -35,6 +35,9 @@ from .networks import Encoder, normalise, sizes_dict, sizes_from_dict
 
 FORMAT = "rhi-pose-encoder/1"
 MIN_ROWS = 2      # images per convolution call at least: torch on the CPU convolves a batch of one another way (other bits)
+DENSE_ROWS = 4    # rows per dense-layer call at least: below 4 rows torch's CPU matrix product gives a row other bits
+                  # than in a batch of any larger size (measured on AVX2 with torch 2.13; the check at initialization
+                  # falls back to the unshared path wherever that does not hold)
 STORE_MB = 64.0   # the process's store of convolution features: 2 KiB an image at 64 px, so ~30 000 images
 STORE = FeatureStore(STORE_MB)  # one per process: a fit's batches, one after another, show the same pictures
 
@@ -183,10 +186,12 @@ class PoseEncoder(Component):
 
     The network's convolutions run once per distinct image (``share``): trials showing the same picture share
     them (:func:`~rhi.components.vision.image_sharing.distinct`), and what they gave is kept for the next step or
-    batch that shows it (one store per process, :data:`STORE_MB`). The dense layers still run on every trial's
-    row, in one batch of all B trials as before, so the outputs are the unshared computation's bit for bit
-    wherever the convolutions give each image the same numbers in a batch of any size >= :data:`MIN_ROWS`
-    (torch convolves a batch of one another way). That is checked on each run's first images against the whole
+    batch that shows it (one store per process, :data:`STORE_MB`); the dense layers run once per distinct image
+    too (at least :data:`DENSE_ROWS` rows), so a cell of a cohort, whose participants see one picture, costs one
+    picture's network a step. The outputs are the unshared computation's bit for bit wherever the network gives
+    each image the same numbers in a batch of any size >= :data:`MIN_ROWS` (convolutions) and >=
+    :data:`DENSE_ROWS` (dense layers): torch convolves a batch of one, and multiplies fewer than four rows, another
+    way. That is checked on each run's first images against the whole
     batch's forward pass; where it fails the component runs unshared. ``evaluated`` counts the images the
     convolutions ran on.
     """
@@ -233,7 +238,10 @@ class PoseEncoder(Component):
         self._update()
 
     def _check_finite(self):
-        if not np.all(np.isfinite(self.values["image"])):
+        image = self.values["image"]
+        if len(image) > 1 and image.strides[0] == 0:  # one picture broadcast to the batch: check it once
+            image = image[:1]
+        if not np.all(np.isfinite(image)):
             raise StepFailure(f"{self.name}: the image is not finite")
 
     def _update(self):
@@ -242,7 +250,8 @@ class PoseEncoder(Component):
                                                              else self.model(self.values["image"]))
 
     def _shared(self) -> tuple[np.ndarray, np.ndarray]:
-        """The outputs with the convolutions run once per distinct image not in the store."""
+        """The outputs with the convolutions run once per distinct image not in the store and the dense layers
+        once per distinct image, gathered to every trial."""
         image = self.values["image"]
         first, inverse = distinct(image)
         keys = [(*self._key, digest(image[b])) for b in first]
@@ -257,4 +266,8 @@ class PoseEncoder(Component):
                 features[n] = row.copy()  # its own memory: the store counts what it keeps
                 STORE.put(keys[n], features[n])
             self.evaluated += len(missing)
-        return self.model.from_features(np.stack(features)[inverse])
+        rows = np.stack(features)
+        if len(rows) < DENSE_ROWS:  # padded with copies, dropped after
+            rows = np.concatenate([rows, np.repeat(rows[-1:], DENSE_ROWS - len(rows), axis=0)])
+        angles, variance = self.model.from_features(rows)
+        return angles[inverse], variance[inverse]

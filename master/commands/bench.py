@@ -1,4 +1,4 @@
-"""`rhi bench [--json] [--quick] [--threads N] [--checkpoint CKPT] [--training]`: arguments in, the report printed."""
+"""`rhi bench [--json] [--quick] [--threads N] [--checkpoint CKPT] [--training | --cohort]`: arguments in, the report printed."""
 from __future__ import annotations
 
 import json
@@ -22,6 +22,9 @@ def add_arguments(parser) -> None:
                         help="trained conv decoder for the fast mode's drift error, at the default resolution "
                              "(default: the default conv decoder, the cache's, else the shipped one; --quick: an "
                              "untrained tiny one)")
+    parser.add_argument("--cohort", action="store_true",
+                        help="instead: CPU-µs per participant-step of every registered model at cohort batch sizes "
+                             "(60, 300, 1200; --quick: 4, 12), each part's share, on the batched and the pymunk arm")
     parser.add_argument("--training", action="store_true",
                         help="instead: samples/s of the paper decoders' training step at 256x256, before and after "
                              "the paper preset's settings, phase by phase (--quick: tiny, 32x32)")
@@ -41,6 +44,17 @@ def run(args) -> int:
     problem = file_problem(checkpoint) if checkpoint else None
     if problem:
         raise ConfigError(f"--checkpoint {checkpoint} {problem}")
+    if getattr(args, "cohort", False):
+        if checkpoint or getattr(args, "training", False):
+            raise ConfigError("--cohort measures the shipped decoders' cohorts: give neither --checkpoint nor --training")
+        from rhi.master.bench.cohort import cohort_report, cohort_table
+        report = cohort_report(quick=getattr(args, "quick", False))
+        if getattr(args, "json", False):
+            json.dump(report, sys.stdout, indent=1, default=float)
+            print()
+        else:
+            print(cohort_table(report))
+        return 0
     if checkpoint and getattr(args, "training", False):
         raise ConfigError("--checkpoint names the decoder of the fast mode's drift error; --training measures the "
                           "training step, which uses none: give one or the other")

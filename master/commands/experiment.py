@@ -16,7 +16,9 @@ HELP = "run the paper's rubber-hand protocol"
 def add_arguments(parser) -> None:
     """Add `rhi experiment`'s arguments to ``parser``."""
     parser.add_argument("--config", metavar="FILE", help="TOML file overriding master/defaults.toml")
-    parser.add_argument("--body", metavar="FMU", help="an FMI 2.0 co-simulation FMU to use as the body")
+    parser.add_argument("--body", metavar="FMU|VARIANT", help="the body: an FMI 2.0 co-simulation FMU, or a body "
+                        "variant run in this process (batched: the pymunk arm vectorised for cohorts; kinematic; "
+                        "native, the default pymunk arm)")
     scale = parser.add_mutually_exclusive_group()
     scale.add_argument("--quick", action="store_true", help="a small version, for smoke tests")
     add_preset(scale)

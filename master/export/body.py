@@ -15,6 +15,7 @@ Example::
 """
 from __future__ import annotations
 
+import importlib
 import importlib.util
 import shutil
 import tempfile
@@ -28,6 +29,7 @@ from rhi.master.export.fmu_files import build_with_pythonfmu, built_beside, chec
 VARIANTS = {
     "native": ("ArmBody", "components.body.plant:ArmPlant"),
     "kinematic": ("KinematicArmBody", "components.body.variants:KinematicArm"),
+    "batched": ("BatchedArmBody", "components.body.batched:BatchedArm"),  # the pymunk arm's, vectorised for cohorts
 }
 C_VARIANT = "kinematic-c"  # the kinematic arm written in C (master/export/c_body.py)
 VARIANT_NAMES = (*VARIANTS, C_VARIANT)
@@ -53,6 +55,15 @@ def build_fmu(out, variant: str = "native", component: str | None = None, model_
     if not model_name.isidentifier():
         raise ConfigError(f"model name {model_name!r} must be an identifier (it names the FMU's library)")
     return built_beside(out, lambda target: _build(target, model_name, component, extra_files, fmi))
+
+
+def variant_class(name: str):
+    """The component class of body variant ``name`` (VARIANTS), to run in this process (``rhi experiment --body
+    batched``); None when ``name`` names none (an FMU's path)."""
+    if name not in VARIANTS:
+        return None
+    module, _, attribute = VARIANTS[name][1].partition(":")
+    return getattr(importlib.import_module(module), attribute)
 
 
 def check_fmi(variant: str, fmi: str) -> None:

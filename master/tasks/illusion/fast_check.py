@@ -9,6 +9,14 @@ and the fast mode passes when every final drift is within ``DRIFT_BOUND`` of the
 A verdict depends on the checkpoint's bytes and on every setting that moves a trial, so it is stored
 under a hash of both: in the decoder cache, or shipped beside the package's default checkpoints
 (``SHIPPED``), and any other decoder or configuration is checked once, when first run.
+
+It is checked per protocol family, not per protocol: protocols that differ only in their stimulation schedule
+(:data:`SCHEDULE_KEYS`: the stimulations, their delays, touch and blocks, the stroke's duration and stop, the
+hidden conditions, the probes) share one verdict, checked on the family's representative, the protocol with the
+shipped defaults' schedule (:func:`family`). The schedule moves when the ball strokes and what the hand feels,
+not what the decoder is asked to decode: the rubber arm's offsets (``[conditions]``), the trial's length, the
+decoder's, brain's and body's settings stay in the family. A model whose brain reads no pixel term runs no
+decoder, so it is checked for nothing (:func:`verdicts`).
 """
 from __future__ import annotations
 
@@ -19,6 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
+from rhi.master import config as configuration
+from rhi.master import models
 from rhi.master.cosim import ConfigError
 from rhi.master.decoders.cache import SHIPPED, cache_folder, check_cache_folder, decoder_component
 from rhi.master.tasks.illusion.measures import end_of_trial, measures
@@ -31,6 +41,23 @@ from rhi.master.outputs.files import atomic_write
 DRIFT_BOUND = 0.01  # largest final-drift error of the fast mode, relative to the largest exact drift checked
 NOT_TRIAL_SETTINGS = {"experiment": {"decoders", "trials", "batch_trials"}, "decoder": {"conv_checkpoint", "vae_checkpoint", "fast"},
                       "train": None, "fmu": None}  # what does not move a checked trial (None: the whole table)
+# The stimulation schedule (docs/configuration.md, "Stimulation schedules"): a protocol family's members differ
+# only here. A table name stands for the whole table.
+SCHEDULE_KEYS = ("stimulations", "experiment.stimulations", "experiment.probe_times", "stimulus.stop_time",
+                 "stimulus.stroke_duration", "rubber_arm.hidden_conditions")
+
+
+def family(config: dict) -> dict:
+    """The representative of ``config``'s protocol family: ``config`` with the shipped defaults' stimulation
+    schedule (:data:`SCHEDULE_KEYS`), so the paper's protocol is its own representative."""
+    shipped, represented = configuration.defaults(), {table: dict(values) for table, values in config.items()}
+    for key in SCHEDULE_KEYS:
+        table, _, name = key.partition(".")
+        if name:
+            represented[table][name] = shipped[table][name]
+        else:
+            represented[table] = shipped[table]
+    return represented
 
 
 def verdict_key(checkpoint: str, config: dict) -> str:
@@ -130,11 +157,17 @@ def stored_verdict(cached: Path, shipped: Path) -> dict | None:
 
 def verdicts(config: dict, checkpoints: dict[str, str], workers: Workers | None = None,
              progress: bool = False) -> dict[str, dict]:
-    """Per decoder: whether it runs fast, and why. ``[decoder] fast = false`` runs every decoder exact;
-    ``true`` runs each decoder fast if its check passes (stored, or run now, the decoders side by side, on
-    ``workers`` when given; with ``progress``, a line on stderr says so first)."""
+    """Per decoder: whether it runs fast, and why. ``[decoder] fast = false`` runs every decoder exact, and a
+    model whose brain reads no pixel term runs none (nothing is checked for either); ``true`` runs each decoder
+    fast if its check on the protocol's family (:func:`family`) passes (stored, or run now, the decoders side by
+    side, on ``workers`` when given; with ``progress``, a line on stderr says so first)."""
     if not config["decoder"]["fast"]:
         return {kind: {"fast": False, "reason": "decoder.fast = false"} for kind in checkpoints}
+    model = models.of(config)
+    if not model.reads_pixels(config):
+        return {kind: {"fast": False, "reason": f"no decoder runs: the {model.name} model reads no pixel term"}
+                for kind in checkpoints}
+    config = family(config)
     found, missing = {}, []
     for kind, checkpoint in checkpoints.items():
         name = f"fast-check-{kind}-{verdict_key(checkpoint, config)}.json"

@@ -1,0 +1,57 @@
+"""`rhi bench --cohort`: the CPU each component's steps take is attributed to it (a component that burns a known
+amount of CPU), and a measured cell reports what it ran."""
+import time
+
+import numpy as np
+import pytest
+
+from rhi.components.component import Component
+from rhi.master.bench import cohort
+from rhi.master.commands.bench import run as run_bench
+from rhi.master.commands.cli import build_parser
+from rhi.master.cosim import ConfigError
+
+
+class Burner(Component):
+    """Burns ``seconds`` of this process's CPU each step (busy, measured by the same clock)."""
+
+    def __init__(self, name, seconds):
+        super().__init__(name, [])
+        self.seconds = seconds
+
+    def step(self, t, h):
+        began = time.process_time()
+        while time.process_time() - began < self.seconds:
+            pass
+
+
+def test_each_component_s_cpu_is_its_own():
+    slow, quick = Burner("slow", 0.004), Burner("quick", 0.001)
+    for part in (slow, quick):
+        part.instantiate(1)
+        part.enter_initialization_mode()
+        part.exit_initialization_mode()
+    with cohort.cpu_per_component() as spent:
+        for step in range(20):
+            slow.do_step(step * 0.02, 0.02)
+            quick.do_step(step * 0.02, 0.02)
+    # each burned at least its 20 x seconds, and less than that plus the clock's calls, do_step's own work and
+    # the busy loop's last turn (a few µs a step: 1 ms in 20 steps is 50 µs a step of room)
+    assert 0.080 <= spent["slow"] < 0.081 and 0.020 <= spent["quick"] < 0.021
+    assert Component.do_step is not None and "timed" not in Component.do_step.__name__  # put back
+
+
+def test_a_measured_cell_reports_its_parts_and_its_participant_steps():
+    row = cohort.measure("ownership", 4, "batched", 2)
+    assert (row["model"], row["batch"], row["body"], row["steps"]) == ("ownership", 4, "batched", 2)
+    assert set(row["shares"]) == {"rubber_arm", "stimulus", "camera", "pose_encoder", "brain", "body", "master"}
+    assert sum(row["shares"].values()) == pytest.approx(1.0, abs=1e-12)  # the parts and the master make the whole
+    assert all(share >= 0 for name, share in row["shares"].items() if name != "master")
+    assert np.isfinite(row["us_per_participant_step"]) and row["us_per_participant_step"] > 0
+
+
+def test_cohort_with_training_or_a_checkpoint_is_refused(tmp_path):
+    (tmp_path / "x.pt").write_bytes(b"")
+    for extra in (["--training"], ["--checkpoint", str(tmp_path / "x.pt")]):
+        with pytest.raises(ConfigError, match="--cohort measures"):
+            run_bench(build_parser().parse_args(["bench", "--cohort", *extra]))
