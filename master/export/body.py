@@ -22,15 +22,10 @@ import tempfile
 from pathlib import Path
 
 from rhi.components.fmu_bundle import COMPONENT_FILE
+from rhi.master.config.bodies import VARIANTS
 from rhi.master.cosim import ConfigError
 from rhi.master.export.fmu_files import build_with_pythonfmu, built_beside, check_target, staged_script
 
-# variant -> (model name, which is also the FMI model identifier; component class as module:Class)
-VARIANTS = {
-    "native": ("ArmBody", "components.body.plant:ArmPlant"),
-    "kinematic": ("KinematicArmBody", "components.body.variants:KinematicArm"),
-    "batched": ("BatchedArmBody", "components.body.batched:BatchedArm"),  # the pymunk arm's, vectorised for cohorts
-}
 C_VARIANT = "kinematic-c"  # the kinematic arm written in C (master/export/c_body.py)
 VARIANT_NAMES = (*VARIANTS, C_VARIANT)
 FMI_VERSIONS = ("2.0", "3.0")  # every variant is built for both
@@ -55,15 +50,6 @@ def build_fmu(out, variant: str = "native", component: str | None = None, model_
     if not model_name.isidentifier():
         raise ConfigError(f"model name {model_name!r} must be an identifier (it names the FMU's library)")
     return built_beside(out, lambda target: _build(target, model_name, component, extra_files, fmi))
-
-
-def variant_class(name: str):
-    """The component class of body variant ``name`` (VARIANTS), to run in this process (``rhi experiment --body
-    batched``); None when ``name`` names none (an FMU's path)."""
-    if name not in VARIANTS:
-        return None
-    module, _, attribute = VARIANTS[name][1].partition(":")
-    return getattr(importlib.import_module(module), attribute)
 
 
 def check_fmi(variant: str, fmi: str) -> None:

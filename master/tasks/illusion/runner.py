@@ -157,13 +157,13 @@ def decoder_batch(job: BatchJob):
 def body_factory(path, config: dict | None = None):
     """A callable making the body component (None: the native plant) and the body's parameter names.
 
-    ``path``: a registered body variant's name (``rhi.master.export.body.VARIANTS``: ``batched``, ``kinematic``, run
+    ``path``: a registered body variant's name (``rhi.master.config.bodies.VARIANTS``: ``batched``, ``kinematic``, run
     in this process), or an FMU, checked now, before any work: the body contract (every problem listed) and that
     its binary loads. Its calls are limited to ``[fmu] step_timeout_s`` seconds each (0: no limit).
     """
     if path is None:
         return None, None
-    from rhi.master.export.body import variant_class
+    from rhi.master.config.bodies import variant_class
 
     made = variant_class(path)
     if made is not None:
