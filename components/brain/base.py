@@ -25,8 +25,10 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .goal import goal_inputs
 from .touch_timing import observe_events
 from ..component import Component, ComponentError, StepFailure
+from ..variables import Variable
 
 STABILITY_LIMIT = 2.0  # explicit Euler on a linear decay of rate k is stable iff dt * k < 2
 GOAL_INPUTS = ("goal_drive", "goal_error", "goal_stiffness")  # rhi.components.brain.goal.goal_inputs
@@ -201,13 +203,77 @@ class BeliefRate(NamedTuple):
     state: MappingProxyType = MappingProxyType({})  # read-only, so the one default cannot change
 
 
+JOINT = MappingProxyType(dict(type="Array", shape=(2,)))  # a (shoulder, elbow) pair per trial
+STATE = MappingProxyType(dict(causality="output", depends_on=()))  # an output of the state: no direct feedthrough
+
+
+def contract(gamma: str, free_energy: str = "F at the step's start mu") -> dict[str, list[Variable]]:
+    """The variables :meth:`BeliefBrain.step` reads and writes, declared once for every brain.
+
+    Parameters
+    ----------
+    gamma : str
+        What the model's ``gamma`` is (its description): the weight of vision, ownership, ...
+    free_energy : str
+        What the model's ``free_energy`` sums.
+
+    Returns
+    -------
+    dict of str to list of Variable
+        ``"parameters"``: Sigma_p, mu0, the action law's limit and tau; ``"inputs"``: s_p (q_shoulder,
+        q_elbow), the reach goal's term and the touch events; ``"outputs"``: mu, the action a and its rate,
+        gamma and the free energy.
+    """
+    return {
+        "parameters": [
+            Variable("proprioceptive_variance", "parameter", start=1.0, unit="deg2", min=0.0,
+                     description="Sigma_p, proprioceptive variance (1/Sigma_p is the belief's relaxation rate, 1/s)"),
+            Variable("mu0", "parameter", start=(0.0, 0.0), unit="deg", **JOINT,
+                     description="initial belief (shoulder, elbow); the master sets the rest pose"),
+            Variable("action_limit", "parameter", start=1.0, unit="deg/s", min=0.0,
+                     description="the action is clipped to [-action_limit, action_limit]"),
+            Variable("action_time_constant", "parameter", start=0.1, unit="s", min=0.0,
+                     description="tau of the action law a <- a + dt (a_dot - a/tau): the leaky (reflex) "
+                                 "action; inf = the paper's eq. 7, a pure integrator"),
+        ],
+        "inputs": [
+            Variable("q_shoulder", "input", start=np.nan, unit="deg",
+                     description="s_p: sensed shoulder angle (NaN until the body feeds it)"),
+            Variable("q_elbow", "input", start=np.nan, unit="deg",
+                     description="s_p: sensed elbow angle (NaN until the body feeds it)"),
+            *goal_inputs(),
+            Variable("visual_time", "input", start=-np.inf, unit="s",
+                     description="time of the last observed visual touch event (-inf: none yet)"),
+            Variable("tactile_time", "input", start=-np.inf, unit="s",
+                     description="time of the last observed tactile event (-inf: none yet)"),
+        ],
+        "outputs": [
+            Variable("mu", unit="deg", **JOINT, **STATE, description="belief of the joint angles (shoulder, elbow)"),
+            Variable("u_shoulder", unit="deg/s", **STATE, description="action a: commanded shoulder velocity"),
+            Variable("u_elbow", unit="deg/s", **STATE, description="action a: commanded elbow velocity"),
+            Variable("action_rate", unit="deg/s2", **JOINT, **STATE, description="a_dot (shoulder, elbow)"),
+            Variable("gamma", unit="1", min=0.0, max=1.0, **STATE, description=gamma),
+            Variable("free_energy", unit="1", **STATE, description=free_energy),
+        ],
+    }
+
+
 class BeliefBrain(Component, abc.ABC):
     """A brain of belief mu and action a for B trials: the shared step, guards and action law.
 
-    A model derives from it, declares its variables (those named here among them: ``mu0``,
-    ``proprioceptive_variance``, ``action_limit``, ``action_time_constant``, ``q_shoulder``, ``q_elbow``,
-    the goal and event inputs; ``mu``, ``u_shoulder``, ``u_elbow``, ``action_rate``, ``gamma``,
-    ``free_energy`` out) and implements :meth:`rate`, :meth:`stiffness_terms` and the publishing of gamma.
+    A model derives from it, declares only its own variables (the contract's are declared once, :func:`contract`)
+    and implements :meth:`rate`, :meth:`stiffness_terms` and the publishing of gamma.
+
+    Parameters
+    ----------
+    name : str
+        The instance name in a system.
+    own : list of Variable or str
+        The model's own parameters, inputs and outputs. A contract variable's name (a str) places that
+        variable there; those not named follow the contract's order, each group before the model's own of its
+        causality. (An exported brain names them all, so that its FMU's value references keep their order.)
+    gamma, free_energy : str
+        What the model's ``gamma`` is and its ``free_energy`` sums (:func:`contract`).
 
     Attributes
     ----------
@@ -219,6 +285,18 @@ class BeliefBrain(Component, abc.ABC):
 
     finite_inputs: tuple[str, ...] = ()
     stiffness_remedy = ""
+
+    def __init__(self, name: str, own: list[Variable], gamma: str, free_energy: str = "F at the step's start mu"):
+        shared = {v.name: v for group in contract(gamma, free_energy).values() for v in group}
+        named = [shared[v] if isinstance(v, str) else v for v in own]  # KeyError: not a contract variable's name
+        rest = [v for v in shared.values() if v.name not in own]
+
+        def group(variable):
+            return variable.causality if variable.causality in ("parameter", "input") else "output"  # or local
+
+        super().__init__(name, [v for causality in ("parameter", "input", "output")
+                                for v in [*(r for r in rest if group(r) == causality),
+                                          *(n for n in named if group(n) == causality)]])
 
     @abc.abstractmethod
     def rate(self, t, h, s_p, pair) -> BeliefRate:

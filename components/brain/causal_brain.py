@@ -26,8 +26,7 @@ import numpy as np
 
 from .body_inference import hazard_predict, participants, posterior, spatial_likelihood_ratio, \
     timing_likelihood_ratio
-from .base import BeliefBrain, PerceptualNoise, BeliefRate, add_goal_drive, require_finite
-from .goal import goal_inputs
+from .base import JOINT, STATE, BeliefBrain, PerceptualNoise, BeliefRate, add_goal_drive, require_finite
 from ..component import ComponentError, StepFailure
 from ..variables import Variable
 
@@ -116,21 +115,12 @@ class CausalBrain(PerceptualNoise, BeliefBrain):
     finite_inputs = ("seen_pose", "seen_pose_variance", "visual_stiffness")  # the last always enters the guard
 
     def __init__(self, name="brain"):
-        joint = dict(type="Array", shape=(2,))
-        state = dict(causality="output", depends_on=())
         positive = dict(min=1e-12)
         super().__init__(name, [
-            Variable("proprioceptive_variance", "parameter", start=1.0, unit="deg2", **positive,
-                     description="Sigma_p, proprioceptive variance (the paper's)"),
-            Variable("mu0", "parameter", start=(0.0, 0.0), unit="deg", **joint, description="initial belief"),
             Variable("sync_sd", "parameter", start=0.2, unit="s", **positive,
                      description="sd of the true visuo-tactile delay under a common cause (paper eq. 8)"),
             Variable("async_density", "parameter", start=0.5, unit="1/s", **positive,
                      description="uniform density of the delay under separate causes (p2)"),
-            Variable("action_limit", "parameter", start=1.0, unit="deg/s", **positive,
-                     description="the action is clipped to [-action_limit, action_limit]"),
-            Variable("action_time_constant", "parameter", start=0.1, unit="s", min=0.0,
-                     description="tau of the action law (inf: the paper's eq. 7)"),
             Variable("pixel_weight", "parameter", start=0.0, unit="1", min=0.0,
                      description="weight of the paper's pixel term beside the body-space term (0: off)"),
             Variable("common_cause_prior", "parameter", start=0.28, unit="1", min=1e-6, max=1.0 - 1e-6,
@@ -139,11 +129,11 @@ class CausalBrain(PerceptualNoise, BeliefBrain):
                      description="population median of 1/(k_on + k_off), the common-cause state's memory"),
             Variable("timing_noise_sd", "parameter", start=0.1, unit="s", min=0.0,
                      description="population median sd of the perceived visuo-tactile delay's noise"),
-            Variable("coupling_sd", "parameter", start=(1.0, 1.0), unit="deg", **joint,
+            Variable("coupling_sd", "parameter", start=(1.0, 1.0), unit="deg", **JOINT,
                      description="population median spread of the seen from the felt pose under one cause"),
-            Variable("workspace_mean", "parameter", start=(0.0, 0.0), unit="deg", **joint,
+            Variable("workspace_mean", "parameter", start=(0.0, 0.0), unit="deg", **JOINT,
                      description="centre of the seen pose's density under separate causes"),
-            Variable("workspace_sd", "parameter", start=(1.0, 1.0), unit="deg", **joint,
+            Variable("workspace_sd", "parameter", start=(1.0, 1.0), unit="deg", **JOINT,
                      description="sd of the seen pose's density under separate causes"),
             Variable("participant_seed", "parameter", "Integer", start=0, min=0, unit="1",
                      description="seeds this trial's participant and its timing noise"),
@@ -155,31 +145,19 @@ class CausalBrain(PerceptualNoise, BeliefBrain):
                      description="population: sd of log coupling_sd"),
             Variable("prior_concentration", "parameter", start=20.0, unit="1", **positive,
                      description="population: the prior is Beta(prior k, (1 - prior) k)"),
-            Variable("q_shoulder", "input", start=np.nan, unit="deg", description="s_p: sensed shoulder angle"),
-            Variable("q_elbow", "input", start=np.nan, unit="deg", description="s_p: sensed elbow angle"),
-            Variable("seen_pose", "input", start=(np.nan, np.nan), unit="deg", **joint,
+            Variable("seen_pose", "input", start=(np.nan, np.nan), unit="deg", **JOINT,
                      description="x_v: the seen arm's joint angles, from the pose encoder"),
-            Variable("seen_pose_variance", "input", start=(1.0, 1.0), unit="deg2", **joint,
+            Variable("seen_pose_variance", "input", start=(1.0, 1.0), unit="deg2", **JOINT,
                      description="Sigma_x: the pose encoder's calibrated variance of x_v"),
-            Variable("visual_drive", "input", start=(0.0, 0.0), unit="deg/s", **joint,
+            Variable("visual_drive", "input", start=(0.0, 0.0), unit="deg/s", **JOINT,
                      description="the paper's pixel term, read only when pixel_weight > 0"),
             Variable("visual_error", "input", start=0.0, unit="1", min=0.0,
                      description="the paper's visual error, read only when pixel_weight > 0"),
             Variable("visual_stiffness", "input", start=0.0, unit="1/s", min=0.0,
                      description="the pixel term's stiffness, for the stability guard"),
-            *goal_inputs(),
-            Variable("visual_time", "input", start=-np.inf, unit="s", description="last visual touch event"),
-            Variable("tactile_time", "input", start=-np.inf, unit="s", description="last tactile event"),
-            Variable("mu", unit="deg", **joint, **state, description="belief of the joint angles"),
-            Variable("u_shoulder", unit="deg/s", **state, description="action a: commanded shoulder velocity"),
-            Variable("u_elbow", unit="deg/s", **state, description="action a: commanded elbow velocity"),
-            Variable("action_rate", unit="deg/s2", **joint, **state, description="a_dot (shoulder, elbow)"),
-            Variable("gamma", unit="1", min=0.0, max=1.0, **state,
-                     description="belief in a common cause of the seen and the felt arm, over space and time"),
-            Variable("gamma_timing", unit="1", min=0.0, max=1.0, **state,
+            Variable("gamma_timing", unit="1", min=0.0, max=1.0, **STATE,
                      description="the common-cause state's belief from the touches' timing alone"),
-            Variable("free_energy", unit="1", **state, description="F at the step's start mu"),
-        ])
+        ], gamma="belief in a common cause of the seen and the felt arm, over space and time")
 
     def publish_initial(self):
         """Each trial's participant drawn from its seed; mu = mu0, gamma = gamma_timing = the participant's

@@ -61,10 +61,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import STABILITY_LIMIT, BeliefBrain, BeliefRate, action_rate, action_update, \
+from .base import JOINT, STABILITY_LIMIT, BeliefBrain, BeliefRate, action_rate, action_update, \
     add_goal_drive, euler_step, trials_text
 from .touch_timing import spatial_likelihood, update_gamma
-from .goal import goal_inputs
 from ..component import ComponentError, StepFailure
 from ..variables import Variable
 
@@ -146,59 +145,38 @@ class Brain(BeliefBrain):
     stiffness_remedy = "a larger visual_variance"
 
     def __init__(self, name="brain"):
-        joint = dict(type="Array", shape=(2,))
-        state = dict(causality="output", depends_on=())
         super().__init__(name, [
-            Variable("proprioceptive_variance", "parameter", start=1.0, unit="deg2", min=0.0,
-                     description="Sigma_p, proprioceptive variance (1/Sigma_p is the belief's relaxation rate, 1/s)"),
+            "proprioceptive_variance",
             Variable("gamma0", "parameter", start=0.01, unit="1", min=0.0, max=1.0,
                      description="initial gamma and its floor (the prior of a common cause)"),
-            Variable("mu0", "parameter", start=(0.0, 0.0), unit="deg", **joint,
-                     description="initial belief (shoulder, elbow); the master sets the rest pose"),
+            "mu0",
             Variable("sync_sd", "parameter", start=0.2, unit="s", min=0.0,
                      description="sd of the visuo-tactile delay under a common cause"),
             Variable("async_density", "parameter", start=0.5, unit="1/s", min=0.0,
                      description="uniform density of the delay under separate causes (p2)"),
             Variable("decay_rate", "parameter", start=1.0 / 80.0, unit="1/s3", min=0.0,
                      description="r_decay; gamma *= exp(-(t - t_t)^2 * dt * r_decay) between events"),
-            Variable("action_limit", "parameter", start=1.0, unit="deg/s", min=0.0,
-                     description="the action is clipped to [-action_limit, action_limit]"),
+            "action_limit",
             Variable("spatial_sd", "parameter", start=np.inf, unit="m", min=0.0,
                      description="extension: sd of the seen-felt hand distance under a common cause (causal "
                                  "inference over space); inf = the paper's model, gamma ignores space"),
-            Variable("action_time_constant", "parameter", start=0.1, unit="s", min=0.0,
-                     description="tau of the action law a <- a + dt (a_dot - a/tau): the leaky (reflex) "
-                                 "action; inf = the paper's eq. 7, a pure integrator"),
-            Variable("q_shoulder", "input", start=np.nan, unit="deg",
-                     description="s_p: sensed shoulder angle (NaN until the body feeds it)"),
-            Variable("q_elbow", "input", start=np.nan, unit="deg",
-                     description="s_p: sensed elbow angle (NaN until the body feeds it)"),
-            Variable("visual_drive", "input", start=(0.0, 0.0), unit="deg/s", **joint,
+            "action_time_constant", "q_shoulder", "q_elbow",
+            Variable("visual_drive", "input", start=(0.0, 0.0), unit="deg/s", **JOINT,
                      description="J^T (s_v - g(mu)) / Sigma_v from the decoder, at this step's mu"),
             Variable("visual_error", "input", start=0.0, unit="1", min=0.0,
                      description="1/2 e^T Sigma_v^-1 e from the decoder, e = s_v - g(mu), at this step's mu"),
             Variable("visual_stiffness", "input", start=0.0, unit="1/s", min=0.0,
                      description="largest eigenvalue of J^T J / Sigma_v, for the stability guard"),
-            *goal_inputs(),
-            Variable("seen_hand", "input", start=(np.nan, np.nan), unit="m", **joint,
+            "goal_drive", "goal_error", "goal_stiffness",
+            Variable("seen_hand", "input", start=(np.nan, np.nan), unit="m", **JOINT,
                      description="the seen (rubber) hand (x, y); read only when spatial_sd is finite"),
             Variable("hand_x", "input", start=np.nan, unit="m",
                      description="the felt hand: x of the sensed arm's hand; read only when spatial_sd is finite"),
             Variable("hand_y", "input", start=np.nan, unit="m",
                      description="the felt hand: y of the sensed arm's hand; read only when spatial_sd is finite"),
-            Variable("visual_time", "input", start=-np.inf, unit="s",
-                     description="time of the last observed visual touch event (-inf: none yet)"),
-            Variable("tactile_time", "input", start=-np.inf, unit="s",
-                     description="time of the last observed tactile event (-inf: none yet)"),
-            Variable("mu", unit="deg", **joint, **state, description="belief of the joint angles (shoulder, elbow)"),
-            Variable("u_shoulder", unit="deg/s", **state, description="action a: commanded shoulder velocity"),
-            Variable("u_elbow", unit="deg/s", **state, description="action a: commanded elbow velocity"),
-            Variable("action_rate", unit="deg/s2", **joint, **state, description="a_dot (shoulder, elbow)"),
-            Variable("gamma", unit="1", min=0.0, max=1.0, **state,
-                     description="belief that seen and felt touch share a cause; weights vision"),
-            Variable("free_energy", unit="1", **state,
-                     description="sum (s_p - mu)^2 / (2 Sigma_p) + gamma * visual_error, at the step's start mu"),
-        ])
+            "visual_time", "tactile_time", "mu", "u_shoulder", "u_elbow", "action_rate", "gamma", "free_energy",
+        ], gamma="belief that seen and felt touch share a cause; weights vision",
+            free_energy="sum (s_p - mu)^2 / (2 Sigma_p) + gamma * visual_error, at the step's start mu")
 
     def publish_initial(self):
         """mu = mu0, gamma = gamma0, a = a_dot = 0, free energy NaN, no events seen: the decoder,

@@ -28,9 +28,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import BeliefBrain, PerceptualNoise, BeliefRate, add_goal_drive
+from .base import JOINT, STATE, BeliefBrain, PerceptualNoise, BeliefRate, add_goal_drive
 from .body_inference import hazard_predict, posterior
-from .goal import goal_inputs
 from .ownership_inference import asynchrony_log_likelihood_ratio, belief_rate, free_energy, \
     hand_separation, ownership_onset, realignment_step, realignment_target, spatial_log_likelihood_ratio
 from ..component import ComponentError
@@ -51,18 +50,9 @@ class OwnershipBrain(PerceptualNoise, BeliefBrain):
     finite_inputs = ("seen_pose",)
 
     def __init__(self, name="brain"):
-        joint = dict(type="Array", shape=(2,))
-        state = dict(causality="output", depends_on=())
         positive = dict(min=1e-12)
         probability = dict(min=1e-6, max=1.0 - 1e-6)
         super().__init__(name, [
-            Variable("proprioceptive_variance", "parameter", start=1.0, unit="deg2", **positive,
-                     description="Sigma_p, proprioceptive variance (the paper's)"),
-            Variable("mu0", "parameter", start=(0.0, 0.0), unit="deg", **joint, description="initial belief"),
-            Variable("action_limit", "parameter", start=1.0, unit="deg/s", **positive,
-                     description="the action is clipped to [-action_limit, action_limit]"),
-            Variable("action_time_constant", "parameter", start=0.1, unit="s", min=0.0,
-                     description="tau of the action law (inf: the paper's eq. 7)"),
             Variable("ownership_prior", "parameter", start=0.01, unit="1", **probability,
                      description="gamma's prior and the stationary probability of its chain (the paper's gamma0)"),
             Variable("coupling_prior", "parameter", start=0.73, unit="1", **probability,
@@ -85,27 +75,15 @@ class OwnershipBrain(PerceptualNoise, BeliefBrain):
                      description="k: the rate of the realignment b toward w rho (x_v - s_p)"),
             Variable("participant_seed", "parameter", "Integer", start=0, min=0, unit="1",
                      description="seeds this trial's perceptual timing noise"),
-            Variable("q_shoulder", "input", start=np.nan, unit="deg", description="s_p: sensed shoulder angle"),
-            Variable("q_elbow", "input", start=np.nan, unit="deg", description="s_p: sensed elbow angle"),
-            Variable("seen_pose", "input", start=(np.nan, np.nan), unit="deg", **joint,
+            Variable("seen_pose", "input", start=(np.nan, np.nan), unit="deg", **JOINT,
                      description="x_v: the seen arm's joint angles, from the pose encoder"),
-            *goal_inputs(),
-            Variable("visual_time", "input", start=-np.inf, unit="s", description="last visual touch event"),
-            Variable("tactile_time", "input", start=-np.inf, unit="s", description="last tactile event"),
-            Variable("mu", unit="deg", **joint, **state, description="belief of the joint angles: the perceived arm"),
-            Variable("u_shoulder", unit="deg/s", **state, description="action a: commanded shoulder velocity"),
-            Variable("u_elbow", unit="deg/s", **state, description="action a: commanded elbow velocity"),
-            Variable("action_rate", unit="deg/s2", **joint, **state, description="a_dot (shoulder, elbow)"),
-            Variable("gamma", unit="1", min=0.0, max=1.0, **state,
-                     description="ownership: the belief that the seen arm is one's own, from the touches' timing"),
-            Variable("coupling", unit="1", min=0.0, max=1.0, **state,
+            Variable("coupling", unit="1", min=0.0, max=1.0, **STATE,
                      description="rho: the belief that the seen arm lies where the felt one is"),
-            Variable("realignment", unit="deg", **joint, **state,
+            Variable("realignment", unit="deg", **JOINT, **STATE,
                      description="b: the slow realignment of the felt arm toward the seen one"),
-            Variable("ownership_onset", unit="s", **state,
+            Variable("ownership_onset", unit="s", **STATE,
                      description="the first time gamma reached 1/2 (NaN: not yet)"),
-            Variable("free_energy", unit="1", **state, description="F at the step's start mu"),
-        ])
+        ], gamma="ownership: the belief that the seen arm is one's own, from the touches' timing")
 
     def publish_initial(self):
         """mu = mu0, a = a_dot = 0, gamma and rho at their priors, b = 0, no onset, no events seen; each
