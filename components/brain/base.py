@@ -258,6 +258,29 @@ def contract(gamma: str, free_energy: str = "F at the step's start mu") -> dict[
     }
 
 
+def pixel_inputs(note: str = "") -> list[Variable]:
+    """The decoder's pixel term as a brain reads it (the paper's eq. 6, :mod:`rhi.components.vision.component`).
+
+    Parameters
+    ----------
+    note : str
+        Appended to each description (e.g. when the brain reads the term).
+
+    Returns
+    -------
+    list of Variable
+        ``visual_drive`` ((2,) deg/s), ``visual_error`` (1), ``visual_stiffness`` (1/s).
+    """
+    return [
+        Variable("visual_drive", "input", start=(0.0, 0.0), unit="deg/s", **JOINT,
+                 description="J^T (s_v - g(mu)) / Sigma_v from the decoder, at this step's mu" + note),
+        Variable("visual_error", "input", start=0.0, unit="1", min=0.0,
+                 description="1/2 e^T Sigma_v^-1 e from the decoder, e = s_v - g(mu), at this step's mu" + note),
+        Variable("visual_stiffness", "input", start=0.0, unit="1/s", min=0.0,
+                 description="largest eigenvalue of J^T J / Sigma_v, for the stability guard" + note),
+    ]
+
+
 class BeliefBrain(Component, abc.ABC):
     """A brain of belief mu and action a for B trials: the shared step, guards and action law.
 

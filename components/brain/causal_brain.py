@@ -26,7 +26,8 @@ import numpy as np
 
 from .body_inference import hazard_predict, participants, posterior, spatial_likelihood_ratio, \
     timing_likelihood_ratio
-from .base import JOINT, STATE, BeliefBrain, PerceptualNoise, BeliefRate, add_goal_drive, require_finite
+from .base import JOINT, STATE, BeliefBrain, BeliefRate, PerceptualNoise, add_goal_drive, pixel_inputs, \
+    require_finite
 from ..component import ComponentError, StepFailure
 from ..variables import Variable
 
@@ -149,12 +150,7 @@ class CausalBrain(PerceptualNoise, BeliefBrain):
                      description="x_v: the seen arm's joint angles, from the pose encoder"),
             Variable("seen_pose_variance", "input", start=(1.0, 1.0), unit="deg2", **JOINT,
                      description="Sigma_x: the pose encoder's calibrated variance of x_v"),
-            Variable("visual_drive", "input", start=(0.0, 0.0), unit="deg/s", **JOINT,
-                     description="the paper's pixel term, read only when pixel_weight > 0"),
-            Variable("visual_error", "input", start=0.0, unit="1", min=0.0,
-                     description="the paper's visual error, read only when pixel_weight > 0"),
-            Variable("visual_stiffness", "input", start=0.0, unit="1/s", min=0.0,
-                     description="the pixel term's stiffness, for the stability guard"),
+            *pixel_inputs("; read only when pixel_weight > 0"),
             Variable("gamma_timing", unit="1", min=0.0, max=1.0, **STATE,
                      description="the common-cause state's belief from the touches' timing alone"),
         ], gamma="belief in a common cause of the seen and the felt arm, over space and time")

@@ -61,7 +61,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import JOINT, STABILITY_LIMIT, BeliefBrain, BeliefRate, action_rate, action_update, \
+from .base import JOINT, STABILITY_LIMIT, BeliefBrain, pixel_inputs, BeliefRate, action_rate, action_update, \
     add_goal_drive, euler_step, trials_text
 from .touch_timing import spatial_likelihood, update_gamma
 from ..component import ComponentError, StepFailure
@@ -161,12 +161,7 @@ class Brain(BeliefBrain):
                      description="extension: sd of the seen-felt hand distance under a common cause (causal "
                                  "inference over space); inf = the paper's model, gamma ignores space"),
             "action_time_constant", "q_shoulder", "q_elbow",
-            Variable("visual_drive", "input", start=(0.0, 0.0), unit="deg/s", **JOINT,
-                     description="J^T (s_v - g(mu)) / Sigma_v from the decoder, at this step's mu"),
-            Variable("visual_error", "input", start=0.0, unit="1", min=0.0,
-                     description="1/2 e^T Sigma_v^-1 e from the decoder, e = s_v - g(mu), at this step's mu"),
-            Variable("visual_stiffness", "input", start=0.0, unit="1/s", min=0.0,
-                     description="largest eigenvalue of J^T J / Sigma_v, for the stability guard"),
+            *pixel_inputs(),
             "goal_drive", "goal_error", "goal_stiffness",
             Variable("seen_hand", "input", start=(np.nan, np.nan), unit="m", **JOINT,
                      description="the seen (rubber) hand (x, y); read only when spatial_sd is finite"),
