@@ -4,26 +4,32 @@ One synchronous Left trial: the rubber hand 15 cm left of the real one, each tou
 it is seen. The drift is where the brain believes the hand is minus where it is (x, cm).
 
     python examples/orchestrate.py --checkpoint conv.pt     # a trained decoder at --resolution
-    python examples/orchestrate.py --tiny --resolution 16   # trains a tiny one first (seconds)
+    python examples/orchestrate.py --tiny --out tiny/       # a tiny one (16 px) trained first, into tiny/
 """
 import argparse
+import os
 import tempfile
+import time
 from pathlib import Path
 
-import numpy as np
+# Torch's OpenMP threads spin while they wait by default: on cores shared with other processes that cost this
+# script several times its run time (as `rhi` sets it for itself, before torch loads).
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-from rhi.components.body import kinematics
-from rhi.components.body.camera import Camera, render
-from rhi.components.body.plant import ArmPlant
-from rhi.components.body.rubber_arm import RubberArm
-from rhi.components.brain.integrator import Brain
-from rhi.components.body.contract import BODY_CONTRACT
-from rhi.components.fmu import FMUComponent
-from rhi.components.stimulus import Stimulus
-from rhi.components.vision import checkpoint, training
-from rhi.components.vision.component import Decoder
-from rhi.master.cosim import System, simulate
-from rhi.master.export.body import build_fmu
+import numpy as np  # noqa: E402
+
+from rhi.components.body import kinematics  # noqa: E402
+from rhi.components.body.camera import Camera, render  # noqa: E402
+from rhi.components.body.plant import ArmPlant  # noqa: E402
+from rhi.components.body.rubber_arm import RubberArm  # noqa: E402
+from rhi.components.brain.integrator import Brain  # noqa: E402
+from rhi.components.body.contract import BODY_CONTRACT  # noqa: E402
+from rhi.components.fmu import FMUComponent  # noqa: E402
+from rhi.components.stimulus import Stimulus  # noqa: E402
+from rhi.components.vision import checkpoint, training  # noqa: E402
+from rhi.components.vision.component import Decoder  # noqa: E402
+from rhi.master.cosim import System, simulate  # noqa: E402
+from rhi.master.export.body import build_fmu  # noqa: E402
 
 # Output -> input. simulate steps the components in the order the System lists them (Gauss-Seidel):
 # the decoder reads this step's image and the belief mu of time t, the brain then integrates,
@@ -44,6 +50,10 @@ CONNECTIONS = [
     ("brain.u_shoulder", "body.u_shoulder"),           # action
     ("brain.u_elbow", "body.u_elbow"),
 ]
+
+
+FULL = {"steps": 1500, "resolution": 64}  # the experiment's trial: 30 s, 64x64 images
+TINY = {"steps": 1500, "resolution": 16}  # the same 30 s trial, 16x16 images
 
 
 def tiny_checkpoint(path, resolution):
@@ -82,22 +92,37 @@ def drift_cm(args, body):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--checkpoint", help="a trained decoder (.pt) at --resolution")
-    parser.add_argument("--tiny", action="store_true", help="train a tiny decoder first, into ./tiny_decoder.pt")
-    parser.add_argument("--steps", type=int, default=1500, help="steps of 0.02 s (default 1500: 30 s)")
-    parser.add_argument("--resolution", type=int, default=64, help="camera and decoder image side, px")
+    parser.add_argument("--tiny", action="store_true",
+                        help=f"train a tiny decoder first (default --resolution {TINY['resolution']}, --steps "
+                             f"{TINY['steps']}: about 40 s of CPU time)")
+    parser.add_argument("--out", metavar="DIR", help="with --tiny: keep its decoder as DIR/tiny_decoder.pt "
+                                                     "(default: a temporary folder, removed at the end)")
+    parser.add_argument("--steps", type=int, help="steps of 0.02 s (default 1500: 30 s)")
+    parser.add_argument("--resolution", type=int, help="camera and decoder image side, px (default 64)")
     # 20.0 is the calibrated value; master/defaults.toml ([decoder] visual_variance) holds the default.
     parser.add_argument("--visual-variance", type=float, default=20.0)
     parser.add_argument("--seed", type=int, default=1, help="seeds the stimulus's visuo-tactile delays")
     args = parser.parse_args()
-    if args.tiny:
-        args.checkpoint = tiny_checkpoint(Path("tiny_decoder.pt").resolve(), args.resolution)
-    elif not args.checkpoint:
+    if args.tiny == bool(args.checkpoint):
         parser.error("give --checkpoint PATH (a trained decoder) or --tiny")
+    if args.out and not args.tiny:
+        parser.error("--out names the folder of --tiny's decoder")
+    for key, value in (TINY if args.tiny else FULL).items():
+        if getattr(args, key) is None:
+            setattr(args, key, value)
 
-    print(f"native body: drift {drift_cm(args, ArmPlant()):.12f} cm")
-    with tempfile.TemporaryDirectory() as folder:  # the same body, exported as an FMI 2.0 FMU
-        fmu = build_fmu(Path(folder) / "Body.fmu", "native")
+    began = time.perf_counter()
+    with tempfile.TemporaryDirectory() as folder:
+        if args.tiny:
+            kept = Path(args.out or folder)
+            kept.mkdir(parents=True, exist_ok=True)
+            print(f"training a tiny decoder ({args.resolution} px) into {kept / 'tiny_decoder.pt'}", flush=True)
+            args.checkpoint = tiny_checkpoint(kept / "tiny_decoder.pt", args.resolution)
+        print(f"one synchronous Left trial of {args.steps} steps, with the native body, then the FMU", flush=True)
+        print(f"native body: drift {drift_cm(args, ArmPlant()):.12f} cm", flush=True)
+        fmu = build_fmu(Path(folder) / "Body.fmu", "native")  # the same body, exported as an FMI 2.0 FMU
         print(f"FMU body:    drift {drift_cm(args, FMUComponent(fmu, 'body', BODY_CONTRACT)):.12f} cm")
+    print(f"done in {time.perf_counter() - began:.0f} s")
 
 
 if __name__ == "__main__":

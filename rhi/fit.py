@@ -5,8 +5,8 @@ Examples
 A fit's plan and data from files, prior draws, simulated participants, an estimator and a posterior::
 
     import rhi
-    data = rhi.fit.read_data("docs/fit/example.csv")
-    plan = rhi.fit.read_plan("docs/fit/example.toml", data)
+    data = rhi.fit.read_data("docs/fit/default_run.csv")
+    plan = rhi.fit.read_plan("docs/fit/recovery.toml", data)
     theta = rhi.fit.draw(plan, 200)                  # (200, parameters), the inference space
     x = rhi.fit.simulate(plan, data, theta)          # (200, cells x measures)
     estimator = rhi.fit.train(plan, theta, x)

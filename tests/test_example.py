@@ -33,8 +33,9 @@ def test_example_uses_only_the_engine_the_export_and_the_components():
 def test_example_runs_and_its_drift_is_the_experiments(tmp_path):
     # One torch thread: quicker on a shared machine, and the decoder's sums depend on the thread count.
     env = {**os.environ, "RHI_CACHE": str(tmp_path / "cache"), "OMP_NUM_THREADS": "1"}
-    done = subprocess.run([sys.executable, str(SCRIPT), "--tiny", "--steps", str(STEPS), "--resolution",
-                           str(RESOLUTION)], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    done = subprocess.run([sys.executable, str(SCRIPT), "--tiny", "--out", "tiny", "--steps", str(STEPS),
+                           "--resolution", str(RESOLUTION)], cwd=tmp_path, env=env, capture_output=True, text=True,
+                          timeout=300)
     assert done.returncode == 0, done.stderr
     drifts = {body: float(value) for body, value in re.findall(r"^(native|FMU) body: +drift (\S+) cm$",
                                                                  done.stdout, re.MULTILINE)}
@@ -42,12 +43,13 @@ def test_example_runs_and_its_drift_is_the_experiments(tmp_path):
     assert math.isfinite(drifts["native"]) and drifts["native"] < -1e-3  # toward the rubber hand, on the left
     assert abs(drifts["FMU"] - drifts["native"]) < 1e-9  # the exported body reproduces the native plant
     assert not (tmp_path / "cache").exists()  # the example trains nothing into the cache
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["tiny"]  # nor into the current folder: into --out
 
     # The same trial through the experiment's wiring and measures, with the decoder the script trained.
     config = configuration.load(overrides={"experiment.steps": STEPS, "experiment.resolution": RESOLUTION})
     assert config["decoder"]["visual_variance"] == 20.0  # the script's exact Decoder, at the default variance
     trial = Trial("conv", "left", "sync", 0, SEED, -0.15, 0.0, 0.1)
-    decoder = decoder_component("conv", str(tmp_path / "tiny_decoder.pt"), config, fast=False)
+    decoder = decoder_component("conv", str(tmp_path / "tiny" / "tiny_decoder.pt"), config, fast=False)
     decoder.threads, threads = 1, torch.get_num_threads()  # as in the script's process
     try:
         expected = measures(run_batch(decoder, [trial], config))["drift_cm"][-1, 0]

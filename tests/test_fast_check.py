@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from rhi.master import config as configuration
+from rhi.master.runtime.logs import configured
 from rhi.master.tasks.illusion import fast_check
 from rhi.master.tasks.illusion import runner
 from rhi.master.decoders.cache import checkpoint_path
@@ -33,10 +34,11 @@ def quick(quick_cache, monkeypatch, tmp_path):
 @pytest.fixture(scope="module")
 def checked(quick_cache, tmp_path_factory):
     """The conv decoder checked once, in a cache of the module's own: its configuration, checkpoints, verdict, what
-    it said on stderr, and the cache (which holds the verdict), for the tests that read that one check."""
+    it said on stderr (logging as the command line sets it up), and the cache (which holds the verdict), for the
+    tests that read that one check."""
     folder = tmp_path_factory.mktemp("fast_check")
     said = io.StringIO()
-    with pytest.MonkeyPatch.context() as monkeypatch, contextlib.redirect_stderr(said):
+    with pytest.MonkeyPatch.context() as monkeypatch, contextlib.redirect_stderr(said), configured(0):
         config, checkpoints = quick_config(quick_cache, folder, monkeypatch)
         verdict = fast_check.verdicts(config, checkpoints, progress=True)["conv"]
     return config, checkpoints, verdict, said.getvalue(), folder

@@ -148,11 +148,13 @@ def verdict_setup(tmp_path, monkeypatch):
 
 @pytest.mark.parametrize("damage", list(DAMAGED))
 def test_a_damaged_cached_verdict_is_checked_again_and_rewritten_with_one_note(verdict_setup, capsys, damage):
+    from rhi.master.runtime.logs import configured
     from rhi.master.tasks.illusion import fast_check
 
     config, checkpoints, cached, _, calls = verdict_setup
     cached.write_text(DAMAGED[damage])
-    assert fast_check.verdicts(config, checkpoints)["conv"] == GOOD_VERDICT
+    with configured(0):  # the note logged on stderr, as the command line sets it up
+        assert fast_check.verdicts(config, checkpoints)["conv"] == GOOD_VERDICT
     assert len(calls) == 1 and json.loads(cached.read_text()) == GOOD_VERDICT  # checked again, rewritten whole
     said = capsys.readouterr().err.strip().splitlines()
     assert len(said) == 1 and said[0].startswith(f"rhi: note: the fast-check verdict {cached} is damaged (")

@@ -279,6 +279,7 @@ def test_a_saved_estimator_with_nan_or_misshapen_weights_is_trained_again_with_a
     import numpy as np
     import torch
 
+    from rhi.master.runtime.logs import configured
     from rhi.master.fit import inference
     from rhi.master.fit.run import load_or_train
 
@@ -296,7 +297,8 @@ def test_a_saved_estimator_with_nan_or_misshapen_weights_is_trained_again_with_a
                                 else torch.zeros(weight.shape[0] + 1, weight.shape[1]))
     torch.save(saved, path)
     capsys.readouterr()
-    again, _ = load_or_train(plan, theta, x, path, "a fit")
+    with configured(0):  # the note logged on stderr, as the command line sets it up
+        again, _ = load_or_train(plan, theta, x, path, "a fit")
     note = capsys.readouterr().err.strip().splitlines()
     assert len(note) == 1 and note[0].startswith(f"rhi fit: note: {path} does not hold a usable estimator (its weight")
     assert note[0].endswith("; training it again")

@@ -24,6 +24,7 @@ def dask_cluster(tmp_path_factory):
 
 
 def test_local_pool_and_dask_cluster_give_the_same_trials(dask_cluster, tmp_path, capsys):
+    from rhi.master.runtime.logs import configured
     from rhi.master.sweeps.runner import WORKER_SETTINGS
 
     path = sweep_file(tmp_path / "s.toml", grid={"stimulations.sync.delay_max": [0.1, 0.6],
@@ -35,7 +36,8 @@ def test_local_pool_and_dask_cluster_give_the_same_trials(dask_cluster, tmp_path
 
     assert run_sweep(args(path, tmp_path / "local")) == 0
     assert notes() == []  # the local pool's workers have WORKER_SETTINGS
-    assert run_sweep(args(path, tmp_path / "cluster", scheduler=dask_cluster)) == 0
+    with configured(0):  # the note logged on stderr, as the command line sets it up
+        assert run_sweep(args(path, tmp_path / "cluster", scheduler=dask_cluster)) == 0
     # the fixture's workers run with Dask's defaults: one note names every setting they lack
     assert notes() == ["rhi sweep: note: 2 of 2 Dask workers lack the settings for long CPU-bound tasks "
                        f"({', '.join(sorted(WORKER_SETTINGS))}), which slows the trials; docs/sweeps.md "

@@ -165,11 +165,12 @@ def evaluate(model: VisualModel, inputs, images, settings: TrainSettings, chunk:
 
 
 def train(kind: str, poses_deg: np.ndarray, images: np.ndarray, rest_pose, half_ranges,
-          settings: TrainSettings = TrainSettings(), progress: bool = True, device: str = "cpu",
+          settings: TrainSettings = TrainSettings(), progress: bool | Callable = True, device: str = "cpu",
           check: Callable[[torch.nn.Module], float] | None = None) -> tuple[VisualModel, dict]:
     """Train a decoder of ``kind`` (conv, vae) on poses (N, 2) deg and images (N, R, R) float32.
 
     device: where the network runs ("cpu", "cuda"; see :func:`resolve_device`).
+    progress: a tqdm bar of the epochs on stderr (False: none; a callable taking tqdm's arguments: its bar).
     check: given the decoder after each epoch (eval mode; it must not change it), the hand error
         in cm; training stops once it is at most ``settings.stop_hand_error_cm`` (needed when that is > 0).
 
@@ -211,7 +212,8 @@ def train(kind: str, poses_deg: np.ndarray, images: np.ndarray, rest_pose, half_
     model.eval()
     initial = evaluate(model, x_val, y_val, settings)
     history = []
-    bar = tqdm(range(settings.epochs), desc=f"train {kind}", unit="epoch", disable=not progress, leave=True)
+    make_bar = progress if callable(progress) else tqdm  # a callable: tqdm's signature, e.g. one for a log file
+    bar = make_bar(range(settings.epochs), desc=f"train {kind}", unit="epoch", disable=not progress, leave=True)
     for epoch in bar:
         model.train()
         running = 0.0

@@ -13,6 +13,7 @@ import os
 import signal
 import sys
 import threading
+from contextlib import nullcontext, redirect_stdout
 
 from rhi.components.component import ComponentError
 from rhi.master.cosim import ConfigError, SimulationError
@@ -59,10 +60,16 @@ COMMANDS = {"train": "train", "experiment": "experiment", "export-body": "export
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The ``rhi`` parser: the global options (``--debug``, ``--version``) and each subcommand with its ``run``."""
+    """The ``rhi`` parser: the global options (``--debug``, ``-v``/``-q``, ``--version``) and each subcommand with
+    its ``run``."""
     parser = Parser(
         prog="rhi", description="A deep active inference model of the rubber-hand illusion, as a co-simulation.")
     parser.add_argument("--debug", action="store_true", help="show full tracebacks on errors")
+    said = parser.add_mutually_exclusive_group()
+    said.add_argument("-v", "--verbose", dest="verbosity", action="store_const", const=1, default=0,
+                      help="also log the run's steps on stderr")
+    said.add_argument("-q", "--quiet", dest="verbosity", action="store_const", const=-1,
+                      help="print nothing but errors: no progress, notes, warnings or results")
     parser.add_argument("--version", action="version", version=f"rhi {_version()}")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name, module_name in COMMANDS.items():
@@ -102,6 +109,14 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run(args) -> int:
+    from rhi.master.runtime.logs import configured
+
+    with configured(args.verbosity), (open(os.devnull, "w") if args.verbosity < 0 else nullcontext()) as silent:
+        with redirect_stdout(silent) if silent else nullcontext():
+            return _run_logged(args)
+
+
+def _run_logged(args) -> int:
     try:
         status = args.run(args) or 0
         sys.stdout.flush()  # a full or closed stdout fails here, not silently at exit

@@ -1,7 +1,7 @@
 """`rhi experiment`: the paper's protocol end to end, into DIR (docs/design.md, Command line contract)."""
 from __future__ import annotations
 
-import sys
+import logging
 import time
 from pathlib import Path
 
@@ -11,6 +11,7 @@ from rhi.master.outputs.files import check_output
 
 
 HELP = "run the paper's rubber-hand protocol"
+log = logging.getLogger("rhi.experiment")
 
 
 def add_arguments(parser) -> None:
@@ -68,6 +69,9 @@ def run(args) -> int:
     config = configuration.load(args.config, overrides(args), quick=args.quick,  # before torch loads: fast refusals
                                 preset_name=args.preset, model_name=args.model)
     check_output(args.out, args.force)
+    log.debug(f"model {models.of(config).name}: decoders {', '.join(config['experiment']['decoders'])}, "
+              f"{len(config['experiment']['conditions'])} conditions x {len(config['experiment']['stimulations'])} "
+              f"stimulations x {config['experiment']['trials']} trials x {config['experiment']['steps']} steps")
     from rhi.components.vision.component import resolve_device
     from rhi.master.runtime.context import RunContext
     from rhi.master.tasks.illusion.publish import run_into
@@ -75,8 +79,8 @@ def run(args) -> int:
     failures = run_into(args.out, config, args.body,
                         RunContext.of(args, progress=True, device=resolve_device(args.device)))
     for trial, error in failures.items():
-        print(f"rhi experiment: trial failed and left out: {trial.decoder}/{trial.condition}/{trial.stimulation} "
-              f"trial {trial.index}: {error}", file=sys.stderr)
+        log.error(f"rhi experiment: trial failed and left out: {trial.decoder}/{trial.condition}/{trial.stimulation} "
+                  f"trial {trial.index}: {error}")
     print(f"wrote {args.out}: summary.csv, trials.csv, run.json, figures/ "
           f"({time.perf_counter() - started:.0f} s)")
     print((Path(args.out) / "summary.csv").read_text(), end="")

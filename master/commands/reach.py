@@ -1,7 +1,7 @@
 """`rhi reach`: the free arm reaching to a seen goal, near and far goals per decoder (docs/reach.md)."""
 from __future__ import annotations
 
-import sys
+import logging
 import time
 from pathlib import Path
 
@@ -10,6 +10,7 @@ from rhi.master.outputs.files import check_output
 
 
 HELP = "the free arm reaching to a seen goal: near and far goals per decoder"
+log = logging.getLogger("rhi.reach")
 
 
 def add_arguments(parser) -> None:
@@ -39,8 +40,7 @@ def run(args) -> int:
 
     failures = run_into(args.out, config, RunContext.of(args, progress=True))
     for trial, error in failures.items():
-        print(f"rhi reach: reach failed and left out: {trial.decoder}/{trial.band} goal {trial.index}: {error}",
-              file=sys.stderr)
+        log.error(f"rhi reach: reach failed and left out: {trial.decoder}/{trial.band} goal {trial.index}: {error}")
     print(f"wrote {args.out}: summary.csv, goals.csv, trials.csv, run.json, figures/ "
           f"({time.perf_counter() - started:.0f} s)")
     print((Path(args.out) / "summary.csv").read_text(), end="")

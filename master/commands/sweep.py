@@ -4,11 +4,12 @@ Running the same command again runs only the trials that have no successful reco
 """
 from __future__ import annotations
 
-import sys
+import logging
 from pathlib import Path
 
 MAX_LISTED = 50  # failures listed on the terminal; index.csv has all of them
 HELP = "run a parameter sweep, locally or on a Dask cluster"
+log = logging.getLogger("rhi.sweep")
 
 
 def add_arguments(parser) -> None:
@@ -44,17 +45,15 @@ def sweep_and_report(path, out, context, model: str | None = None, trials: int |
     ok = sum(record["status"] == "ok" for record in records.values())
     failures = [(t, records[t.id]) for t in sweep.trials if records.get(t.id, {}).get("status") == "failed"]
     for trial, record in failures[:MAX_LISTED]:
-        print(f"rhi sweep: failed: point {trial.point} ({sweeps.describe(sweep.points[trial.point])}) "
-              f"{trial.decoder}/{trial.condition}/{trial.stimulation} trial {trial.index} "
-              f"[{trial.id}]: {record['error']}", file=sys.stderr)
+        log.error(f"rhi sweep: failed: point {trial.point} ({sweeps.describe(sweep.points[trial.point])}) "
+                  f"{trial.decoder}/{trial.condition}/{trial.stimulation} trial {trial.index} "
+                  f"[{trial.id}]: {record['error']}")
         if context.debug and record.get("traceback"):
-            print(record["traceback"], file=sys.stderr)
+            log.error(record["traceback"].rstrip("\n"))
     if len(failures) > MAX_LISTED:
-        print(f"rhi sweep: ... and {len(failures) - MAX_LISTED} more failures, listed in {out / 'index.csv'}",
-              file=sys.stderr)
+        log.error(f"rhi sweep: ... and {len(failures) - MAX_LISTED} more failures, listed in {out / 'index.csv'}")
     print(f"rhi sweep: {ok} of {len(sweep.trials)} trials done ({now} now), "
           f"{len(failures)} failed; results in {out}")
     if failures:
-        print(f"rhi sweep: {len(failures)} trials failed; run the same command again to retry them",
-              file=sys.stderr)
+        log.error(f"rhi sweep: {len(failures)} trials failed; run the same command again to retry them")
     return 1 if failures else 0

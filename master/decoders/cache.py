@@ -14,6 +14,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
+import logging
 import os
 import sys
 import tempfile
@@ -30,6 +31,8 @@ from rhi.master.config import file_problem
 from rhi.master.cosim import ConfigError
 from rhi.master.runtime.pool import Workers, run_jobs
 from rhi.master.decoders.training import load_decoder, prepare_data, train_decoder, train_settings
+
+log = logging.getLogger("rhi.decoders")
 
 KINDS = ("conv", "vae")  # the decoder slots of [decoder] and experiment.decoders
 SHIPPED = Path(__file__).parent / "checkpoints"  # the default decoders, named as the cache names them
@@ -154,7 +157,7 @@ def ensure_checkpoints(config: dict, progress: bool = True, device: str = "cpu",
     prepare_data(check_cache_folder(), settings, blur, progress)
     seconds = {"data": time.perf_counter() - began}
     if progress:
-        print(f"training the {' and '.join(missing)} decoder{'s' * (len(missing) > 1)} side by side "
+        log.info(f"training the {' and '.join(missing)} decoder{'s' * (len(missing) > 1)} side by side "
               f"({settings.preset}, {settings.resolution} px) into {cache_folder()}", file=sys.stderr)
     processes = None
     if device != "cpu":  # one GPU: the decoders one after the other

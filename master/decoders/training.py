@@ -30,6 +30,7 @@ from rhi.master.cosim import ConfigError
 from rhi.master.decoders import training_data
 from rhi.master.decoders.quality import hand_error, read_off_error
 from rhi.master.outputs.files import atomic_write, check_output_file
+from rhi.master.runtime.progress import bar
 
 SIGNATURE_TOLERANCE = 1e-3  # relative; the signature moves by far more when the camera changes
 STOP_POSES = 30             # held-out poses of the hand-error check that may stop training (a few s at 256 x 256)
@@ -98,7 +99,7 @@ def train_decoder(kind: str, out: str | Path, settings: training.TrainSettings |
     seconds = {"data": time.perf_counter() - started}
     check = hand_error_check(data.rest_pose, data.half_ranges, blur) if settings.stop_hand_error_cm else None
     model, report = training.train(kind, data.poses, data.images, data.rest_pose, data.half_ranges, settings,
-                                   progress, device=device, check=check)
+                                   progress and bar, device=device, check=check)
     seconds["training"] = report["seconds"]
     metadata = training.checkpoint_metadata(kind, settings, data.rest_pose, data.half_ranges,
                                             data.content_hash, report)

@@ -86,8 +86,8 @@ def generate(samples: int, resolution: int, seed: int, progress: bool = False,
     images = np.empty((samples, resolution, resolution), np.float32)
     chunks = range(0, samples, CHUNK)
     if progress:
-        from tqdm import tqdm
-        chunks = tqdm(chunks, desc="render", unit="chunk", leave=False)
+        from rhi.master.runtime.progress import bar
+        chunks = bar(chunks, desc="render", unit="chunk", leave=False)
     for start in chunks:
         images[start:start + CHUNK] = camera.render(poses[start:start + CHUNK], resolution, None, blur=blur)
     return TrainingData(poses, images, tuple(kinematics.REST_POSE), HALF_RANGES, seed,

@@ -7,18 +7,16 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+from rhi.master.fit.calibration import LEVELS, central_interval, rank_histogram, rank_tests_verdict, verdict_words
+from rhi.master.fit.plan import Parameter
+from rhi.master.outputs.figures import subplots
+from rhi.master.outputs.files import atomic_write
+from rhi.master.outputs.tables import csv_text, number
 
-from rhi.master.fit.calibration import (LEVELS, central_interval, rank_histogram, rank_tests_verdict,  # noqa: E402
-                                    verdict_words)
-from rhi.master.fit.plan import Parameter  # noqa: E402
-from rhi.master.outputs.figures import METADATA  # noqa: E402
-from rhi.master.outputs.files import atomic_write  # noqa: E402
-from rhi.master.outputs.tables import csv_text, number  # noqa: E402
+FIGURE_DPI = 100  # the fit's figures' resolution (rhi.master.outputs.figures.save's dpi)
 
 # column -> meaning, for docs/fit.md (each file's columns)
 POSTERIOR_COLUMNS = {"participant": "the participant's label in the data file", "sample": "the sample's index",
@@ -101,12 +99,12 @@ def recovery_csv(parameters: list[Parameter], truths: np.ndarray, samples: np.nd
     return csv_text(header, rows)
 
 
-def calibration_figure(parameters: list[Parameter], result: dict, truths: np.ndarray, path: Path) -> None:
+def calibration_figure(parameters: list[Parameter], result: dict, truths: np.ndarray) -> Figure:
     """Per parameter: the SBC rank histogram with the uniform's 99 % band, and true value against median."""
     count, samples = result["participants"], result["samples"]
     bins = result["uniformity"]["bins"]
     counts = rank_histogram(result["ranks"], samples, bins)
-    fig, axes = plt.subplots(2, len(parameters), figsize=(3.6 * len(parameters), 6.4), squeeze=False)
+    fig, axes = subplots(2, len(parameters), figsize=(3.6 * len(parameters), 6.4), squeeze=False)
     from scipy import stats
 
     expected = count / bins
@@ -131,18 +129,17 @@ def calibration_figure(parameters: list[Parameter], result: dict, truths: np.nda
     axes[0, 0].legend(fontsize=7)
     fig.suptitle(f"rhi fit: calibration on {count} held-out simulated participants", fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=100, metadata=METADATA)
-    plt.close(fig)
+    return fig
 
 
-def predictive_figure(names: list[str], participants: list[str], observed: np.ndarray, predicted: np.ndarray,
-                      path: Path) -> None:
+def predictive_figure(names: list[str], participants: list[str], observed: np.ndarray,
+                      predicted: np.ndarray) -> Figure:
     """Per participant (a panel each): the observed statistics and the posterior predictive's median and 90 %
     interval. observed: (participants, statistics); predicted: (participants, draws, statistics)."""
     count = len(participants)
     columns = min(4, count)
     rows = -(-count // columns)
-    fig, axes = plt.subplots(rows, columns, figsize=(max(6.5, 4.2 * columns), 3.2 * rows + 0.6), squeeze=False)
+    fig, axes = subplots(rows, columns, figsize=(max(6.5, 4.2 * columns), 3.2 * rows + 0.6), squeeze=False)
     positions = np.arange(len(names))
     for n, (participant, axis) in enumerate(zip(participants, axes.flat)):
         draws = predicted[n][np.all(np.isfinite(predicted[n]), axis=1)]
@@ -161,8 +158,7 @@ def predictive_figure(names: list[str], participants: list[str], observed: np.nd
     axes[0, 0].legend(fontsize=6)
     fig.suptitle("rhi fit: posterior predictive check (each statistic in its measure's unit)", fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=100, metadata=METADATA)
-    plt.close(fig)
+    return fig
 
 
 def predictive_csv(names: list[str], participants: list[str], observed: np.ndarray, predicted: np.ndarray) -> str:

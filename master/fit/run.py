@@ -12,8 +12,8 @@ computed anew (one trained estimator serves every participant of the design).
 from __future__ import annotations
 
 import json
+import logging
 import shutil
-import sys
 import time
 from pathlib import Path
 
@@ -26,9 +26,12 @@ from rhi.master.fit.data import Data, read_data
 from rhi.master.fit.plan import FitPlan, draw_participants, read_plan, simulation_seed
 from rhi.master.runtime.context import RunContext
 from rhi.master.fit.simulate import Pool, participants_sweep, simulate, statistics, with_noise
+from rhi.master.outputs.figures import save
 from rhi.master.outputs.files import atomic_write
 from rhi.master.outputs.provenance import package_versions
 from rhi.master.sweeps.plan import canonical_hash
+
+log = logging.getLogger("rhi.fit")
 
 COMMAND = "rhi fit"
 # settings that change only what is computed from the trained estimator: not part of the fit's identity
@@ -166,7 +169,8 @@ def _fit(data: Data, plan: FitPlan, drawn: np.ndarray, sweep, out: Path, pool, l
             plan.parameters, report.natural(plan.parameters, drawn[held_rows]), report.natural(plan.parameters, held),
             calibration["ranks"]))
         atomic_write(out / "held_out.csv", held_out_csv(data, plan, x[held_rows], held_rows))
-        report.calibration_figure(plan.parameters, calibration, drawn[held_rows], out / "figures" / "calibration.png")
+        save(report.calibration_figure(plan.parameters, calibration, drawn[held_rows]),
+             out / "figures" / "calibration.png", dpi=report.FIGURE_DPI)
 
     predictive = predictive_check(data, plan, posterior, out, pool)
     result = run_record(data, plan, sweep, records, training, timing, calibration, predictive, valid, held_rows,
@@ -202,8 +206,7 @@ def load_or_train(plan: FitPlan, theta, x, path: Path, identity: str):
             if problem is None and isinstance(summary, dict):
                 return estimators, summary
             problem = problem or "its summary is not a JSON object"
-            print(f"rhi fit: note: {path} does not hold a usable estimator ({problem}); training it again",
-                  file=sys.stderr)
+            log.warning(f"rhi fit: note: {path} does not hold a usable estimator ({problem}); training it again")
     trained = [inference.train(plan.parameters, theta, x, plan.estimator, seed) for seed in seeds]
     estimators = [estimator.eval() for estimator, _ in trained]
     summary = {**trained[0][1], "seconds": round(sum(part["seconds"] for _, part in trained), 3)}
@@ -255,8 +258,8 @@ def predictive_check(data: Data, plan: FitPlan, posterior, out: Path, pool) -> d
                            settings["seed"], "predictive").reshape(count, draws, -1)
     names = data_statistic_names(data, plan)
     atomic_write(out / "predictive.csv", report.predictive_csv(names, data.participants[:count], observed, predicted))
-    report.predictive_figure(names, data.participants[:count], observed, predicted,
-                             out / "figures" / "posterior_predictive.png")
+    save(report.predictive_figure(names, data.participants[:count], observed, predicted),
+         out / "figures" / "posterior_predictive.png", dpi=report.FIGURE_DPI)
     return {"participants": count, "draws": draws, "trials": len(sweep.trials)}
 
 

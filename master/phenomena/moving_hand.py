@@ -111,15 +111,15 @@ def rows(config: dict, found: dict[str, dict]) -> list[list]:
     return out
 
 
-def figure(config: dict, found: dict[str, dict], path: Path) -> None:
-    """Write ``path`` (moving_hand.png): drift and gamma relative to 0 s against the delay, a line per decoder, with
+def figure(config: dict, found: dict[str, dict]):
+    """moving_hand.png's ``Figure``: drift and gamma relative to 0 s against the delay, a line per decoder, with
     the human references."""
-    from rhi.master.outputs.figures import METADATA, plt
+    from rhi.master.outputs.figures import subplots
     from rhi.master.phenomena.report import caption, draw_human, human_references
 
     delays = config["moving_hand"]["delays"]
     references = human_references(HUMAN_TABLE)
-    fig, axes = plt.subplots(1, 2, figsize=(10, 5.4))
+    fig, axes = subplots(1, 2, figsize=(10, 5.4))
     for axis, key, label in ((axes[0], "drift_cm", "drift toward the rubber hand, relative to 0 s"),
                              (axes[1], "gamma", "gamma (common cause), relative to 0 s")):
         for kind, values in found.items():
@@ -134,21 +134,20 @@ def figure(config: dict, found: dict[str, dict], path: Path) -> None:
     fig.suptitle("rhi phenomenon moving-hand: the rubber arm repeats the real arm's movement after a delay",
                  fontsize=10)
     fig.text(0.01, 0.005, caption(references, models.of(config).name), fontsize=6, va="bottom", wrap=True)
-    fig.tight_layout(rect=(0, 0.2, 1, 0.95))  # room for the caption (save's own tight layout would take it)
-    try:
-        atomic_write(path, lambda file: fig.savefig(file, format="png", dpi=110, metadata=METADATA))
-    finally:
-        plt.close(fig)
+    fig.tight_layout(rect=(0, 0.2, 1, 0.95))  # room for the caption
+    return fig
 
 
 def run_into(out, config: dict, context: RunContext | None = None) -> list[str]:
     """Run the protocol for each decoder (side by side) and write DIR: moving_hand.csv, moving_hand.png, run.json."""
+    from rhi.master.outputs.figures import save
+
     started, force = time.perf_counter(), (context or RunContext()).force
     check_decoders(config)
     with output_folder(out, force) as staging, Workers() as workers:
         checkpoints, found = per_decoder(config, decoder_delays, workers)
         atomic_write(staging / "moving_hand.csv", tables.csv_text(COLUMNS, rows(config, found)))
-        figure(config, found, staging / "moving_hand.png")
+        save(figure(config, found), staging / "moving_hand.png")
         atomic_write(staging / "run.json", json.dumps({
             "schema_version": tables.SCHEMA_VERSION, "command": f"rhi phenomenon {NAME}",
             "model": models.of(config).name,

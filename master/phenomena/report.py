@@ -12,20 +12,17 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
-import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from rhi.master.cosim import ConfigError  # noqa: E402
-from rhi.master.outputs.figures import COLOURS, METADATA, STYLES  # noqa: E402
-from rhi.master.outputs.files import atomic_write  # noqa: E402
-from rhi.master.outputs.tables import csv_text, mean_sd, number  # noqa: E402
-from rhi.master import models as registry  # noqa: E402
-from rhi.master.phenomena import FILES, human_file  # noqa: E402
-from rhi.master.sweeps import plan as sweeps  # noqa: E402
-from rhi.master.sweeps.folder import read_records  # noqa: E402
+from rhi.master.cosim import ConfigError
+from rhi.master.outputs.figures import COLOURS, STYLES, save, subplots
+from rhi.master.outputs.files import atomic_write
+from rhi.master.outputs.tables import csv_text, mean_sd, number
+from rhi.master import models as registry
+from rhi.master.phenomena import FILES, human_file
+from rhi.master.sweeps import plan as sweeps
+from rhi.master.sweeps.folder import read_records
 
 HUMAN = "tab:green"
 # per-trial outcome keys (rhi.master.tasks.illusion.trial_outcome) -> the table's mean (and sd) columns
@@ -237,12 +234,12 @@ PANELS = {"temporal-window": [("drift_relative", None, "drift / drift at the sho
                      ("gamma_final_mean", None, "gamma at 120 s")]}
 
 
-def figure(phenomenon: Phenomenon, found: list[dict], path: Path, descriptions: dict[str, str]) -> None:
+def figure(phenomenon: Phenomenon, found: list[dict], descriptions: dict[str, str]) -> Figure:
     """One row of panels per model (paper above causal), each with the human reference."""
     references = human_references(phenomenon.human)
     panels = PANELS[phenomenon.name]
     models = list(dict.fromkeys(r.get("model", "paper") for r in found))  # in the order they ran
-    fig, axes = plt.subplots(len(models), len(panels), figsize=(5.0 * len(panels), 4.2 * len(models) + 0.8),
+    fig, axes = subplots(len(models), len(panels), figsize=(5.0 * len(panels), 4.2 * len(models) + 0.8),
                              squeeze=False)
     for row_axes, model in zip(axes, models):
         mine = [r for r in found if r.get("model", "paper") == model]
@@ -262,8 +259,7 @@ def figure(phenomenon: Phenomenon, found: list[dict], path: Path, descriptions: 
     text = " | ".join(f"{model}: {descriptions[model]}" for model in models)
     fig.text(0.01, 0.005, caption(references, text), fontsize=6, va="bottom", ha="left")
     fig.tight_layout(rect=(0, 0.1 / len(models) + 0.04, 1, 0.97))
-    fig.savefig(path, dpi=110, metadata=METADATA)
-    plt.close(fig)
+    return fig
 
 
 def half_times(axis, found: list[dict]) -> None:
@@ -312,5 +308,5 @@ def report(name: str, sweep_path: str | Path, out: Path, models: dict[str, Path]
         raise ConfigError(f"no successful trial in {out} to report {name} from")
     stem = phenomenon.file.removesuffix(".toml")
     atomic_write(out / f"{stem}.csv", table(phenomenon, found))
-    figure(phenomenon, found, out / f"{stem}.png", descriptions)
+    save(figure(phenomenon, found, descriptions), out / f"{stem}.png")
     return [f"{stem}.csv", f"{stem}.png"]

@@ -38,7 +38,9 @@ class RunContext:
     @classmethod
     def of(cls, args, **settings) -> "RunContext":
         """The settings a command's parsed arguments give (``--force``, ``--scheduler``, ``--debug``, those it has),
-        and ``settings`` (e.g. ``progress=True``, a resolved ``device``)."""
+        and ``settings`` (e.g. ``progress=True``, a resolved ``device``); ``rhi -q`` shows no progress."""
+        if getattr(args, "verbosity", 0) < 0:
+            settings = {**settings, "progress": False}
         return cls(force=getattr(args, "force", False), scheduler=getattr(args, "scheduler", None),
                    debug=getattr(args, "debug", False), **settings)
 

@@ -8,12 +8,9 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import matplotlib
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-
-from rhi.master.outputs.figures import save  # noqa: E402
+from rhi.master.outputs.figures import save, subplots
 
 OUTCOMES = {"drift_cm": "final drift (cm)", "force_n": "final force (N)", "gamma_final": "final gamma"}
 MAX_LEGEND = 12
@@ -33,17 +30,17 @@ def lines(key: str, keys: list[str], summary: list[dict]) -> dict[tuple, list[di
     return found
 
 
-def plot_key(key: str, keys: list[str], summary: list[dict], path: Path) -> None:
-    """Write ``path``: each outcome of ``summary`` against the swept ``key``, a panel per outcome and a line per cell
-    and other swept values; nothing when no outcome is there."""
+def plot_key(key: str, keys: list[str], summary: list[dict]) -> Figure | None:
+    """Each outcome of ``summary`` against the swept ``key``, a panel per outcome and a line per cell and other
+    swept values; None when no outcome is there."""
     outcomes = [o for o in OUTCOMES if any(row.get(f"{o}_mean") is not None for row in summary)]
     if not outcomes:
-        return
+        return None
     values = list(dict.fromkeys(json.dumps(row["parameters"].get(key)) for row in summary))
     numeric = all(is_number(json.loads(v)) for v in values)
     position = {v: (json.loads(v) if numeric else i) for i, v in enumerate(values)}
     groups = lines(key, keys, summary)
-    figure, axes = plt.subplots(1, len(outcomes), figsize=(4.2 * len(outcomes), 3.4), squeeze=False)
+    figure, axes = subplots(1, len(outcomes), figsize=(4.2 * len(outcomes), 3.4), squeeze=False)
     for axis, outcome in zip(axes[0], outcomes):
         for (decoder, condition, stimulation, others), rows in groups.items():
             rows = [r for r in rows if r.get(f"{outcome}_mean") is not None]
@@ -62,11 +59,14 @@ def plot_key(key: str, keys: list[str], summary: list[dict], path: Path) -> None
     if len(groups) <= MAX_LEGEND:
         axes[0][0].legend(fontsize=6)
     figure.suptitle(f"outcome against {key} (mean +/- sd over trials)", fontsize=9)
-    save(figure, path)
+    figure.tight_layout()
+    return figure
 
 
 def plot_sweep(keys: list[str], summary: list[dict], folder: Path) -> None:
     """Write ``folder/KEY.png`` for each swept key that has an outcome to show."""
     folder.mkdir(exist_ok=True)
     for key in keys:
-        plot_key(key, keys, summary, folder / f"{key}.png")
+        figure = plot_key(key, keys, summary)
+        if figure is not None:
+            save(figure, folder / f"{key}.png")

@@ -2,7 +2,6 @@
 tables and plots written at the end (what `rhi sweep` and `rhi fit` run)."""
 from __future__ import annotations
 
-import sys
 import time
 from contextlib import nullcontext
 from pathlib import Path
@@ -27,7 +26,7 @@ def run_into(sweep: Sweep, task, out: Path, context: RunContext | None = None, l
 
     A stop (Ctrl-C, a kill) leaves the records written so far, each whole: the same call again runs only
     the rest (docs/sweeps.md)."""
-    from tqdm import tqdm
+    from rhi.master.runtime.progress import bar as progress_bar
 
     context = context or RunContext()
     check_decoders(sweep)
@@ -57,8 +56,8 @@ def run_into(sweep: Sweep, task, out: Path, context: RunContext | None = None, l
                 with pool_context as pool:
                     if not client:
                         check_workers(pool, sweep.task)
-                    bar = tqdm(total=len(sweep.trials), initial=len(done), unit="trial", desc=label,
-                               file=sys.stderr, dynamic_ncols=True, smoothing=0.05)
+                    bar = progress_bar(total=len(sweep.trials), initial=len(done), unit="trial", desc=label,
+                                       dynamic_ncols=True, smoothing=0.05)
                     execute(sweep, task, pool, out, done, on_record=arrived)
         finally:
             if bar is not None:

@@ -15,7 +15,6 @@ import logging
 import os
 import threading
 import socket
-import sys
 import time
 import traceback
 import uuid
@@ -28,6 +27,8 @@ from rhi.master.outputs.files import atomic_write
 from rhi.master.sweeps import lifeline
 from rhi.master.sweeps.folder import record_problem
 from rhi.master.sweeps.plan import DEFAULT_TASK, Sweep, TrialSpec, task_location
+
+log = logging.getLogger("rhi.sweep")
 
 # Dask's settings for workers whose tasks are long, single-threaded and CPU-bound (docs/sweeps.md): no
 # statistical profiler (by default it takes the GIL every 10 ms to walk the running task's stack), and
@@ -152,7 +153,7 @@ def check_workers(client, task: str) -> None:
     """Every connected worker must import the task's module (this package, installed there); one note on
     stderr names the :data:`WORKER_SETTINGS` that some workers lack."""
     if not client.scheduler_info().get("workers"):
-        print(f"rhi sweep: waiting for a Dask worker to connect to {client.scheduler.address}", file=sys.stderr)
+        log.info(f"rhi sweep: waiting for a Dask worker to connect to {client.scheduler.address}")
         client.wait_for_workers(1)
     module = task_location(task).partition(":")[0]
     answers = client.run(worker_check, module, on_error="return")
@@ -162,9 +163,9 @@ def check_workers(client, task: str) -> None:
                               "install this package on every worker (see docs/sweeps.md)")
     unset = sorted({key for answer in answers.values() for key in answer})
     if unset:
-        print(f"rhi sweep: note: {sum(map(bool, answers.values()))} of {len(answers)} Dask workers lack the settings "
-              f"for long CPU-bound tasks ({', '.join(unset)}), which slows the trials; docs/sweeps.md "
-              "shows how to start them", file=sys.stderr)
+        log.warning(f"rhi sweep: note: {sum(map(bool, answers.values()))} of {len(answers)} Dask workers lack the "
+                    f"settings for long CPU-bound tasks ({', '.join(unset)}), which slows the trials; docs/sweeps.md "
+                    "shows how to start them")
 
 
 def check_decoders(sweep: Sweep) -> None:

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-import sys
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -37,6 +37,8 @@ from rhi.master.config.protocol import make_trial
 from rhi.master.tasks.illusion.runner import bar_positions, step_bar
 from rhi.master.tasks.illusion.wiring import run_batch
 from rhi.master.outputs.files import atomic_write
+
+log = logging.getLogger("rhi.fast_check")
 
 DRIFT_BOUND = 0.01  # largest final-drift error of the fast mode, relative to the largest exact drift checked
 NOT_TRIAL_SETTINGS = {"experiment": {"decoders", "trials", "batch_trials"}, "decoder": {"conv_checkpoint", "vae_checkpoint", "fast"},
@@ -150,8 +152,8 @@ def stored_verdict(cached: Path, shipped: Path) -> dict | None:
         if path == shipped:
             raise ConfigError(f"the shipped fast-check verdict {path} is damaged ({problem}); reinstall rhi")
         damaged = True
-        print(f"rhi: note: the fast-check verdict {path} is damaged ({problem}); "
-              f"{'using the shipped one' if shipped.is_file() else 'checking again'}", file=sys.stderr)
+        log.warning(f"rhi: note: the fast-check verdict {path} is damaged ({problem}); "
+                    f"{'using the shipped one' if shipped.is_file() else 'checking again'}")
     return None
 
 
@@ -180,9 +182,9 @@ def verdicts(config: dict, checkpoints: dict[str, str], workers: Workers | None 
         check_cache_folder()
         if progress:
             kinds = " and ".join(kind for kind, _ in missing)
-            print(f"checking the fast mode of the {kinds} decoder{'s' * (len(missing) > 1)}: "
-                  f"{len(checked_trials(config, missing[0][0]))} trials each, exact and fast "
-                  "(once per decoder and settings)", file=sys.stderr)
+            log.info(f"checking the fast mode of the {kinds} decoder{'s' * (len(missing) > 1)}: "
+                     f"{len(checked_trials(config, missing[0][0]))} trials each, exact and fast "
+                     "(once per decoder and settings)")
         jobs = [(config, kind, checkpoints[kind], position)
                 for position, (kind, _) in zip(bar_positions(len(missing), progress, workers=workers), missing)]
         for (kind, path), verdict in zip(missing, run_jobs(check, jobs, workers=workers)):

@@ -7,6 +7,7 @@ DIR is written in a staging folder beside it and renamed into place when complet
 from __future__ import annotations
 
 import json
+import logging
 import time
 from dataclasses import dataclass, field
 
@@ -25,6 +26,8 @@ from rhi.master.outputs import figures, tables
 from rhi.master.outputs.files import atomic_write, check_output, output_folder
 from rhi.master.outputs.provenance import package_versions
 from rhi.master.outputs.animation import frames, gif_bytes
+
+log = logging.getLogger("rhi.experiment")
 
 
 @dataclass
@@ -85,6 +88,7 @@ class ExperimentResult:
             (write_animation, staging / "figures" / name, trials[shown], animated, config["experiment"]["resolution"]),
             *figures.panel_jobs(staging / "figures", trials, self.times, per_step, self.final, None)], start=False)
         provenance = {**self.provenance, "figures": sorted(path.name for path in (staging / "figures").iterdir())}
+        log.debug(f"wrote summary.csv, trials.csv and {len(provenance['figures'])} figures into {staging}")
         provenance["timings_s"] = {**provenance["timings_s"], "total": time.perf_counter() - self.began}
         atomic_write(staging / "run.json", json.dumps(provenance, indent=2, default=str) + "\n")
 
@@ -149,11 +153,14 @@ def simulate_protocol(config: dict, body: str | None, context: RunContext, worke
     checked = time.perf_counter()
     modes = verdicts(config, checkpoints, workers, context.progress)
     check_seconds = time.perf_counter() - checked
+    log.debug("decoders: " + ", ".join(f"{kind} {path} ({'fast' if modes[kind]['fast'] else 'exact'} mode)"
+                                       for kind, path in checkpoints.items()))
     trials, times, per_step, run_seconds, failures = experiment.run(
         config, checkpoints, body, context, fast={kind: mode["fast"] for kind, mode in modes.items()}, workers=workers)
     probe_times = config["experiment"]["probe_times"]
     final = end_of_trial(times, per_step, probe_times)
     summary = tables.summary(trials, final, planned=tables.cells(plan(config)), probe_times=probe_times)
+    log.debug(f"measured {len(trials)} trials into {len(summary)} cells ({len(failures)} failed)")
     provenance = {
         "schema_version": tables.SCHEMA_VERSION,
         "command": "rhi experiment", "model": models.of(config).name,
@@ -197,7 +204,8 @@ def write_trials(path, trials, times, per_step) -> None:
 
 def write_jacobians(path, checkpoints: dict[str, str], config: dict) -> None:
     """Panel h, each decoder's Jacobian images at rest (a job of :func:`run_into`)."""
-    figures.jacobian_images({kind: jacobian_pair(kind, checkpoints[kind], config) for kind in checkpoints}, path)
+    figures.save(figures.jacobian_images({kind: jacobian_pair(kind, checkpoints[kind], config)
+                                          for kind in checkpoints}), path)
 
 
 def write_animation(path, trial, measures: dict[str, np.ndarray], resolution: int) -> None:

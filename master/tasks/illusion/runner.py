@@ -6,6 +6,7 @@ each in its own process (:mod:`rhi.master.runtime.pool`).
 """
 from __future__ import annotations
 
+import logging
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -19,6 +20,8 @@ from rhi.master.runtime.context import RunContext
 from rhi.master.runtime.pool import JOB_THREADS, Workers, process_count, run_jobs
 from rhi.master.config.protocol import Trial, make_trial, plan
 from rhi.master.tasks.illusion.wiring import run_batch
+
+log = logging.getLogger("rhi.experiment")
 
 
 def without_failures(run_trials, trials: list[Trial]):
@@ -72,6 +75,8 @@ def run(config: dict, checkpoints: dict[str, str], body: str | None = None, cont
     for trials, (batch, result, spent, failed) in zip(batches, run_jobs(decoder_batch, jobs, processes, workers)):
         seconds[trials[0].decoder] = seconds.get(trials[0].decoder, 0.0) + spent
         failures.update(failed)
+        log.debug(f"{trials[0].decoder} trials x{len(trials)}: {config['experiment']['steps']} steps in {spent:.1f} s"
+                  f"{f', {len(failed)} failed' if failed else ''}")
         if result is not None:
             kept += batch
             blocks.append(result["measures"])
@@ -261,7 +266,7 @@ def step_bar(description: str, total: int, position: int | None):
     if position is None:
         yield None
         return
-    from tqdm import tqdm
+    from rhi.master.runtime.progress import bar
 
-    with tqdm(total=total, desc=description, unit="step", leave=False, position=position) as bar:
-        yield lambda done, _total: bar.update(done - bar.n)
+    with bar(total=total, desc=description, unit="step", leave=False, position=position) as shown:
+        yield lambda done, _total: shown.update(done - shown.n)

@@ -1,12 +1,14 @@
 """`rhi reach`'s figures: the hand's paths, the distance to the goal over time, and success against the goal's
-distance (docs/reach.md)."""
+distance (docs/reach.md); each function returns its ``Figure`` (:mod:`rhi.master.outputs.figures`)."""
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
 
-from rhi.master.outputs.figures import plt, save
+from matplotlib.figure import Figure
+
+from rhi.master.outputs.figures import save, subplots
 from rhi.master.outputs.tables import cells
 
 BAND_COLOURS = {"near": "tab:blue", "far": "tab:orange"}
@@ -17,10 +19,10 @@ def colour(band: str) -> str:
     return BAND_COLOURS.get(band, "tab:purple")
 
 
-def paths(trials, per_step, final, path):
+def paths(trials, per_step, final) -> Figure:
     """The hand's path of every reach, per decoder; a cross at each goal hand, green if reached, red if not."""
     decoders = list(dict.fromkeys(t.decoder for t in trials))
-    figure, axes = plt.subplots(1, len(decoders), figsize=(5 * len(decoders), 4.6), squeeze=False)
+    figure, axes = subplots(1, len(decoders), figsize=(5 * len(decoders), 4.6), squeeze=False)
     for axis, decoder in zip(axes[0], decoders):
         for i, trial in enumerate(trials):
             if trial.decoder != decoder:
@@ -34,7 +36,8 @@ def paths(trials, per_step, final, path):
         axis.set_xlabel("hand x (cm)")
         axis.set_ylabel("hand y (cm)")
         axis.set_aspect("equal", adjustable="datalim")
-    save(figure, path)
+    figure.tight_layout()
+    return figure
 
 
 def goal_hand(per_step, trial: int) -> tuple[float, float]:
@@ -42,10 +45,10 @@ def goal_hand(per_step, trial: int) -> tuple[float, float]:
     return 100 * per_step["goal_x_m"][0, trial], 100 * per_step["goal_y_m"][0, trial]
 
 
-def error_over_time(trials, times, per_step, radius_cm, path):
+def error_over_time(trials, times, per_step, radius_cm) -> Figure:
     """The hand's distance to the goal over time, per decoder: every reach thin, each band's median thick."""
     decoders = list(dict.fromkeys(t.decoder for t in trials))
-    figure, axes = plt.subplots(1, len(decoders), figsize=(5 * len(decoders), 3.6), squeeze=False, sharey=True)
+    figure, axes = subplots(1, len(decoders), figsize=(5 * len(decoders), 3.6), squeeze=False, sharey=True)
     for axis, decoder in zip(axes[0], decoders):
         for (who, band), members in cells(trials, key=lambda t: (t.decoder, t.band)).items():
             if who != decoder:
@@ -59,14 +62,15 @@ def error_over_time(trials, times, per_step, radius_cm, path):
         axis.set_yscale("log")
         axis.legend(fontsize="small")
     axes[0, 0].set_ylabel("hand to goal hand (cm)")
-    save(figure, path)
+    figure.tight_layout()
+    return figure
 
 
-def success_vs_distance(trials, final, radius_cm, path):
+def success_vs_distance(trials, final, radius_cm) -> Figure:
     """Final against starting distance of every reach, per decoder; below the dotted line: reached; above the
     diagonal: ended farther from the goal than it started."""
     decoders = list(dict.fromkeys(t.decoder for t in trials))
-    figure, axes = plt.subplots(1, len(decoders), figsize=(5 * len(decoders), 4), squeeze=False, sharey=True)
+    figure, axes = subplots(1, len(decoders), figsize=(5 * len(decoders), 4), squeeze=False, sharey=True)
     start, end = final["start_distance_cm"], final["final_distance_cm"]
     top = float(max(np.max(start), np.max(end), radius_cm)) * 1.1
     for axis, decoder in zip(axes[0], decoders):
@@ -82,7 +86,8 @@ def success_vs_distance(trials, final, radius_cm, path):
         axis.set_xlabel("goal's distance at the start (cm)")
         axis.legend(fontsize="small")
     axes[0, 0].set_ylabel("final distance (cm)")
-    save(figure, path)
+    figure.tight_layout()
+    return figure
 
 
 def write_figures(folder: Path, trials, times, per_step, final, radius_cm) -> None:
@@ -103,6 +108,6 @@ def write_figures(folder: Path, trials, times, per_step, final, radius_cm) -> No
     radius_cm : float
         The success radius, cm.
     """
-    paths(trials, per_step, final, folder / "paths.png")
-    error_over_time(trials, times, per_step, radius_cm, folder / "error_over_time.png")
-    success_vs_distance(trials, final, radius_cm, folder / "success_vs_distance.png")
+    save(paths(trials, per_step, final), folder / "paths.png")
+    save(error_over_time(trials, times, per_step, radius_cm), folder / "error_over_time.png")
+    save(success_vs_distance(trials, final, radius_cm), folder / "success_vs_distance.png")
