@@ -4,8 +4,10 @@ import doctest
 import os
 import subprocess
 import sys
+import sysconfig
 import textwrap
 from importlib import metadata
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -16,7 +18,10 @@ import rhi.api
 
 
 def test_the_distribution_installs_the_one_top_level_name_rhi():
-    distribution = metadata.distribution("rhi")
+    # the installed distribution's record in site-packages (not the build's rhi.egg-info beside the sources)
+    found = list(Path(sysconfig.get_paths()["purelib"]).glob("rhi-*.dist-info"))
+    assert len(found) == 1, found
+    distribution = metadata.Distribution.at(found[0])
     assert distribution.read_text("top_level.txt").split() == ["rhi"]
     tops = {file.parts[0] for file in distribution.files or ()
             if not str(file).startswith(("rhi-", "__editable__", "../"))}

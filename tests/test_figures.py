@@ -30,7 +30,7 @@ print("unchanged", before)
 
 def figure_modules() -> list[str]:
     """Every rhi module whose source uses matplotlib, and those that publish figures through them."""
-    found = [".".join(path.relative_to(ROOT).with_suffix("").parts) for folder in ("master", "components")
+    found = ["rhi." + ".".join(path.relative_to(ROOT).with_suffix("").parts) for folder in ("master", "components")
              for path in sorted((ROOT / folder).rglob("*.py")) if "matplotlib" in path.read_text()]
     return [name.removesuffix(".__init__") for name in found] + [
         "rhi.master.tasks.illusion.publish", "rhi.master.tasks.reach.publish", "rhi.master.fit.run", "rhi.master.sweeps.run",
