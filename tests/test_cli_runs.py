@@ -42,6 +42,22 @@ def wait_for(marker: Path, process) -> None:
     time.sleep(0.3)
 
 
+def unlocked(path: Path, within_s: float = 60) -> None:
+    """Wait until no process holds the flock on ``path`` (a killed process's children end a moment after it)."""
+    import fcntl
+
+    deadline = time.monotonic() + within_s
+    with open(path, "rb") as file:
+        while True:
+            try:
+                fcntl.flock(file, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                fcntl.flock(file, fcntl.LOCK_UN)
+                return
+            except BlockingIOError:
+                assert time.monotonic() < deadline, f"{path} still locked {within_s} s after the kill"
+                time.sleep(0.05)
+
+
 def test_catalogue_a_second_run_is_refused_while_the_first_writes(resources, tmp_path):
     """Two runs into one DIR used to both print 'wrote' and the second replaced the first."""
     work, marker = tmp_path / "work", tmp_path / "hanging"
@@ -73,6 +89,7 @@ def test_catalogue_a_killed_run_s_staging_is_cleaned_by_the_next(resources, tmp_
     wait_for(marker, killed)
     killed.kill()
     killed.communicate(timeout=60)
+    unlocked(work / ".out.lock")  # the run's simulation process (rhi.master.runtime.contained) dies with it, a moment later
     left = sorted(os.listdir(work))
     assert ".out.lock" in left and len([n for n in left if n.endswith(".partial")]) == 2, left
     again = here(resources, work, *experiment("--out", "out"))

@@ -55,7 +55,7 @@ def test_new_conditions_may_be_added(tmp_path):
     ("[stimulations.sync]\ndelay_min = -0.1\n", r"stimulations\.sync: need 0 <= delay_min <= delay_max"),
     ("[experiment]\nconditions = ['up']\n", r"experiment\.conditions: 'up' is not defined in \[conditions\]"),
     ("[experiment]\ndecoders = ['gan']\n", r"experiment\.decoders: unknown decoder 'gan'"),
-    ("[decoder]\nvisual_variance = -1.0\n", r"decoder\.visual_variance must be positive"),
+    ("[decoder]\nvisual_variance = -1.0\n", r"decoder\.visual_variance must be at least 1e-12"),
     ("[camera]\nblur = -0.01\n", r"camera\.blur must be >= 0 m, got -0\.01"),
     ("experiment = 3\n", r"config key experiment must be a table"),
 ])

@@ -76,16 +76,17 @@ def test_export_agent_onto_a_full_disk_names_the_fmu_exit_1_and_leaves_nothing(t
 
 # -- reach, experiment, phenomena: the staging folder beside DIR -------------------------------------------
 def test_a_full_disk_as_the_staging_folder_is_made_is_the_machine_s_and_leaves_nothing(tmp_path, monkeypatch):
+    from rhi.master.outputs import files
     from rhi.master.outputs.files import STAGING_MARK, output_folder
 
-    write_text = pathlib.Path.write_text
+    write_own = files.write_own
 
-    def full(self, *args, **kwargs):  # mkdir takes an inode, the mark's first block finds no space
-        if self.name == STAGING_MARK:
+    def full(path, *args, **kwargs):  # mkdir takes an inode, the mark's first block finds no space
+        if pathlib.Path(path).name == STAGING_MARK:
             raise OSError(errno.ENOSPC, "No space left on device")
-        return write_text(self, *args, **kwargs)
+        return write_own(path, *args, **kwargs)
 
-    monkeypatch.setattr(pathlib.Path, "write_text", full)
+    monkeypatch.setattr(files, "write_own", full)
     with pytest.raises(OSError) as failed:  # not ConfigError: exit status 1 (rhi.commands.cli), not 2
         with output_folder(tmp_path / "out", force=False):
             pytest.fail("the run must not start")

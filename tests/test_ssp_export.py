@@ -134,6 +134,8 @@ def test_bad_packages_and_bodies_give_one_line_exit_status_2_and_write_nothing(p
             "no component named 'bodyy'",
         edited(package, tmp_path / "no_ssv.ssp", drop=(BODY_PARAMETERS,)).name:
             "binds the parameter file 'resources/body.ssv', which is not in the package",
+        edited(package, tmp_path / "twice.ssp", (r'(?s)(<ssd:Component name="body".*?</ssd:Component>)', r'\1\1')).name:
+            "component 'body' is declared twice in SystemStructure.ssd",  # Ecos ran such a package without a word
     }
     for name, message in bad.items():
         done = rhi("run-system", str(tmp_path / name), "--out", str(tmp_path / f"{name}.csv"))

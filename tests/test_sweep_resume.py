@@ -58,7 +58,8 @@ def test_grid_points_ids_and_validation(tmp_path):
     assert "did you mean stimulations.sync.delay_max?" in error(grid={"stimulations.sync.dely_max": [1.0]})
     assert "did you mean decoder.visual_variance?" in error(grid={"decoder.visual_varience": [1.0]})
     assert error(grid={"decoder.visual_variance": [1.0, -2.0]}) == (
-        "sweep point 1 (decoder.visual_variance=-2.0): decoder.visual_variance must be positive, got -2.0")
+        "sweep point 1 (decoder.visual_variance=-2.0): decoder.visual_variance must be at least 1e-12 (the "
+        "decoder's range), got -2.0")
     assert "non-empty list" in error(grid={"conditions.left": []})
     assert "points 0 and 1 are the same" in error(points=[{"conditions.left": -0.2}, {"conditions.left": -0.2}])
     assert "cannot be imported" in error(task="no_such_task")

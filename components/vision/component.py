@@ -35,7 +35,7 @@ REFERENCE_PIXELS = 256 * 256
 # Calibrated at the 256x256 reference with this project's camera and decoders (docs/results.md, "Calibrating
 # the visual variance"), the value master/defaults.toml uses; the released agent's 3000 was for its own images.
 DEFAULT_VISUAL_VARIANCE = 20.0
-MIN_VISUAL_VARIANCE = 1e-12  # the decoder's visual_variance range: [MIN_VISUAL_VARIANCE, None]
+from .limits import MIN_VISUAL_VARIANCE  # noqa: E402: the decoder's visual_variance range
 
 
 def available_cores() -> int:

@@ -18,6 +18,7 @@ from contextlib import nullcontext, redirect_stdout
 from rhi.components.component import ComponentError
 from rhi.master.cosim import ConfigError, SimulationError
 from rhi.master.cosim.errors import one_line
+from rhi.master.runtime import contained
 
 USER_ERRORS = (ConfigError, ComponentError)
 STDOUT_ERRORS = (errno.EPIPE, errno.ENOSPC, errno.EBADF, errno.EIO)
@@ -35,11 +36,17 @@ class Terminated(KeyboardInterrupt):
     """SIGTERM, handled like Ctrl-C: the same clean-up, exit status 143."""
 
 
+_RECEIVED: list[int] = []  # the signals _interrupted turned into an exception in this run, not yet reported
+
+
 def _interrupted(signum, frame):
-    """SIGINT or SIGTERM: the run stops (KeyboardInterrupt, or Terminated) and cleans up; a second one while
-    it cleans up is ignored, so that the clean-up and the exit are not cut short."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    """SIGINT or SIGTERM: the run stops (KeyboardInterrupt, or Terminated) and cleans up. The signal's default
+    action is restored first, never SIG_IGN: if the exception is swallowed where Python cannot pass it on (a
+    garbage-collection callback: "Exception ignored ..."), the next signal still ends the process, and
+    :func:`main` reports the interrupt when the run returns (exit status 130 or 143, not 0)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    _RECEIVED.append(signum)
     raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
 
 
@@ -88,7 +95,10 @@ def main(argv: list[str] | None = None) -> int:
     # OpenMP reads this once, when torch loads: here, before any command imports torch (this module
     # does not), and inherited by the processes a command starts.
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    stdout_closed = _standard_streams()
     args = build_parser().parse_args(argv)
+    args.stdout_closed = stdout_closed
+    args.argv = list(sys.argv[1:] if argv is None else argv)  # a command that runs itself in a child passes them on
     from rhi.components.fmu import watchdog
 
     main_thread = threading.current_thread() is threading.main_thread()
@@ -98,8 +108,15 @@ def main(argv: list[str] | None = None) -> int:
         signal.signal(number, _interrupted)
     watchdog.on_stuck = _stuck_handler(args.command)
     status = None
+    _RECEIVED.clear()
+    from rhi.master.outputs.files import forget_checked
+
+    forget_checked()
     try:
         status = _run(args)
+        if _RECEIVED and status not in (130, 143):  # an interrupt swallowed on its way (_interrupted): said now
+            status = _report_interrupt(args.command, _RECEIVED[-1] == signal.SIGTERM)
+        contained.report_done(status)
         return status
     finally:
         watchdog.on_stuck = previous_stuck
@@ -119,6 +136,8 @@ def _run(args) -> int:
 def _run_logged(args) -> int:
     try:
         status = args.run(args) or 0
+        if getattr(args, "stdout_closed", False):  # what it printed went nowhere: said, as a closed pipe is
+            raise OSError(errno.EBADF, os.strerror(errno.EBADF))
         sys.stdout.flush()  # a full or closed stdout fails here, not silently at exit
         return status
     except USER_ERRORS as error:
@@ -130,11 +149,7 @@ def _run_logged(args) -> int:
             raise
         return _fail(args.command, error, 1)
     except KeyboardInterrupt as interrupt:
-        name = "SIGTERM" if isinstance(interrupt, Terminated) else "Ctrl-C"
-        _fail(args.command, f"interrupted by {name}; nothing half-written is left"
-                            f"{' (run the same command again to resume the ' + args.command + ')' if args.command in ('sweep', 'fit') else ''}",
-              0, "")
-        return 143 if isinstance(interrupt, Terminated) else 130
+        return _report_interrupt(args.command, isinstance(interrupt, Terminated))
     except MemoryError:
         if args.debug:
             raise
@@ -143,6 +158,43 @@ def _run_logged(args) -> int:
         if args.debug:
             raise
         return _fail(args.command, describe(error), 1)
+
+
+def _report_interrupt(command: str, terminated: bool) -> int:
+    """One line saying the run was interrupted; its exit status (143 for SIGTERM, 130 for Ctrl-C)."""
+    name = "SIGTERM" if terminated else "Ctrl-C"
+    resume = f" (run the same command again to resume the {command})" if command in ("sweep", "fit") else ""
+    _fail(command, f"interrupted by {name}; nothing half-written is left{resume}", 0, "")
+    return 143 if terminated else 130
+
+
+def _standard_streams() -> bool:
+    """Make the standard streams safe to use; whether standard output was closed.
+
+    A closed descriptor 0, 1 or 2 is opened on /dev/null, so that no file rhi opens later takes its number (a
+    library's print would land in it); sys.stdout (None then) writes there. Text that the streams' encoding
+    cannot show (a non-ASCII --out under PYTHONIOENCODING=ascii) is escaped, never an error after the work."""
+    closed = False
+    for number in (0, 1, 2):
+        try:
+            os.fstat(number)
+        except OSError:
+            closed = closed or number == 1
+            descriptor = os.open(os.devnull, os.O_RDWR)
+            if descriptor != number:
+                os.dup2(descriptor, number)
+                os.close(descriptor)
+    if sys.stdout is None:
+        sys.stdout, closed = open(1, "w", closefd=False), True
+    if sys.stderr is None:
+        sys.stderr = open(2, "w", closefd=False)
+    for stream in (sys.stdout, sys.stderr):
+        if hasattr(stream, "reconfigure"):
+            try:
+                stream.reconfigure(errors="backslashreplace")
+            except (ValueError, OSError):
+                pass
+    return closed
 
 
 def describe(error: OSError) -> str:
@@ -191,6 +243,7 @@ def _stuck_handler(command: str):
         except (OSError, ValueError):
             pass
         _fail(command, message, 1)
+        contained.report_done(1)
         os._exit(1)
 
     return stuck

@@ -69,6 +69,13 @@ def run(args) -> int:
     config = configuration.load(args.config, overrides(args), quick=args.quick,  # before torch loads: fast refusals
                                 preset_name=args.preset, model_name=args.model)
     check_output(args.out, args.force)
+    from rhi.master.config.bodies import VARIANTS
+    from rhi.master.runtime import contained
+
+    if args.body and args.body not in VARIANTS and getattr(args, "argv", None) is not None \
+            and not contained.inside():
+        # an FMU's native code in a process of its own: a crash there is one line, exit 1 (a variant is rhi's)
+        return contained.run_child(args.argv, "experiment", lambda: contained.clean_output(args.out))
     log.debug(f"model {models.of(config).name}: decoders {', '.join(config['experiment']['decoders'])}, "
               f"{len(config['experiment']['conditions'])} conditions x {len(config['experiment']['stimulations'])} "
               f"stimulations x {config['experiment']['trials']} trials x {config['experiment']['steps']} steps")

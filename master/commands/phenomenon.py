@@ -42,6 +42,8 @@ def run(args) -> int:
     from rhi.master.runtime.context import RunContext
     from rhi.master.phenomena.report import report
 
+    from rhi.master.outputs.files import cannot_write
+    from rhi.master.outputs.own_paths import make_folder
     from rhi.master.sweeps import plan
     from rhi.master.sweeps.folder import check_folder
     from rhi.master.sweeps.runner import check_decoders
@@ -64,8 +66,11 @@ def run(args) -> int:
         check_decoders(plan.load(path, model, trials.get(model)))
     check_folder(out)
     own = report_manifest(out, args.name)
-    created = not out.exists()
-    out.mkdir(parents=True, exist_ok=True)
+    check_ours(out, [registry.get(model).name for model in chosen])
+    try:
+        created = make_folder(out)  # this run's to remove again (if still empty) only if this process made it
+    except OSError as error:  # read-only, no permission: a refusal (2); a full disk: the machine's (1)
+        raise cannot_write(out.absolute().parent, error) from None
     try:
         folders, status = {}, 0
         for model in chosen:
@@ -105,3 +110,24 @@ def report_manifest(out: Path, name: str):
                           f"{NAME}, or changed since): move {'it' if len(blocking) == 1 else 'them'} or choose "
                           "another --out")
     return own
+
+
+def check_ours(out: Path, folders: list[str]) -> None:
+    """ConfigError unless DIR is new, empty, or an earlier `rhi phenomenon` output: its manifest (written when a
+    run ends), or, of a run stopped before that, nothing but the models' sweep ``folders`` (each rhi's sweep, or
+    what a sweep cut short leaves). With or without --force: a phenomenon never writes into another's folder
+    (an experiment's output, a user's)."""
+    from rhi.master.cosim import ConfigError
+    from rhi.master.outputs.manifest import Manifest
+    from rhi.master.sweeps.folder import only_leftovers, read_manifest
+
+    if not out.is_dir() or Manifest.read(out, COMMAND) is not None:
+        return
+    strays = sorted(entry.name for entry in out.iterdir()
+                    if not (entry.name in folders and entry.is_dir() and not entry.is_symlink()
+                            and (read_manifest(entry / "sweep.json") is not None or only_leftovers(entry))))
+    if strays:
+        shown = ", ".join(strays[:5]) + (f" and {len(strays) - 5} more" if len(strays) > 5 else "")
+        raise ConfigError(f"output folder {out} is not empty and holds no rhi phenomenon output (it holds {shown}); "
+                          "a phenomenon writes only into a new folder or its own, with or without --force: choose "
+                          "another --out")

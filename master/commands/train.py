@@ -23,10 +23,12 @@ def run(args) -> int:
     (default auto); everything checked before training."""
     from rhi.components.vision.component import resolve_device
     from rhi.master.decoders.training import check_target, train_decoder, train_settings
+    from rhi.master.outputs.files import guard_out_file
 
     config = configuration.load(args.config, preset_name=getattr(args, "preset", None))
     settings = train_settings(config)
     check_target(args.out)
+    guard_out_file(args.out)  # what is there now: the checkpoint is never put over a file that appeared since
     device = resolve_device(getattr(args, "device", "auto"))
     metadata, seconds = train_decoder(args.decoder, args.out, settings, blur=config["camera"]["blur"], device=device)
     errors = metadata.get("hand_error", {})

@@ -17,6 +17,7 @@ import tomllib
 from importlib import resources
 from pathlib import Path
 
+from rhi.components.vision.limits import MIN_VISUAL_VARIANCE
 from rhi.master import models
 from rhi.master.config import schedules
 from rhi.master.cosim import ConfigError
@@ -292,8 +293,9 @@ def validate(config: dict) -> None:
     for key in ("blur", "ball_radius"):
         if not config["camera"][key] >= 0:
             raise ConfigError(f"camera.{key} must be >= 0 m, got {config['camera'][key]}")
-    if config["decoder"]["visual_variance"] <= 0:
-        raise ConfigError(f"decoder.visual_variance must be positive, got {config['decoder']['visual_variance']}")
+    if not config["decoder"]["visual_variance"] >= MIN_VISUAL_VARIANCE:  # the decoder's own range; NaN too
+        raise ConfigError(f"decoder.visual_variance must be at least {MIN_VISUAL_VARIANCE:g} (the decoder's range), "
+                          f"got {config['decoder']['visual_variance']}")
     for kind in ("conv", "vae"):  # a checkpoint named must be there, whether or not its decoder runs
         given = config["decoder"][f"{kind}_checkpoint"]
         problem = file_problem(given) if given else None

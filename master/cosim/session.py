@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rhi.components.component import Status
+from rhi.components.component import ComponentError, Status
 from rhi.master.cosim.errors import ConfigError, SimulationError
 from rhi.master.cosim.initialization import initialize
 from rhi.master.cosim.links import Links
@@ -175,7 +175,12 @@ class Session:
             inputs.set(snapshot)
             component = inputs.component
             began = time.perf_counter()
-            status = component.do_step(t, step_size)
+            try:
+                status = component.do_step(t, step_size)
+            except (MemoryError, ComponentError):  # the machine's, or a refusal of the input: as they are
+                raise
+            except Exception as error:  # noqa: BLE001: a component's own code (a user's model's brain) failed
+                raise SimulationError(component.name, t, f"{type(error).__name__}: {error}", "error") from error
             self._spent[index] += time.perf_counter() - began
             if status >= Status.DISCARD:
                 raise SimulationError(component.name, t, component.last_reason or "no reason given",

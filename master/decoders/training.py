@@ -29,7 +29,7 @@ from rhi.components.vision.optimised import optimised
 from rhi.master.cosim import ConfigError
 from rhi.master.decoders import training_data
 from rhi.master.decoders.quality import hand_error, read_off_error
-from rhi.master.outputs.files import atomic_write, check_output_file
+from rhi.master.outputs.files import atomic_write, check_output_file, place_file
 from rhi.master.runtime.progress import bar
 
 SIGNATURE_TOLERANCE = 1e-3  # relative; the signature moves by far more when the camera changes
@@ -116,7 +116,7 @@ def train_decoder(kind: str, out: str | Path, settings: training.TrainSettings |
             measured = optimised(measured)
         metadata["hand_error"] = hand_error(measured, settings.quality_poses, blur=blur)
         seconds["quality"] = time.perf_counter() - began
-    atomic_write(out, lambda file: checkpoint.write(file, model, metadata))
+    atomic_write(out, lambda file: checkpoint.write(file, model, metadata), place_file)  # not over a newcomer
     return metadata, seconds
 
 

@@ -15,6 +15,7 @@ Example::
 """
 from __future__ import annotations
 
+import errno
 import os
 import shutil
 import subprocess
@@ -27,7 +28,7 @@ from rhi.components.body.variants import KinematicArm
 from rhi.components.model_description3 import sizes, to_xml3
 from rhi.master.cosim import ConfigError
 from rhi.master.export.fmu_files import check_target
-from rhi.master.outputs.files import atomic_write
+from rhi.master.outputs.files import atomic_write, place_file
 
 SOURCE = Path(__file__).resolve().parents[2] / "bodies" / "kinematic_c" / "kinematic_arm.c"
 MODEL_IDENTIFIER = "KinematicArmC"  # the FMI model identifier, which names the shared library
@@ -52,6 +53,12 @@ def compile_flags(component: KinematicArm, fmi: str = "2.0") -> list[str]:
     return flags
 
 
+# What a compiler's messages say when the machine, not the source, stopped it: a program of its killed (by a
+# file-size limit, SIGXFSZ, or the kernel's OOM killer), or a write refused for want of space
+STOPPED = ("terminated program", "Killed signal", "File size limit exceeded", "File too large",
+           "No space left on device", "Disk quota exceeded")
+
+
 def build_c_fmu(out: str | os.PathLike, fmi: str = "2.0") -> Path:
     """Compile the C body for FMI ``fmi`` (2.0 or 3.0) and write the FMU at ``out`` (a path ending in .fmu),
     whole or not at all."""
@@ -74,7 +81,13 @@ def build_c_fmu(out: str | os.PathLike, fmi: str = "2.0") -> Path:
                                "-o", str(library), "-lm"], capture_output=True, text=True)
         if done.returncode:
             errors = [line for line in done.stderr.splitlines() if "error" in line] or done.stderr.splitlines()
-            raise ConfigError(f"compiling {SOURCE.name} with {compiler} failed: {errors[0].strip() if errors else ''}")
+            first = errors[0].strip() if errors else ""
+            stopped = next((line.strip() for line in done.stderr.splitlines() if any(s in line for s in STOPPED)), "")
+            if done.returncode < 0 or stopped:  # killed (a file-size or memory limit) or out of disk: the machine's
+                how = stopped or f"killed by signal {-done.returncode}"
+                raise OSError(errno.EIO, f"compiling {SOURCE.name} with {compiler} was stopped by this machine "
+                                         f"({how})", str(out))
+            raise ConfigError(f"compiling {SOURCE.name} with {compiler} failed: {first}")
 
         def write(file):
             with zipfile.ZipFile(file, "w", zipfile.ZIP_DEFLATED) as archive:
@@ -82,5 +95,5 @@ def build_c_fmu(out: str | os.PathLike, fmi: str = "2.0") -> Path:
                                  else to_xml3(component, ARRAYS))
                 archive.write(library, binary)
 
-        atomic_write(out, write)
+        atomic_write(out, write, place_file)  # never over a file that appeared at out meanwhile
     return out

@@ -10,7 +10,7 @@ import tempfile
 from pathlib import Path
 
 from rhi.master.cosim import ConfigError
-from rhi.master.outputs.files import check_output_file, umask
+from rhi.master.outputs.files import check_output_file, place_file, umask
 
 
 def check_target(out) -> Path:
@@ -42,7 +42,7 @@ def built_beside(out: Path, build) -> Path:
     try:
         built = Path(build(beside / out.name))
         built.chmod(0o666 & ~umask())
-        os.replace(built, out)
+        place_file(built, out)  # never over a file that appeared at out meanwhile
     except OSError as error:
         if error.filename is None and error.errno is not None:  # a builder's write (zipfile's) names no file
             raise OSError(error.errno, error.strerror, str(out)) from error

@@ -12,11 +12,16 @@ within bounds) and returns None for a file rhi wrote, else what it is not. A fil
   agent);
 - ``.ssp``: a zip archive whose ``SystemStructure.ssd`` names the generationTool ``rhi``;
 - ``.csv``: run-system's table: the header ``time`` and then the connectors ``component.variable``, sorted,
-  and every row that follows in the first block read a number per column.
+  every row that follows in the first block a number per column, and rhi's mark: the extended attribute
+  ``user.rhi.sha256`` that run-system sets to the sha256 of the bytes it wrote (:func:`mark`), still matching
+  them (a CSV of the user's of the same shape, or rhi's edited since, is not rhi's; on a file system that
+  keeps no extended attributes, the shape alone, as before the mark).
 """
 from __future__ import annotations
 
 import csv
+import errno
+import hashlib
 import io
 import os
 import zipfile
@@ -111,7 +116,38 @@ def csv_problem(path: str | os.PathLike) -> str | None:
     for row in rows:
         if len(row) != len(header) or not all(_number(cell) for cell in row):
             return "a row is not a number per column"
+    if not marked(path):
+        return f"it does not carry rhi's mark of the table it wrote, {MARK}, or its bytes changed since"
     return None
+
+
+MARK = "user.rhi.sha256"  # the extended attribute rhi run-system sets on the CSV it writes: the sha256 of its bytes
+
+
+def mark(path: str | os.PathLike, data: bytes) -> None:
+    """Set rhi's mark on the file ``path`` holding ``data`` (nothing where the file system keeps no attributes)."""
+    try:
+        os.setxattr(path, MARK, hashlib.sha256(data).hexdigest().encode("ascii"), follow_symlinks=False)
+    except (OSError, AttributeError):
+        pass
+
+
+def marked(path: str | os.PathLike) -> bool:
+    """Whether ``path`` carries rhi's mark and its bytes still hash to it."""
+    try:
+        expected = os.getxattr(path, MARK, follow_symlinks=False).decode("ascii")
+    except OSError as error:  # a file system that keeps no attributes: its shape alone, as before the mark
+        return error.errno in (errno.ENOTSUP, errno.EOPNOTSUPP)
+    except (AttributeError, UnicodeDecodeError):
+        return False
+    try:
+        with open(path, "rb") as file:
+            hasher = hashlib.sha256()
+            for block in iter(lambda: file.read(1 << 20), b""):
+                hasher.update(block)
+    except OSError:
+        return False
+    return hasher.hexdigest() == expected
 
 
 def _number(text: str) -> bool:

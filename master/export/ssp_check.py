@@ -104,6 +104,9 @@ def read_ssp(path) -> Package:
         connectors = {}
         for element in system.iterfind("ssd:Elements/ssd:Component", NS):
             component, source = element.get("name"), element.get("source") or ""
+            if component in package.components:  # a master would make two instances, or one: never what was meant
+                raise ConfigError(f"{name}: component {component!r} is declared twice in {SSD}; each component's "
+                                  "name must be its own")
             if source not in members:
                 raise ConfigError(f"{name}: component {component!r} names its FMU {source!r}, which is not in the package")
             fmu = os.path.join(folder, f"{len(package.components)}.fmu")

@@ -30,7 +30,7 @@ from rhi.master.cosim import ConfigError
 from rhi.master.config.sources import shared_parameters
 from rhi.master.export.agent import agent_connections
 from rhi.master.export.tasks import task as task_named
-from rhi.master.outputs.files import atomic_write, check_output_file
+from rhi.master.outputs.files import atomic_write, check_output_file, place_file
 
 NS = {"ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
       "ssc": "http://ssp-standard.org/SSP1/SystemStructureCommon",
@@ -232,5 +232,5 @@ def build_ssp(out, agent_fmu: str, body_fmu: str, config: dict, kind: str, bound
                 archive.writestr(f"{TRIALS}/{name}.ssv", parameter_set(
                     name, task.agent_values(trial, config, agent, agent_starts), agent_starts))
 
-    atomic_write(out, write)
+    atomic_write(out, write, place_file)  # never over a file that appeared at out meanwhile
     return out

@@ -21,7 +21,7 @@ from rhi.master.cosim import ConfigError, SimulationError
 from rhi.master.export.ssp_check import Package, read_ssp, trial_parameters
 from rhi.master.export.ssp_package import AGENT, BODY, MASTERS, MAX_STEPS, build_ssp
 from rhi.master.export.ssp_runner import refusal
-from rhi.master.outputs.files import atomic_write, check_output_file
+from rhi.master.outputs.files import atomic_write, check_output_file, place_file
 from rhi.master.outputs.scratch import scratch_folder
 
 
@@ -199,15 +199,18 @@ def export_system(out, config: dict, kind: str | None = None, variant: str = "na
 
 
 def write_csv(out, values: dict) -> Path:
-    """The run's values as CSV (``time`` first, one row per step), written whole or not at all."""
-    import csv
-    import io
+    """The run's values as CSV (``time`` first, one row per step), written whole or not at all (the connectors'
+    names, the package's free text, through rhi.master.outputs.tables.csv_text)."""
+    from rhi.master.export.own_files import mark
+    from rhi.master.outputs.tables import csv_text
 
     names = ["time"] + sorted(k for k in values if k != "time")
-    text = io.StringIO()
-    writer = csv.writer(text, lineterminator="\n")
-    writer.writerow(names)
-    for row in zip(*(values[name] for name in names)):
-        writer.writerow([repr(float(v)) for v in row])
-    atomic_write(out, text.getvalue())
+    rows = ([repr(float(v)) for v in row] for row in zip(*(values[name] for name in names)))
+    data = csv_text(names, rows).encode("utf-8")
+
+    def placed(temporary, path):  # marked as rhi's (its --force replaces only a table it marked), then put in place
+        mark(temporary, data)
+        place_file(temporary, path)  # never over a file that appeared at out meanwhile
+
+    atomic_write(out, data, placed)
     return Path(out)

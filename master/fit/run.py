@@ -28,6 +28,7 @@ from rhi.master.runtime.context import RunContext
 from rhi.master.fit.simulate import Pool, participants_sweep, simulate, statistics, with_noise
 from rhi.master.outputs.figures import save
 from rhi.master.outputs.files import atomic_write
+from rhi.master.outputs.own_paths import LockFile, make_folder
 from rhi.master.outputs.provenance import package_versions
 from rhi.master.sweeps.plan import canonical_hash
 
@@ -40,7 +41,11 @@ AFTER_TRAINING = ("workers", "posterior_samples", "calibration_samples", "predic
 # z-scored statistics, random held-out draws): left out of the fingerprint, so that fits made then keep theirs
 BEFORE_THEIR_KEYS = (("ensemble", 1), ("space", "bounded"), ("statistics", "z-score"), ("calibration_design", "random"))
 OUTPUTS = ("fit.json", "simulations", "estimator.pt", "posterior.csv", "estimates.csv", "calibration.csv",
-           "recovery.csv", "held_out.csv", "predictive", "predictive.csv", "figures", "run.json", ".lock")
+           "recovery.csv", "held_out.csv", "predictive", "predictive.csv", "figures", "run.json", ".lock",
+           ".rhi-manifest.json")
+# the reports a run writes over (its manifest lists each; a resumed fit refuses one edited since)
+REPORTS = ("posterior.csv", "estimates.csv", "calibration.csv", "recovery.csv", "held_out.csv", "predictive.csv",
+           "run.json", "figures/calibration.png", "figures/posterior_predictive.png")
 
 
 def fingerprint(plan: FitPlan, sweep_fingerprint: str, data: Data | None = None) -> str:
@@ -117,18 +122,65 @@ def fit(data_path: str, config_path: str, out: Path, model: str | None = None, c
     drawn = draw_participants(plan.parameters, settings)
     sweep = participants_sweep(plan, drawn, "prior")
     identity = fingerprint(plan, sweep.fingerprint, data)
-    created = not out.exists()
-    prepare_folder(out, identity, sweep.fingerprint)
+    from rhi.master.sweeps.folder import check_folder
+
+    check_folder(out)
     try:
+        created = make_folder(out)  # DIR is this fit's to remove again only if this process made it
+    except OSError as error:
+        raise ConfigError(f"cannot write {out}: {error.strerror or error}") from None
+    lock = LockFile(out / ".lock", f"another rhi fit is writing to {out}; wait for it to end or choose another --out")
+    try:
+        lock.acquire()
+    except (ConfigError, OSError) as error:  # another fit's DIR now, even if this one made it: never removed
+        if isinstance(error, OSError):
+            raise ConfigError(f"cannot write {out}: {error.strerror or error}") from None
+        raise
+    try:
+        prepare_folder(out, identity, sweep.fingerprint)
+        own = reports_manifest(out)
         with Pool(context.scheduler, settings["workers"], context.debug) as pool:
-            return _fit(data, plan, drawn, sweep, out, pool, log, began, identity)
-    except ConfigError:  # refused before any simulation ran (a worker, a decoder): a DIR this fit made goes again
+            return _fit(data, plan, drawn, sweep, out, pool, log, began, identity, own)
+    except ConfigError:  # refused before any simulation ran (a worker, a decoder): a DIR this fit made, and held
+        # locked since, goes again
         if created and not any((out / "simulations" / "trials").glob("*.json")):
+            lock.release()
             shutil.rmtree(out, ignore_errors=True)
         raise
+    finally:
+        lock.release()
 
 
-def _fit(data: Data, plan: FitPlan, drawn: np.ndarray, sweep, out: Path, pool, log, began, identity: str) -> dict:
+def reports_manifest(out: Path):
+    """DIR's manifest of the reports rhi fit wrote there (rhi.master.outputs.manifest), checked before anything runs:
+    each report a run writes over must be the one rhi fit wrote, unchanged (an edited posterior.csv is refused,
+    naming it); a fit folder of an older rhi, without one, has its reports listed as they are."""
+    from rhi.master.outputs.manifest import NAME, Manifest
+
+    own = Manifest.read(out, COMMAND)
+    if own is None:
+        own = Manifest(out, COMMAND)
+        for name in REPORTS:
+            own.add(name)
+        return own
+    blocking = [name for name in REPORTS
+                if ((out / name).exists() or (out / name).is_symlink()) and not own.proven(name)]
+    if blocking:
+        raise ConfigError(f"output folder {out}: {', '.join(blocking)} would be written over but "
+                          f"{'is' if len(blocking) == 1 else 'are'} not what rhi fit wrote there (not in its {NAME}, "
+                          f"or changed since): move {'it' if len(blocking) == 1 else 'them'} or choose another --out")
+    return own
+
+
+def written(own, *names: str) -> None:
+    """List the reports ``names`` as rhi fit has just written them, and save the manifest."""
+    for name in names:
+        own.add(name)
+    own.save()
+
+
+def _fit(data: Data, plan: FitPlan, drawn: np.ndarray, sweep, out: Path, pool, log, began, identity: str,
+         own) -> dict:
     from rhi.master.fit import inference
 
     settings = plan.settings
@@ -157,6 +209,7 @@ def _fit(data: Data, plan: FitPlan, drawn: np.ndarray, sweep, out: Path, pool, l
     samples = report.natural(plan.parameters, np.stack(samples))
     atomic_write(out / "posterior.csv", report.posterior_csv(plan.parameters, data.participants, samples))
     atomic_write(out / "estimates.csv", report.estimates_csv(plan.parameters, data.participants, samples))
+    written(own, "posterior.csv", "estimates.csv")
 
     calibration = None
     if len(held_rows):
@@ -171,11 +224,13 @@ def _fit(data: Data, plan: FitPlan, drawn: np.ndarray, sweep, out: Path, pool, l
         atomic_write(out / "held_out.csv", held_out_csv(data, plan, x[held_rows], held_rows))
         save(report.calibration_figure(plan.parameters, calibration, drawn[held_rows]),
              out / "figures" / "calibration.png", dpi=report.FIGURE_DPI)
+        written(own, "calibration.csv", "recovery.csv", "held_out.csv", "figures/calibration.png")
 
-    predictive = predictive_check(data, plan, posterior, out, pool)
+    predictive = predictive_check(data, plan, posterior, out, pool, own)
     result = run_record(data, plan, sweep, records, training, timing, calibration, predictive, valid, held_rows,
                         simulated_s, ran_now, time.perf_counter() - began)
     atomic_write(out / "run.json", json.dumps(result, indent=1, sort_keys=True, allow_nan=True) + "\n")
+    written(own, "run.json")
     return result
 
 
@@ -238,7 +293,7 @@ def held_out_csv(data: Data, plan: FitPlan, x: np.ndarray, rows) -> str:
     return csv_text(header, lines)
 
 
-def predictive_check(data: Data, plan: FitPlan, posterior, out: Path, pool) -> dict | None:
+def predictive_check(data: Data, plan: FitPlan, posterior, out: Path, pool, own) -> dict | None:
     """Simulate ``fit.predictive_draws`` posterior draws of each of the first ``fit.predictive_participants``
     participants (a sweep in DIR/predictive); predictive.csv and figures/posterior_predictive.png."""
     from rhi.master.fit import inference
@@ -260,6 +315,7 @@ def predictive_check(data: Data, plan: FitPlan, posterior, out: Path, pool) -> d
     atomic_write(out / "predictive.csv", report.predictive_csv(names, data.participants[:count], observed, predicted))
     save(report.predictive_figure(names, data.participants[:count], observed, predicted),
          out / "figures" / "posterior_predictive.png", dpi=report.FIGURE_DPI)
+    written(own, "predictive.csv", "figures/posterior_predictive.png")
     return {"participants": count, "draws": draws, "trials": len(sweep.trials)}
 
 

@@ -94,9 +94,11 @@ def checked(name, where: str) -> Model:
 
 
 def described() -> str:
-    """The models in words, for ``--model``'s help: each name with its summary, and how to give one's own."""
-    return "; ".join(f"{name} = {get(name).summary}" for name in names()) + \
-        "; or path/to/file.py:Class, a model of one's own (examples/my_model.py)"
+    """The models in words, for ``--model``'s help: each built-in name with its summary, each entry point's name
+    with what it stands for (named, never imported: a broken plug-in breaks only a run that uses it), and how to
+    give one's own."""
+    return "; ".join(f"{name} = {get(name).summary}" if name in BUILT_IN else f"{name} = {spec_of(name)}"
+                     for name in names()) + "; or path/to/file.py:Class, a model of one's own (examples/my_model.py)"
 
 
 def of(config: dict) -> Model:
@@ -122,7 +124,7 @@ def _load(spec: str) -> Model:
             sys.modules[module_name] = module  # dataclasses and pickling look the module up by name
             try:
                 loader.loader.exec_module(module)
-            except Exception as error:  # noqa: BLE001: a user's file; say what went wrong in one line
+            except (Exception, SystemExit) as error:  # noqa: BLE001: a user's file; say what went wrong in one line
                 del sys.modules[module_name]
                 raise ConfigError(f"model {spec!r}: {type(error).__name__}: {error}") from None
     else:
@@ -130,10 +132,15 @@ def _load(spec: str) -> Model:
             module = importlib.import_module(where)
         except ImportError as error:
             raise ConfigError(f"model {spec!r}: cannot import {where}: {error}") from None
+        except (Exception, SystemExit) as error:  # noqa: BLE001: a plug-in's module; it never ends rhi
+            raise ConfigError(f"model {spec!r}: importing {where} raised {type(error).__name__}: {error}") from None
     found = getattr(module, attribute, None)
     if found is None:
         raise ConfigError(f"model {spec!r}: {where} has no {attribute}")
-    model = found() if isinstance(found, type) else found
+    try:
+        model = found() if isinstance(found, type) else found
+    except (Exception, SystemExit) as error:  # noqa: BLE001: a user's class; its __init__ never ends rhi
+        raise ConfigError(f"model {spec!r}: {attribute}() raised {type(error).__name__}: {error}") from None
     if not isinstance(model, Model):
         raise ConfigError(f"model {spec!r}: {attribute} is not a rhi.master.models.Model")
     return model

@@ -193,6 +193,18 @@ class Model:
         where = f"model {self.source or self.name!r}"
         if not isinstance(self.name, str) or not re.fullmatch(r"[a-z][a-z0-9_-]*", self.name):
             raise ConfigError(f"{where}: name must be lower-case letters, digits, '-' or '_', got {self.name!r}")
+        for attribute in ("own_settings", "parameter_sources", "measures"):
+            if not isinstance(getattr(self, attribute), dict):
+                raise ConfigError(f"{where}: {attribute} must be a dict, got {type(getattr(self, attribute)).__name__}")
+        if not isinstance(self.own_settings.get("model", {}), dict):
+            raise ConfigError(f"{where}: own_settings' model must be a table (a dict), got "
+                              f"{self.own_settings['model']!r}")
+        if not (isinstance(self.record, (tuple, list)) and all(isinstance(p, str) and "." in p for p in self.record)):
+            raise ConfigError(f"{where}: record must be a tuple of 'component.variable' paths, got {self.record!r}")
+        for column, path in self.measures.items():
+            if not isinstance(column, str) or path not in self.record:
+                raise ConfigError(f"{where}: measures[{column!r}] = {path!r}: give a column name and a path it "
+                                  f"records (one of record: {', '.join(self.record) or 'none'})")
         try:
             brain = self.brain()
         except Exception as error:  # noqa: BLE001: a user's model; say what went wrong in one line

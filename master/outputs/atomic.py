@@ -18,7 +18,8 @@ def umask() -> int:
         return mask
 
 
-def atomic_write(path: str | os.PathLike, data: str | bytes | Callable[[BinaryIO], None]) -> None:
+def atomic_write(path: str | os.PathLike, data: str | bytes | Callable[[BinaryIO], None],
+                 place: Callable[[str, Path], None] = os.replace) -> None:
     """Write ``path`` whole or not at all: into a temporary file beside it, then a rename.
 
     Parameters
@@ -26,6 +27,8 @@ def atomic_write(path: str | os.PathLike, data: str | bytes | Callable[[BinaryIO
     path : the file to write (its folder must exist).
     data : text (written as UTF-8), bytes, or a function that writes into the binary file it is
         given (``lambda file: numpy.savez(file, ...)``, ``torch.save``).
+    place : how the finished temporary file takes its place (default: a rename; a command's --out FILE:
+        rhi.master.outputs.files.place_file, which never writes over a file that appeared meanwhile).
     """
     path = Path(path)
     handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
@@ -36,9 +39,10 @@ def atomic_write(path: str | os.PathLike, data: str | bytes | Callable[[BinaryIO
             else:
                 file.write(data.encode("utf-8") if isinstance(data, str) else data)
         os.chmod(temporary, 0o666 & ~umask())  # mkstemp makes files private; results are ordinary files
-        os.replace(temporary, path)
+        place(temporary, path)
     except BaseException as error:
-        os.unlink(temporary)
+        if os.path.lexists(temporary):
+            os.unlink(temporary)
         if isinstance(error, OSError) and error.filename is None and error.errno is not None:
             raise OSError(error.errno, error.strerror, str(path)) from error  # a full disk names the file
         raise

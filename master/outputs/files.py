@@ -21,6 +21,7 @@ from typing import Callable
 
 from rhi.master.cosim import ConfigError
 from rhi.master.outputs.atomic import atomic_write, umask  # noqa: F401: re-exported, the place callers know
+from rhi.master.outputs.own_paths import LockFile, is_own_mark, write_own
 
 
 OUTPUT_COMMAND = "rhi experiment"  # run.json's and the manifest's "command": an experiment's output
@@ -127,6 +128,63 @@ def check_output_file(out: str | os.PathLike, noun: str, suffix: str = "", force
     return out
 
 
+_CHECKED: dict[str, tuple | None] = {}  # a command's --out FILE, checked -> what was there (None: nothing)
+
+
+def guard_out_file(out: str | os.PathLike) -> None:
+    """Note what is at a command's ``--out FILE`` now, as it is checked before any work: :func:`place_file`
+    puts the finished file there only if that is still so (a file that appeared meanwhile is never written
+    over)."""
+    _CHECKED[str(Path(out).absolute())] = _state(Path(out))
+
+
+def _state(path: Path) -> tuple | None:
+    try:
+        info = os.lstat(path)
+    except FileNotFoundError:
+        return None
+    return info.st_dev, info.st_ino, info.st_size, info.st_mtime_ns
+
+
+def forget_checked() -> None:
+    """Start a new run: no --out FILE checked yet (rhi.master.commands.cli.main calls it)."""
+    _CHECKED.clear()
+
+
+def place_file(finished: str | os.PathLike, out: str | os.PathLike) -> None:
+    """Put the finished file ``finished`` (beside ``out``, on its file system) at ``out``, never over a file that
+    appeared or changed there since :func:`guard_out_file` noted it: where nothing was, by a hard link
+    that fails if anything is there now, then the temporary name removed; where rhi's own file was (--force),
+    by a rename once it is found unchanged. A file that appeared is left as it is: ConfigError. A path not
+    noted (a cache's file, a scratch folder's) is simply renamed onto."""
+    out = Path(out)
+    key = str(out.absolute())
+    if key not in _CHECKED:
+        os.replace(finished, out)
+        return
+    was = _CHECKED.pop(key)
+    appeared = ConfigError(f"--out {out} appeared or changed while this command ran; it was left as it is and "
+                           "nothing was written there")
+    with signals_held():
+        if was is not None:
+            if _state(out) != was:
+                raise appeared
+            os.replace(finished, out)
+            return
+        try:
+            os.link(finished, out, follow_symlinks=False)
+        except FileExistsError:
+            raise appeared from None
+        except OSError as error:  # a file system without hard links: checked, then renamed
+            if error.errno not in (errno.EPERM, errno.ENOTSUP, errno.EOPNOTSUPP, errno.EMLINK):
+                raise
+            if os.path.lexists(out):
+                raise appeared from None
+            os.replace(finished, out)
+            return
+        os.unlink(finished)
+
+
 def check_output(out: str | os.PathLike, force: bool) -> Path:
     """DIR as a Path, if a run may write it: ConfigError naming the reason otherwise.
 
@@ -156,49 +214,57 @@ def check_output(out: str | os.PathLike, force: bool) -> Path:
     parent = path.absolute().parent
     if not parent.is_dir():
         raise ConfigError(f"cannot write {out}: folder {parent} does not exist")
+    for folder in (path, parent):  # checked now: a rename onto it would fail only once the run is done
+        if folder.is_dir() and unchangeable(folder):
+            raise ConfigError(f"cannot write {out}: {folder} is immutable or append-only (chattr +i, +a); rhi "
+                              "replaces DIR by a rename, which it forbids")
     return path
+
+
+FS_IOC_GETFLAGS = 0x80086601  # Linux's ioctl reading a file's attributes (lsattr), _IOR('f', 1, long)
+UNCHANGEABLE = 0x10 | 0x20  # FS_IMMUTABLE_FL, FS_APPEND_FL: no rename onto or out of it
+
+
+def unchangeable(folder: Path) -> bool:
+    """Whether ``folder`` is immutable or append-only (Linux file attributes); False where they cannot be read."""
+    import array
+
+    try:
+        descriptor = os.open(folder, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW | getattr(os, "O_CLOEXEC", 0))
+    except OSError:
+        return False
+    try:
+        flags = array.array("l", [0])
+        fcntl.ioctl(descriptor, FS_IOC_GETFLAGS, flags, True)
+        return bool(flags[0] & UNCHANGEABLE)
+    except OSError:
+        return False
+    finally:
+        os.close(descriptor)
 
 
 class OutputLock:
     """An exclusive lock on DIR, held while a run writes it: a file ``.DIR.lock`` beside DIR, flock'ed
-    (released by the kernel if the process dies), removed when the run ends."""
+    (released by the kernel if the process dies), removed when the run ends if it is the one this run made
+    (rhi.master.outputs.own_paths.LockFile: never through a link, never a file of someone else's)."""
 
     def __init__(self, out: Path):
         self.out = out
         self.path = out.absolute().parent / f".{out.name}.lock"
-        self.file = None
+        self.lock = LockFile(self.path, f"another rhi run is writing {out} (it holds {self.path}); wait for it to "
+                                        "end or choose another --out")
 
     def acquire(self) -> "OutputLock":
         """Take the lock without waiting and return it; ConfigError if another run holds it or it cannot be made."""
-        for _ in range(5):
-            try:
-                descriptor = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o666)
-            except OSError as error:
-                raise cannot_write(self.path.parent, error) from None
-            try:
-                fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
-                os.close(descriptor)
-                raise ConfigError(f"another rhi run is writing {self.out} (it holds {self.path}); wait for it to "
-                                  "end or choose another --out") from None
-            try:  # the file we locked may have been removed by a run that just ended: lock the one in place
-                if os.stat(self.path).st_ino == os.fstat(descriptor).st_ino:
-                    self.file = descriptor
-                    return self
-            except FileNotFoundError:
-                pass
-            os.close(descriptor)
-        raise ConfigError(f"cannot lock {self.path}: other runs keep replacing it")
+        try:
+            self.lock.acquire()
+        except OSError as error:
+            raise cannot_write(self.path.parent, error) from None
+        return self
 
     def release(self) -> None:
-        """Remove the lock file and close it, which releases the lock; nothing if it is not held."""
-        if self.file is not None:
-            try:
-                os.unlink(self.path)  # while still holding it; a run that opened it sees another inode
-            except OSError:
-                pass
-            os.close(self.file)
-            self.file = None
+        """Remove the lock file (if this run made it) and close it, which releases the lock; nothing if not held."""
+        self.lock.release()
 
 
 def clean_stale(out: Path) -> list[str]:
@@ -211,7 +277,7 @@ def clean_stale(out: Path) -> list[str]:
         match = pattern.fullmatch(entry.name)
         if not match or entry.is_symlink() or not entry.is_dir():
             continue
-        ours = (entry / STAGING_MARK).is_file() or not any(entry.iterdir()) if match.group(1) == "partial" \
+        ours = is_own_mark(entry / STAGING_MARK) or not any(entry.iterdir()) if match.group(1) == "partial" \
             else not foreign_entries(entry)
         if ours:
             shutil.rmtree(entry, ignore_errors=True)
@@ -264,7 +330,7 @@ def _make_staging(out: Path) -> Path:
     except OSError as error:
         raise cannot_write(parent, error) from None
     try:
-        (staging / STAGING_MARK).write_text(f"{os.getpid()}\n")
+        write_own(staging / STAGING_MARK, f"{os.getpid()}\n")
     except OSError as error:  # a full disk makes the folder but not the file: the folder goes again
         shutil.rmtree(staging, ignore_errors=True)
         raise cannot_write(parent, error) from None

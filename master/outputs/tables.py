@@ -36,12 +36,28 @@ def summary_columns(probe_times=()) -> list[str]:
 
 
 def csv_text(header: list[str], rows) -> str:
-    """``header`` and ``rows`` as CSV text, one line each, every line ending in a newline."""
+    """``header`` and ``rows`` as CSV text, one line each, every line ending in a newline; every cell through
+    :func:`safe_cell` (the one CSV writer of rhi: no free text of the user's becomes a spreadsheet formula)."""
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
-    writer.writerow(header)
-    writer.writerows(rows)
+    writer.writerow(map(safe_cell, header))
+    writer.writerows(map(safe_cell, row) for row in rows)
     return buffer.getvalue()
+
+
+FORMULA_STARTS = ("=", "+", "-", "@", "\t", "\r")  # what a spreadsheet takes for the start of a formula (OWASP)
+
+
+def safe_cell(value):
+    """``value`` as a CSV cell a spreadsheet will not run: text starting with = + - @, a tab or a carriage return
+    gets a leading apostrophe (OWASP, "CSV Injection"), unless it reads as a number (``-1.5``, ``-inf``: rhi's
+    own numbers stay numbers); anything else is left as it is."""
+    if isinstance(value, str) and value[:1] in FORMULA_STARTS:
+        try:
+            float(value)
+        except ValueError:
+            return "'" + value
+    return value
 
 
 NUMBER = "%.6g"  # every number in a table: fixed formatting, so that the same numbers always give the same bytes

@@ -55,6 +55,11 @@ def load(path=None, model_name: str = "paper") -> dict:
     if not moving["delays"] or any(not 0 <= d or abs(d / step - round(d / step)) > 1e-6 for d in moving["delays"]):
         raise ConfigError(f"moving_hand.delays = {moving['delays']}: each must be >= 0 and a whole number of "
                           f"{step} s steps")
+    length = config["experiment"]["steps"] * step
+    longest = max(moving["delays"])
+    if not longest <= length:  # the seen hand shows the real one d s earlier: over the trial, it never moves in it
+        raise ConfigError(f"moving_hand.delays: {longest:g} s is longer than the trial ({length:g} s = "
+                          "experiment.steps x step_size), so the seen hand would never move in it")
     if moving["condition"] not in config["conditions"]:
         raise ConfigError(f"moving_hand.condition: unknown condition {moving['condition']!r}")
     for key in ("amplitude", "period"):

@@ -10,9 +10,9 @@ a DIR whose sweep.json rhi did not write, or holding a link where a sweep writes
 """
 from __future__ import annotations
 
-import fcntl
 import json
 import os
+import re
 import shutil
 import stat
 from contextlib import contextmanager
@@ -22,6 +22,7 @@ from rhi.master.cosim import ConfigError
 from rhi.master.outputs.files import atomic_write, check_name_length
 from rhi.master.outputs.provenance import package_versions
 from rhi.master.outputs.manifest import NAME as MANIFEST, Manifest
+from rhi.master.outputs.own_paths import LockFile, is_own_mark, make_folder
 from rhi.master.sweeps.plan import DEFAULT_TASK, Sweep
 from rhi.master.sweeps.tables import MEASURES
 
@@ -47,29 +48,41 @@ def sweep_folder(out: Path, sweep: Sweep, force: bool):
         if old is None:
             raise ConfigError(f"output folder {out} holds a sweep.json that rhi sweep did not write; it is never "
                               "replaced, with or without --force: choose another --out")
-    created = not out.exists()
     try:
-        out.mkdir(exist_ok=True)
-        lock = open(out / ".lock", "w")
+        created = make_folder(out)  # ours to remove again only if this process made it
     except OSError as error:
         raise ConfigError(f"cannot write {out}: {error.strerror or error}") from None
+    lock = LockFile(out / ".lock", f"another rhi sweep is writing to {out}")
     try:
-        with lock:
-            yield from _prepared(out, sweep, force, manifest, lock)
-    except (ConfigError, OSError):  # refused, or a full disk, before any trial ran: a DIR this sweep made goes
-        # again (all of it is ours)
+        lock.acquire()
+    except (ConfigError, OSError) as error:  # another run's, or no lock at all: nothing of this run's to remove
+        if created:
+            _remove_if_empty(out)
+        if isinstance(error, OSError):
+            raise ConfigError(f"cannot write {out}: {error.strerror or error}") from None
+        raise
+    try:
+        yield from _prepared(out, sweep, force, manifest)
+    except (ConfigError, OSError):  # refused, or a full disk, before any trial ran: a DIR this sweep made, and
+        # locked all along, goes again (all of it is ours)
         if created and not any((out / "trials").glob("*.json")):
+            lock.release()
             shutil.rmtree(out, ignore_errors=True)
         raise
+    finally:
+        lock.release()
 
 
-def _prepared(out: Path, sweep: Sweep, force: bool, manifest: Path, lock):
+def _remove_if_empty(folder: Path) -> None:
+    try:
+        folder.rmdir()
+    except OSError:
+        pass
+
+
+def _prepared(out: Path, sweep: Sweep, force: bool, manifest: Path):
     """The locked DIR checked and started over if need be; yields its records and the list of the files rhi
     wrote there (its Manifest, to be added to as the sweep writes; see :func:`sweep_folder`)."""
-    try:
-        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        raise ConfigError(f"another rhi sweep is writing to {out}") from None
     old = read_manifest(manifest) if manifest.exists() else None
     previous = old["fingerprint"] if old else None
     if previous is not None and previous != sweep.fingerprint and not force:
@@ -79,9 +92,18 @@ def _prepared(out: Path, sweep: Sweep, force: bool, manifest: Path, lock):
     records = read_records(out, sweep)  # checked before anything is removed (start_over keeps every one of them)
     if previous != sweep.fingerprint:
         start_over(out, sweep, old or {}, own)
-    for leftover in (out / "trials").glob(".*.tmp"):  # a write cut short by a kill; its trial reruns
-        leftover.unlink()
+    else:  # resumed: what it writes over at the end must be rhi's, unchanged (a summary.csv edited meanwhile stays)
+        refuse_unproven(out, [name for name in written_by(sweep) if name != "index.csv"], own)
+    planned = {f"{trial.id}.json" for trial in sweep.trials}
+    for leftover in (out / "trials").glob(".*.tmp"):  # a record's write cut short by a kill; its trial reruns
+        match = TEMPORARY.fullmatch(leftover.name)
+        if match and match.group(1) in planned and is_own_mark(leftover):  # atomic_write's name; a file, no link
+            leftover.unlink()
     yield records, own
+
+
+# atomic_write's temporary name for a trial record: .ID.json.XXXXXXXX.tmp (tempfile.mkstemp's 8 characters)
+TEMPORARY = re.compile(r"\.(.+\.json)\.[A-Za-z0-9_]{8}\.tmp")
 
 
 def only_leftovers(folder: Path, folders=("trials",)) -> bool:
@@ -108,7 +130,7 @@ def check_folder(out: Path) -> None:
         raise ConfigError(f"output {out} is the working folder or a folder above it; name a folder for the sweep")
     if out.exists() and not out.is_dir():
         raise ConfigError(f"output {out} exists and is not a folder")
-    for name in ("", *OUTPUTS):  # a link could lead a write or a removal out of DIR
+    for name in ("", *OUTPUTS, ".lock", MANIFEST):  # a link could lead a write or a removal out of DIR
         if (out / name).is_symlink():
             raise ConfigError(f"output {out / name} is a symbolic link; a sweep writes only into folders of its own")
         if name in ("trials", "figures") and (out / name).exists() and not (out / name).is_dir():
@@ -143,13 +165,7 @@ def start_over(out: Path, sweep: Sweep, old: dict, own: Manifest) -> None:
     sweep would write over that rhi cannot show it wrote (yours, or edited) is refused, naming it, before
     anything is removed; any other file stays."""
     if old:
-        blocking = [name for name in written_by(sweep) if ((out / name).exists() or (out / name).is_symlink())
-                    and not own.proven(name)]
-        if blocking:
-            raise ConfigError(f"output folder {out}: {', '.join(blocking[:5])} would be written over but "
-                              f"{'is' if len(blocking) == 1 else 'are'} not what rhi sweep wrote there (not in its "
-                              f"{MANIFEST}, or changed since); --force replaces only rhi's own files: move "
-                              f"{'it' if len(blocking) == 1 else 'them'} or choose another --out")
+        refuse_unproven(out, written_by(sweep), own)
         planned = {f"trials/{trial.id}.json" for trial in sweep.trials}
         own.remove_proven(keep=planned | {"sweep.json"})
     (out / "trials").mkdir(exist_ok=True)
@@ -162,6 +178,18 @@ def start_over(out: Path, sweep: Sweep, old: dict, own: Manifest) -> None:
     own.folders.add("trials")
     own.add("sweep.json")
     own.save()
+
+
+def refuse_unproven(out: Path, names: list[str], own: Manifest) -> None:
+    """ConfigError naming the files of ``names`` in DIR that a sweep would write over but that rhi cannot show it
+    wrote (not in its manifest ``own``, or changed since: a user's, or edited)."""
+    blocking = [name for name in names if ((out / name).exists() or (out / name).is_symlink())
+                and not own.proven(name)]
+    if blocking:
+        raise ConfigError(f"output folder {out}: {', '.join(blocking[:5])} would be written over but "
+                          f"{'is' if len(blocking) == 1 else 'are'} not what rhi sweep wrote there (not in its "
+                          f"{MANIFEST}, or changed since); rhi replaces only its own files: move "
+                          f"{'it' if len(blocking) == 1 else 'them'} or choose another --out")
 
 
 def read_records(out: Path, sweep: Sweep) -> dict[str, dict]:
