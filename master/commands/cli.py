@@ -16,6 +16,7 @@ import threading
 from contextlib import nullcontext, redirect_stdout
 
 from rhi.components.component import ComponentError
+from rhi.master.runtime.interrupts import Terminated
 from rhi.master.cosim import ConfigError, SimulationError
 from rhi.master.cosim.errors import one_line
 from rhi.master.runtime import contained
@@ -30,10 +31,6 @@ class Parser(argparse.ArgumentParser):
     def error(self, message):
         """Exit with status 2 and the usage error as one line on stderr, pointing to ``--help``."""
         self.exit(2, f"{self.prog}: error: {one_line(message)} (see {self.prog} --help)\n")
-
-
-class Terminated(KeyboardInterrupt):
-    """SIGTERM, handled like Ctrl-C: the same clean-up, exit status 143."""
 
 
 _RECEIVED: list[int] = []  # the signals _interrupted turned into an exception in this run, not yet reported

@@ -179,7 +179,7 @@ class Session:
                 status = component.do_step(t, step_size)
             except (MemoryError, ComponentError):  # the machine's, or a refusal of the input: as they are
                 raise
-            except Exception as error:  # noqa: BLE001: a component's own code (a user's model's brain) failed
+            except Exception as error:  # noqa: BLE001: a component's own code (a user's model's) failed
                 raise SimulationError(component.name, t, f"{type(error).__name__}: {error}", "error") from error
             self._spent[index] += time.perf_counter() - began
             if status >= Status.DISCARD:

@@ -77,7 +77,7 @@ def run_child(argv: list[str], command: str, clean) -> int:
         try:
             status = child.wait()
         except KeyboardInterrupt as interrupt:  # given to this process only (the child has a session of its own)
-            from rhi.master.commands.cli import Terminated
+            from rhi.master.runtime.interrupts import Terminated
 
             child.send_signal(signal.SIGTERM if isinstance(interrupt, Terminated) else signal.SIGINT)
             try:
