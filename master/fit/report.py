@@ -19,9 +19,6 @@ from rhi.master.outputs.tables import csv_text, number
 FIGURE_DPI = 100  # the fit's figures' resolution (rhi.master.outputs.figures.save's dpi)
 
 # column -> meaning, for docs/fit.md (each file's columns)
-POSTERIOR_COLUMNS = {"participant": "the participant's label in the data file", "sample": "the sample's index",
-                     "KEY": "one column per fitted parameter (its configuration key): the sample's value, in the "
-                            "key's own unit"}
 ESTIMATE_COLUMNS = {"participant": "the participant's label", "parameter": "the fitted parameter's key",
                     "median": "posterior median, in the key's unit", "q05": "5th percentile (the 90 % interval's "
                     "low end)", "q95": "95th percentile", "q25": "25th percentile", "q75": "75th percentile"}

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rhi.master import models
-from rhi.master.tasks.illusion import runner as experiment
+from rhi.master.tasks.illusion import runner
 from rhi.master.runtime.context import RunContext
 from rhi.master.tasks.illusion.runner import body_factory
 from rhi.master.decoders.cache import check_decoders, ensure_checkpoints, jacobian_pair
@@ -155,7 +155,7 @@ def simulate_protocol(config: dict, body: str | None, context: RunContext, worke
     check_seconds = time.perf_counter() - checked
     log.debug("decoders: " + ", ".join(f"{kind} {path} ({'fast' if modes[kind]['fast'] else 'exact'} mode)"
                                        for kind, path in checkpoints.items()))
-    trials, times, per_step, run_seconds, failures = experiment.run(
+    trials, times, per_step, run_seconds, failures = runner.run(
         config, checkpoints, body, context, fast={kind: mode["fast"] for kind, mode in modes.items()}, workers=workers)
     probe_times = config["experiment"]["probe_times"]
     final = end_of_trial(times, per_step, probe_times)
