@@ -22,6 +22,12 @@ for the blocks' next event even if ``stop_time`` cancels it (as the stimulus alw
 The schedule (the visual events, the ball's stroke) is a function of the trial's schedule parameters alone, so
 it is computed once per distinct schedule of the batch (a cohort's cell has one) and gathered to its trials;
 only the delays, and so the tactile events, are each trial's own.
+
+The scene's other schedule is the rubber arm's visibility: ``arm_in_view`` (false: no rubber arm in this
+trial at all) and ``hidden`` intervals [start, end) s in which it is out of view (a reading in the dark, a
+screen); the output ``arm_visible`` is 1 while it is in view, else 0, at the step's end. Both tables
+(``blocks``, ``hidden``) hold as many rows as the constructor is given (structural, as a camera's
+resolution), so a schedule has any number of them; unused rows are NaN.
 """
 from __future__ import annotations
 
@@ -32,25 +38,46 @@ from .variables import Variable
 
 TOLERANCE = 1e-9  # s: an event at 2.0 is observed at a step ending at 2.0 - 1e-12 (float ticks)
 CHUNK = 64        # delays drawn per trial at a time
-MAX_BLOCKS = 16   # stroking blocks per trial; unused rows of ``blocks`` are NaN
-ONE_BLOCK = np.vstack([[0.0, np.inf], np.full((MAX_BLOCKS - 1, 2), np.nan)])  # the default: stroking throughout
 
 
-def block_rows(blocks) -> np.ndarray:
-    """``blocks`` ([[start_s, end_s], ...], at most MAX_BLOCKS; empty: one block [0, inf]) as the ``blocks``
-    parameter's value, (MAX_BLOCKS, 2) s, unused rows NaN."""
-    rows = np.asarray(blocks, dtype=np.float64).reshape(-1, 2)
-    if len(rows) == 0:
-        return ONE_BLOCK.copy()
-    if len(rows) > MAX_BLOCKS:
-        raise ComponentError(f"stimulus.blocks: {len(rows)} blocks, more than {MAX_BLOCKS}")
-    return np.vstack([rows, np.full((MAX_BLOCKS - len(rows), 2), np.nan)])
+def interval_rows(intervals, rows: int | None = None, empty=None) -> np.ndarray:
+    """``intervals`` ([[start_s, end_s], ...]) as a table parameter's value, (rows, 2) s, unused rows NaN; ``rows``
+    defaults to as many as needed (at least one); ``empty`` is the table of no interval (default: all NaN)."""
+    table = np.asarray(intervals, dtype=np.float64).reshape(-1, 2)
+    if len(table) == 0 and empty is not None:
+        table = np.asarray(empty, dtype=np.float64).reshape(-1, 2)
+    rows = max(len(table), 1) if rows is None else rows
+    if len(table) > rows:
+        raise ComponentError(f"stimulus: {len(table)} intervals do not fit in a table of {rows} rows")
+    return np.vstack([table, np.full((rows - len(table), 2), np.nan)])
+
+
+def block_rows(blocks, rows: int | None = None) -> np.ndarray:
+    """``blocks`` ([[start_s, end_s], ...]; empty: one block [0, inf]) as the ``blocks`` parameter's value,
+    (rows, 2) s, unused rows NaN (:func:`interval_rows`)."""
+    return interval_rows(blocks, rows, empty=[[0.0, np.inf]])
+
+
+def check_intervals(name: str, table: np.ndarray, least: int) -> None:
+    """ComponentError unless ``table`` (rows, 2) s holds at least ``least`` [start, end] rows first, then only
+    NaN rows, with 0 <= start < end (end may be inf), each at or after the previous end."""
+    used = ~np.isnan(table[:, 0])
+    count = int(used.sum())
+    starts, ends = table[:count, 0], table[:count, 1]
+    if (not used[:count].all() or np.isnan(table[count:]).sum() != 2 * (len(table) - count) or count < least
+            or np.isnan(ends).any() or np.any(starts < 0) or np.isinf(starts).any() or np.any(~(starts < ends))
+            or np.any(starts[1:] < ends[:-1])):
+        raise ComponentError(f"{name} = {table[:max(count, 1)].tolist()} must be [start, end] rows with "
+                             "0 <= start < end, each at or after the previous end")
 
 
 class Stimulus(Component):
     """Event times and ball position for B trials."""
 
-    def __init__(self, name: str = "stimulus"):
+    def __init__(self, name: str = "stimulus", blocks: int = 1, hidden: int = 1):
+        self.block_count, self.hidden_count = int(blocks), int(hidden)
+        if self.block_count < 1 or self.hidden_count < 1:
+            raise ComponentError(f"{name}: the blocks and hidden tables need at least one row each")
         super().__init__(name, [
             Variable("period", "parameter", start=2.0, min=1e-3, unit="s", description="time between visual events"),
             Variable("delay_min", "parameter", start=0.0, min=0.0, unit="s",
@@ -75,29 +102,31 @@ class Stimulus(Component):
                                  "whole period)"),
             Variable("touch", "parameter", "Boolean", start=True, unit="1",
                      description="tactile events follow the visual ones (false: vision only)"),
-            Variable("blocks", "parameter", "Array", shape=(MAX_BLOCKS, 2), start=ONE_BLOCK, unit="s",
-                     description="stroking blocks [start, end], in order, unused rows NaN (default: [0, inf])"),
+            Variable("blocks", "parameter", "Array", shape=(self.block_count, 2), start=block_rows([], self.block_count),
+                     unit="s", description="stroking blocks [start, end], in order, unused rows NaN (default: [0, inf])"),
+            Variable("hidden", "parameter", "Array", shape=(self.hidden_count, 2),
+                     start=interval_rows([], self.hidden_count), unit="s",
+                     description="intervals [start, end) in which the rubber arm is out of view, in order, unused "
+                                 "rows NaN (default: none)"),
+            Variable("arm_in_view", "parameter", "Boolean", start=True, unit="1",
+                     description="a rubber arm is in view in this trial (false: none at any time)"),
+            Variable("arm_visible", "output", start=1.0, unit="1", depends_on=(),
+                     description="1 while the rubber arm is in view, else 0"),
         ])
 
     def check_parameters(self):
         """ComponentError if ``delay_max`` is below ``delay_min`` in any trial, a ``stroke_duration`` is 0, or a
-        trial's ``blocks`` are not in order (each start >= 0 and below its end, at or after the previous end,
-        the used rows first)."""
+        trial's ``blocks`` or ``hidden`` intervals are not in order (each start >= 0 and below its end, at or after
+        the previous end, the used rows first; at least one block)."""
         v = self.values
         if np.any(v["delay_max"] < v["delay_min"]):
             raise ComponentError(f"{self.name}.delay_max = {v['delay_max'].tolist()} is below delay_min = "
                                  f"{v['delay_min'].tolist()}")
         if np.any(v["stroke_duration"] <= 0):
             raise ComponentError(f"{self.name}.stroke_duration = {v['stroke_duration'].tolist()} must be positive")
-        for trial, rows in enumerate(v["blocks"]):
-            used = ~np.isnan(rows[:, 0])
-            count = int(used.sum())
-            starts, ends = rows[:count, 0], rows[:count, 1]
-            if (not used[:count].all() or np.isnan(rows[count:]).sum() != 2 * (MAX_BLOCKS - count) or count == 0
-                    or np.isnan(ends).any() or np.any(starts < 0) or np.any(~(starts < ends))
-                    or np.any(starts[1:] < ends[:-1])):
-                raise ComponentError(f"{self.name}.blocks of trial {trial} = {rows[:max(count, 1)].tolist()} must "
-                                     "be [start, end] rows with 0 <= start < end, each at or after the previous end")
+        for trial in range(self.batch_size):
+            check_intervals(f"{self.name}.blocks of trial {trial}", v["blocks"][trial], 1)
+            check_intervals(f"{self.name}.hidden of trial {trial}", v["hidden"][trial], 0)
 
     def initialize(self):
         """Seed each trial's delay generator with its ``seed`` and publish the outputs at the start time."""
@@ -150,6 +179,15 @@ class Stimulus(Component):
         ball[:, 1] += (v["ball_distance"][first] * stroke_position(now, period, v["stroke_duration"][first], visual,
                                                                    next_event, stopped))[of]
         v["ball"] = ball
+        v["arm_visible"] = arm_visible(now, v["arm_in_view"], v["hidden"])
+
+
+def arm_visible(now: float, in_view, hidden) -> np.ndarray:
+    """Whether the rubber arm is in view at ``now``, (B,) 1 or 0: in view in the trial (``in_view``, (B,) bool)
+    and ``now`` in none of its ``hidden`` intervals [start, end) ((B, H, 2) s, unused rows NaN; an event at a
+    boundary within TOLERANCE of the step's end counts as reached)."""
+    inside = (hidden[:, :, 0] <= now + TOLERANCE) & (now + TOLERANCE < hidden[:, :, 1])  # NaN rows: False
+    return (np.asarray(in_view, bool) & ~inside.any(axis=1)).astype(np.float64)
 
 
 def schedule(now: float, period, blocks, stop_time):
@@ -161,7 +199,7 @@ def schedule(now: float, period, blocks, stop_time):
     now : float
         The time, s.
     period : (B,) s
-    blocks : (B, MAX_BLOCKS, 2) s, unused rows NaN
+    blocks : (B, rows, 2) s, unused rows NaN
     stop_time : (B,) s
 
     Returns

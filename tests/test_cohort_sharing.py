@@ -5,7 +5,6 @@ import numpy as np
 
 from rhi.components.body import kinematics
 from rhi.components.body.camera import Camera, render
-from rhi.components.stimulus import ONE_BLOCK
 from rhi.components.vision import pose_encoder as pe
 from rhi.components.vision.image_sharing import distinct
 from rhi.master import config as configuration
@@ -44,10 +43,9 @@ def test_one_picture_for_the_whole_batch_is_drawn_once_and_broadcast():
 
 def test_the_schedule_computed_once_per_distinct_schedule_gives_each_trial_its_own_outputs():
     # Four trials, two schedules (every 2 s throughout; every 1 s in a block from 3 to 7 s, stopping at 6 s)
-    blocks = ONE_BLOCK.copy()
-    blocks[0] = (3.0, 7.0)
+    one_block, blocks = np.array([[0.0, np.inf]]), np.array([[3.0, 7.0]])  # a stimulus of one block row
     trials = {"period": [2.0, 1.0, 2.0, 1.0], "stop_time": [np.inf, 6.0, np.inf, 6.0], "seed": [4, 5, 6, 7],
-              "delay_max": [0.1, 1.0, 1.0, 0.1], "blocks": [ONE_BLOCK, blocks, ONE_BLOCK, blocks]}
+              "delay_max": [0.1, 1.0, 1.0, 0.1], "blocks": [one_block, blocks, one_block, blocks]}
     together = run_stimulus(9.0, 4, **{name: np.array(value) for name, value in trials.items()})
     for trial in range(4):
         alone = run_stimulus(9.0, 1, **{name: np.array(value[trial:trial + 1]) for name, value in trials.items()})

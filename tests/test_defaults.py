@@ -137,7 +137,10 @@ def test_per_trial_sources_take_the_trial_s_entry():
             if path == "stimulus.blocks":  # laid out for the component: one block over the trial when []
                 assert np.array_equal(given[path][index], block_rows(expected), equal_nan=True)
                 continue
-            if path == "camera.arm_visible":  # the arm is in view unless the trial's condition is hidden
+            if path == "stimulus.hidden":  # no hidden time by default: one unused (NaN) row
+                assert expected == [] and np.isnan(given[path][index]).all() and given[path][index].shape == (1, 2)
+                continue
+            if path in ("camera.arm_visible", "stimulus.arm_in_view"):  # the arm is in view unless the trial's condition is hidden
                 expected = trial.condition not in expected
             assert given[path][index] == expected, f"{path} of trial {trial}: {given[path][index]!r} != {key} " \
                                                    f"= {expected!r}"

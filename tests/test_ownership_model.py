@@ -34,14 +34,6 @@ def logistic(x):
     return 1 / (1 + math.exp(-x))
 
 
-def test_timing_sd_is_the_jnd_over_the_quartile_of_the_normal():
-    assert oi.QUARTILE_Z == pytest.approx(norm.ppf(0.75), rel=1e-15)
-    sd = oi.timing_sd_from_jnd(np.array([0.055, 0.060, 0.065]))
-    # JND = the 75 % point of Phi(s / sigma): Phi(JND / sigma) = 0.75
-    assert norm.cdf(0.060 / sd[1]) == pytest.approx(0.75, rel=1e-12)
-    assert sd == pytest.approx([0.0815, 0.0890, 0.0964], abs=5e-5)  # the 82-96 ms of the sources' range
-
-
 @pytest.mark.parametrize("delay", [0.0, 0.05, -0.12, 0.5, 0.9])
 def test_the_evidence_of_a_touch_is_the_log_ratio_of_scipy_densities(delay):
     sd, period = 0.089, 2.0
@@ -164,12 +156,13 @@ def place_evidence(seen, felt, spread):
 
 
 def test_the_brain_accumulates_each_touch_with_its_own_noise_and_records_the_onset():
-    sd, period, seed, prior, spread = 0.089, 2.0, 7, 0.01, 0.12
-    made = brain(1, timing_sd=sd, stroke_period=period, participant_seed=seed, ownership_prior=prior,
-                 coupling_prior=0.73, switching_rate=0.0, realignment_rate=0.0, peripersonal_sd=spread)
+    sd, window, period, seed, prior, spread = 0.2, 1.0, 2.0, 7, 0.01, 0.12
+    made = brain(1, timing_sd=sd, coupling_window_sd=window, stroke_period=period, participant_seed=seed,
+                 ownership_prior=prior, coupling_prior=0.73, switching_rate=0.0, realignment_rate=0.0,
+                 counter_evidence_leak=0.0, peripersonal_sd=spread)
     noise = np.random.default_rng([seed, NOISE_STREAM])
     place = place_evidence((150.0, -80.0), (140.0, -90.0), spread)
-    odds_gamma, odds_coupling, onset, touches = logit(prior), logit(0.73), None, 0
+    odds_gamma, counter, onset, touches = logit(prior), 0.0, None, 0
     for k in range(round(12.0 / STEP)):
         t = k * STEP
         touch = k > 0 and k % round(period / STEP) == 0  # a visual and a tactile event 0.03 s apart
@@ -179,12 +172,17 @@ def test_the_brain_accumulates_each_touch_with_its_own_noise_and_records_the_ons
         if touch:
             touches += 1
             perceived = 0.03 + sd * noise.standard_normal()
-            value = norm(0, sd).logpdf(perceived) + math.log(period) + place
-            odds_gamma, odds_coupling = odds_gamma + value, odds_coupling + value
-            if onset is None and logistic(odds_gamma) >= 0.5:
+            # the timing belief: the touch's timing in ownership's window; the counter-evidence: in the coupling's
+            odds_gamma += norm(0, sd).logpdf(perceived) + math.log(period)
+            counter += norm(0, window).logpdf(perceived) + math.log(period)
+            if onset is None and logistic(odds_gamma + place) >= 0.5:
                 onset = t + STEP
-        assert made.values["gamma"][0] == pytest.approx(logistic(odds_gamma), rel=1e-12), t
-        assert made.values["coupling"][0] == pytest.approx(logistic(odds_coupling), rel=1e-12), t
+        assert made.values["timing_belief"][0] == pytest.approx(logistic(odds_gamma), rel=1e-12), t
+        # ownership: the timing belief with the seen hand's place, counted once (before any touch too)
+        assert made.values["gamma"][0] == pytest.approx(logistic(odds_gamma + place), rel=1e-12), t
+        assert made.values["counter_evidence"][0] == pytest.approx(counter, rel=1e-12, abs=1e-14), t
+        # the coupling: its prior, the seen hand's place once, and the touches' accumulated evidence
+        assert made.values["coupling"][0] == pytest.approx(logistic(logit(0.73) + place + counter), rel=1e-12), t
     assert touches == 5
     shown = made.values["ownership_onset"][0]
     assert (onset is None and np.isnan(shown)) or shown == pytest.approx(onset, abs=1e-12)
@@ -196,19 +194,25 @@ def test_the_brain_realigns_toward_the_seen_arm_without_touch_and_the_belief_fol
     s_p, seen = np.array([140.0, -90.0]), np.array([150.0, -84.0])
     for k in range(round(20.0 / STEP)):
         step(made, k * STEP, s_p, seen)
-    # no touch: the coupling holds at its prior (its chain's stationary value), b = w rho d (1 - exp(-k t))
-    assert made.values["coupling"][0] == pytest.approx(prior, rel=1e-14)
-    assert made.values["gamma"][0] == pytest.approx(0.01, rel=1e-14)  # ownership needs evidence
-    exact = w * prior * (seen - s_p) * (1 - math.exp(-rate * 20.0))
+    # no touch: the coupling is its prior with the seen hand's place, b = w rho d (1 - exp(-k t))
+    coupling = logistic(logit(prior) + place_evidence(seen, s_p, made.values["peripersonal_sd"][0]))
+    assert made.values["coupling"][0] == pytest.approx(coupling, rel=1e-13)
+    ownership = logistic(logit(0.01) + place_evidence(seen, s_p, made.values["peripersonal_sd"][0]))
+    assert made.values["gamma"][0] == pytest.approx(ownership, rel=1e-13)  # the seen hand's place alone
+    exact = w * coupling * (seen - s_p) * (1 - math.exp(-rate * 20.0))
     assert made.values["realignment"][0] == pytest.approx(exact, rel=1e-12)
     # the belief lags b by about Sigma_p = 1 s: mu - s_p within b's change over a few seconds
     assert made.values["mu"][0] - s_p == pytest.approx(exact, rel=0.1)
 
 
-def test_an_asynchronous_touch_takes_the_coupling_away():
-    made = brain(1, participant_seed=3)
-    step(made, 0.0, (140.0, -90.0), (150.0, -80.0), 2.0, 1.4)  # 0.6 s apart: log ratio about -22 nats
-    assert made.values["coupling"][0] < 1e-6 and made.values["gamma"][0] < 1e-8
+def test_one_asynchronous_touch_takes_ownership_away_and_moves_the_coupling_by_its_own_window_only():
+    made = brain(1, participant_seed=3, timing_sd=0.2, coupling_window_sd=1.0, stroke_period=2.0)
+    step(made, 0.0, (140.0, -90.0), (140.0, -90.0), 2.0, 1.4)  # 0.6 s apart, the hands at one place
+    perceived = 0.6 + 0.2 * np.random.default_rng([3, NOISE_STREAM]).standard_normal()
+    assert made.values["counter_evidence"][0] == pytest.approx(norm(0, 1.0).logpdf(perceived) + math.log(2.0),
+                                                               rel=1e-12)
+    assert -1.0 < made.values["counter_evidence"][0] < 0.0  # a wide window: a fraction of a nat against unity
+    assert made.values["gamma"][0] < 0.01  # ownership's narrow window: evidence against
 
 
 @pytest.fixture(scope="module")
@@ -253,7 +257,8 @@ def test_the_model_takes_its_prior_and_period_from_one_source_each():
 
 
 @pytest.mark.parametrize("key, value, message", [
-    ("ownership.timing_jnd", -0.06, "ownership.timing_jnd must be a positive, finite time in s, got -0.06"),
+    ("ownership.coupling_window_sd", -0.5, "ownership.coupling_window_sd"),
+    ("ownership.counter_evidence_leak", -1.0, "ownership.counter_evidence_leak"),
     ("ownership.switching_rate", -1.0, "ownership.switching_rate"),
     ("ownership.coupling_prior", 1.0, "ownership.coupling_prior"),
     ("ownership.realignment_weight", 1.5, "ownership.realignment_weight"),

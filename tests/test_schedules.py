@@ -9,7 +9,7 @@ import pytest
 from test_stimulus import run_stimulus
 
 from rhi.components.body.camera import Camera, ball_alpha, composite, render
-from rhi.components.stimulus import MAX_BLOCKS, block_rows
+from rhi.components.stimulus import block_rows
 from rhi.master import config as configuration
 from rhi.master.config import protocol
 from rhi.master.cosim import ConfigError
@@ -96,7 +96,7 @@ def test_schedule_keys_reach_the_trials_and_parameters(tmp_path):
         ("none", "sync", True, False), ("none", "vision", False, False)]
     assert given["stimulus.touch"].tolist() == [True, False, True, False]
     assert given["camera.arm_visible"].tolist() == [True, True, False, False]
-    assert given["stimulus.blocks"].shape == (4, MAX_BLOCKS, 2)
+    assert given["stimulus.blocks"].shape == (4, 2, 2)  # as many rows as the fullest schedule
     assert given["stimulus.blocks"][1, :2].tolist() == [[0.0, 2.0], [3.0, 6.0]]
     assert given["stimulus.blocks"][0, 0].tolist() == [0.0, np.inf] and np.isnan(given["stimulus.blocks"][0, 1:]).all()
     assert given["stimulus.stroke_duration"] == 0.5

@@ -11,18 +11,20 @@ STEP = 0.02
 
 def run_stimulus(seconds, batch_size, **parameters):
     """Step the generator the way the master does (t on the integer tick); returns {output: (ticks + 1, B, ...)}."""
-    stimulus = Stimulus()
+    rows = {name: np.shape(parameters[name])[-2] for name in ("blocks", "hidden") if name in parameters}
+    stimulus = Stimulus(**rows)
     stimulus.instantiate(batch_size)
     for name, value in parameters.items():
         stimulus.set(name, value)
     stimulus.enter_initialization_mode()
     stimulus.exit_initialization_mode()
     ticks = round(seconds / STEP)
-    rows = [{n: stimulus.get(n) for n in ("visual_time", "tactile_time", "ball")}]
+    names = ("visual_time", "tactile_time", "ball", "arm_visible")
+    rows = [{n: stimulus.get(n) for n in names}]
     for tick in range(ticks):
         t, t_next = seconds * tick / ticks, seconds * (tick + 1) / ticks
         stimulus.do_step(t, t_next - t)
-        rows.append({n: stimulus.get(n) for n in ("visual_time", "tactile_time", "ball")})
+        rows.append({n: stimulus.get(n) for n in names})
     return {n: np.array([row[n] for row in rows]) for n in rows[0]}
 
 

@@ -2,8 +2,11 @@
 
 One function per equation, each vectorised over the batch of B trials (docs/model.md, "The ownership model"):
 
-- :func:`timing_sd_from_jnd`: the sd of a perceived visuo-tactile asynchrony from a temporal-order JND;
-- :func:`asynchrony_log_likelihood_ratio`: the evidence of one touch's timing, log p(Δ' | one cause) / p(Δ' | two);
+- :func:`asynchrony_log_likelihood_ratio`: the evidence of one touch's timing, log p(Δ' | one cause) / p(Δ' | two),
+  under ownership's visuo-tactile window or the coupling's visuo-proprioceptive one;
+- :func:`ownership_belief`: ownership from the touches' timing and, counted once, the seen hand's place;
+- :func:`counter_evidence_step` and :func:`coupling_belief`: the slow, leaky accumulation of the touches' evidence
+  about visuo-proprioceptive unity, and the coupling it leaves;
 - :func:`hand_separation` and :func:`spatial_log_likelihood_ratio`: the evidence of its place, how far the seen
   touch lies from the felt one (:func:`peripersonal_sd_from_boundary` derives the spread from where it is neutral);
 - between touches the common-cause state relaxes to its prior as a two-state Markov chain, and at a touch
@@ -11,6 +14,7 @@ One function per equation, each vectorised over the batch of B trials (docs/mode
   :func:`~rhi.components.brain.body_inference.hazard_predict` (switching_time = 1 / switching rate) and
   :func:`~rhi.components.brain.body_inference.posterior` (likelihood ratio = exp of the log ratio), reused;
 - :func:`ownership_onset`: the first time ownership gamma reaches 1/2;
+- :func:`felt_variance_step` and :func:`visual_weight`: proprioception fading at rest, and the seen hand's weight;
 - :func:`realignment_target` and :func:`realignment_step`: the slow realignment b and its exact step;
 - :func:`belief_rate` and :func:`free_energy`: the belief follows the realigned proprioception s_p + b.
 """
@@ -20,36 +24,14 @@ import math
 
 import numpy as np
 
-QUARTILE_Z = 0.6744897501960817  # scipy.stats.norm.ppf(0.75): the 75 % point of the standard normal
-
-
-def timing_sd_from_jnd(jnd):
-    """sd of the perceived visuo-tactile asynchrony, sigma_t = JND / z_0.75, from a temporal-order JND.
-
-    In a temporal-order judgement the probability of "vision first" at SOA s is the cumulative Gaussian
-    Phi((s - PSS) / sigma_t), sigma_t the sd of the perceived asynchrony itself (one noisy difference per
-    trial, no two-interval comparison, so no factor sqrt 2); the JND is half the 25-75 % interval,
-    JND = z_0.75 sigma_t, z_0.75 = 0.6745. Machulla, Di Luca & Ernst 2016 (JEP:HPP) report visuo-tactile
-    JNDs of 55-65 ms, so sigma_t = 82-96 ms.
-
-    Parameters
-    ----------
-    jnd : array_like, (B,) or scalar
-        The just-noticeable difference, s.
-
-    Returns
-    -------
-    ndarray, same shape
-        sigma_t, s.
-    """
-    return np.asarray(jnd, dtype=float) / QUARTILE_Z
-
-
 def asynchrony_log_likelihood_ratio(perceived_asynchrony, timing_sd, stroke_period):
     """The evidence of one touch: log N(Δ'; 0, sigma_t^2) - log(1/T), (B,), in nats.
 
     Under one cause the seen and the felt stroke are the same event, so their perceived asynchrony Δ' is 0
-    plus the perceptual noise, N(0, sigma_t^2) (:func:`timing_sd_from_jnd`). Under two causes the seen and
+    plus the perceptual noise, N(0, sigma_t^2): the paper's eq. 8 (Rood et al. 2020, p1 with sd 0.2 s, for
+    strokes; the illusion survives delays of the seen stroke up to about 300 ms, Shimada, Fukuda & Hiraki
+    2009, PLoS ONE 4:e6185). The same form with a wider sd is the coupling's visuo-proprioceptive window
+    (:func:`counter_evidence_step`). Under two causes the seen and
     the felt stroke are unrelated events of the same rhythm, so Δ' is uniform over one stroke period T,
     density 1/T, taken constant over the delays a pairing of events can give (the paper's eq. 8 treats its
     p2 so; with T = 2 s it is the paper's p2 = 0.5 /s). Densities from scipy.stats (norm.logpdf).
@@ -157,6 +139,90 @@ def peripersonal_sd_from_boundary(boundary, reach):
     return brentq(neutral, boundary * 1e-3, boundary / math.sqrt(2.0), xtol=1e-15, rtol=4 * np.finfo(float).eps)
 
 
+def ownership_belief(timing_belief, place_evidence):
+    """Ownership gamma = logistic(logit gamma_t + v l_s), (B,): the touches' timing belief with the seen hand's place.
+
+    Visual capture before any touch: a hand-like object seen where one's hand could be is taken, to a degree, as
+    one's own already (Samad, Chung & Shams 2015, PLoS ONE 10:e0117178: most participants rated the rubber hand
+    as theirs before the first stroke). The seen hand's place is evidence about one cause (the log ratio l_s of
+    :func:`spatial_log_likelihood_ratio`, 0 while no hand is seen), a static property of the scene: counted
+    once, on top of the chain gamma_t that accumulates the touches' timing (re-seeing the same hand is no new
+    evidence; the causal model's rule). So the prior of ownership depends on where the hand is seen: with
+    gamma_t at the paper's gamma0 = 0.01, 0.14 for a hand seen where the felt one is, 0.08 at 15 cm, gamma0 at
+    the boundary D (30 cm), less beyond.
+
+    Parameters
+    ----------
+    timing_belief : array_like, (B,)
+        gamma_t, in [0, 1].
+    place_evidence : array_like, (B,)
+        v l_s, nats.
+
+    Returns
+    -------
+    ndarray, (B,)
+        gamma, in [0, 1].
+    """
+    gamma = np.clip(np.asarray(timing_belief, float), 1e-300, 1.0 - 1e-16)
+    odds = np.log(gamma / (1.0 - gamma)) + np.asarray(place_evidence, float)
+    return 0.5 * (1.0 + np.tanh(0.5 * odds))
+
+
+def counter_evidence_step(evidence, leak_rate, step):
+    """The accumulated evidence about visuo-proprioceptive unity between touches: C <- C exp(-kappa h), (B,), nats.
+
+    Rohde, Di Luca & Ernst 2011 (PLoS ONE 6:e21659, Discussion) explain their data so: evidence against the
+    "unity assumption" of the seen and the felt hand builds up the longer asynchronous stroking goes on, and
+    interruptions interrupt that accumulation. C is the sum of the touches' log likelihood ratios under the
+    coupling's window (:func:`asynchrony_log_likelihood_ratio` with the coupling's sd: wide, so each touch says
+    little and the sum grows over many), forgotten at the leak rate kappa: over a pause of length tau the
+    accumulation is discounted by exp(-kappa tau), and within continuous stroking it levels off where each touch
+    adds what the leak takes. Exact over the step; kappa a free rate (fitted).
+
+    Parameters
+    ----------
+    evidence : array_like, (B,)
+        C, nats (negative: against unity).
+    leak_rate : array_like, (B,)
+        kappa, 1/s (>= 0).
+    step : float
+        h, s.
+
+    Returns
+    -------
+    ndarray, (B,)
+        C after the step, nats.
+    """
+    return np.asarray(evidence, float) * np.exp(-np.asarray(leak_rate, float) * step)
+
+
+def coupling_belief(prior, place_evidence, counter_evidence):
+    """The coupling rho = logistic(logit rho0 + l_s + C), (B,): the belief that the seen hand and the felt one are
+    one (visuo-proprioceptive unity).
+
+    Bayes' rule in log odds (the paper's eq. 8 in its odds form): the prior rho0 of a hand seen at the place
+    where a touch's place is neutral (:func:`peripersonal_sd_from_boundary`), plus the evidence of the seen hand's
+    place, counted once (a static property of the scene, re-seeing it is no new evidence: l_s of
+    :func:`spatial_log_likelihood_ratio`, 0 while no hand is seen), plus the touches' accumulated evidence C
+    (:func:`counter_evidence_step`).
+
+    Parameters
+    ----------
+    prior : array_like, (B,)
+        rho0, in (0, 1).
+    place_evidence, counter_evidence : array_like, (B,)
+        l_s and C, nats.
+
+    Returns
+    -------
+    ndarray, (B,)
+        rho, in [0, 1].
+    """
+    prior = np.asarray(prior, float)
+    odds = np.log(prior / (1.0 - prior)) + np.asarray(place_evidence, float) + np.asarray(counter_evidence, float)
+    return 0.5 * (1.0 + np.tanh(0.5 * odds))  # the logistic, without overflow at large |odds|
+
+
 def ownership_onset(onset, gamma, time, threshold=0.5):
     """The ownership onset: the first time gamma reaches the threshold, kept once set, (B,).
 
@@ -183,13 +249,14 @@ def ownership_onset(onset, gamma, time, threshold=0.5):
     return np.where(np.isnan(onset) & (np.asarray(gamma) >= threshold), float(time), onset)
 
 
-def realignment_target(seen_pose, felt_pose, weight, coupling):
-    """Where the realignment b settles: b* = w rho (x_v - s_p), (B, 2), deg.
+def realignment_target(seen_pose, felt_pose, weight, coupling, seen=1.0):
+    """Where the realignment b settles: b* = v w rho (x_v - s_p), (B, 2), deg.
 
     w is the fraction of the way a seen hand pulls the felt one (Noel et al. 2018, Sci Rep 8:15819: 30-40 %,
     coupling weight 0.34-0.44, measured with no touch); rho the coupling belief, the probability that the
-    seen hand lies where the felt one is (docs/model.md). Joint angles: a fraction of the way is the same
-    fraction in hand space to first order (the arm's Jacobian is linear).
+    seen hand lies where the felt one is (docs/model.md); v is 1 while a hand is seen, 0 while none is
+    (:func:`seen_hand`). Joint angles: a fraction of the way is the same fraction in hand space to first order
+    (the arm's Jacobian is linear).
 
     Parameters
     ----------
@@ -197,14 +264,101 @@ def realignment_target(seen_pose, felt_pose, weight, coupling):
         x_v (the pose encoder's reading of the image) and s_p (sensed), deg.
     weight, coupling : array_like, (B,)
         w and rho, 1.
+    seen : array_like, (B,) or scalar
+        v, 1 or 0.
 
     Returns
     -------
     ndarray, (B, 2)
         deg.
     """
-    scale = np.asarray(weight, float) * np.asarray(coupling, float)
+    scale = np.asarray(weight, float) * np.asarray(coupling, float) * np.asarray(seen, float)
     return scale[:, None] * (np.asarray(seen_pose, float) - np.asarray(felt_pose, float))
+
+
+def seen_hand(arm_visible):
+    """v = 1 where a hand is seen, 0 where none is, (B,): the scene's declaration of the rubber arm's visibility.
+
+    A seen object pulls the felt hand, and can be owned, only if it looks like a hand: with a wooden block in
+    its place there is no illusion and no drift (Tsakiris & Haggard 2005, JEP:HPP 31:80), and with nothing in
+    view there is nothing to pull toward. So while no hand is seen, the seen pose (what a pose encoder reads
+    from an image without an arm is no arm's pose) moves nothing: the realignment neither moves toward it nor
+    away (:func:`realignment_step` at rate k v, a recalibration kept until new evidence) and a seen touch is
+    not a touch of a seen hand (no visuo-tactile evidence).
+
+    Parameters
+    ----------
+    arm_visible : array_like, (B,)
+        The scene's signal, 1 while the rubber arm is in view, 0 while not.
+
+    Returns
+    -------
+    ndarray, (B,)
+        1.0 or 0.0.
+    """
+    return (np.asarray(arm_visible, float) > 0.5).astype(float)
+
+
+def felt_variance_step(variance, base_variance, fading_rate, movement, step):
+    """The proprioceptive variance Sigma_p(t): it rises while the arm rests and recovers as it moves, (B,), deg^2.
+
+    A resting, unseen limb's felt position drifts and grows uncertain (Wann & Ibrahim 1992, Exp Brain Res
+    91:162: position sense of a limb kept still drifts over time; Rohde, Di Luca & Ernst 2011 attribute the
+    slow build-up of the proprioceptive drift over minutes to it). Without a fresh movement signal the
+    position estimate diffuses as a random walk, so its variance grows linearly: dSigma_p/dt = phi Sigma_p0,
+    phi the fading rate (free, fitted: 1/phi is the time for the variance to double). A movement refreshes it:
+    the excess over Sigma_p0 falls by exp(-|ds_p| / sqrt(Sigma_p0)) for a movement |ds_p| (deg, summed over the
+    joints), i.e. by e for a movement of one proprioceptive sd. Exact over the step for a linear growth followed
+    by the step's movement.
+
+    Parameters
+    ----------
+    variance : array_like, (B,)
+        Sigma_p at the step's start, deg^2.
+    base_variance : array_like, (B,)
+        Sigma_p0, the rested-limb value after movement (the paper's Sigma_p), deg^2.
+    fading_rate : array_like, (B,)
+        phi, 1/s (>= 0; 0: a constant Sigma_p, the paper's).
+    movement : array_like, (B,)
+        |ds_p| over the step, deg.
+    step : float
+        h, s.
+
+    Returns
+    -------
+    ndarray, (B,)
+        Sigma_p after the step, deg^2.
+    """
+    base = np.asarray(base_variance, float)
+    grown = np.asarray(variance, float) - base + np.asarray(fading_rate, float) * base * step
+    return base + grown * np.exp(-np.asarray(movement, float) / np.sqrt(base))
+
+
+def visual_weight(felt_variance, base_variance, base_weight):
+    """w(t) = Sigma_p / (Sigma_p + Sigma_v), the fraction of the way a seen hand pulls the felt one, (B,).
+
+    Reliability-weighted fusion of two position estimates (Ernst & Banks 2002, Nature 415:429; van Beers,
+    Sittig & Denier van der Gon 1999 for vision and proprioception of the hand): the seen hand's weight is the
+    felt one's variance over the sum. Sigma_v is set by the measured weight w0 at the rested-limb variance
+    Sigma_p0 (Noel et al. 2018: 0.34-0.44 with no touch): Sigma_v = Sigma_p0 (1 - w0) / w0, so w = w0 while
+    Sigma_p = Sigma_p0 and grows toward 1 as proprioception fades (:func:`felt_variance_step`).
+
+    Parameters
+    ----------
+    felt_variance, base_variance : array_like, (B,)
+        Sigma_p(t) and Sigma_p0, deg^2.
+    base_weight : array_like, (B,)
+        w0, in (0, 1].
+
+    Returns
+    -------
+    ndarray, (B,)
+        w, in (0, 1].
+    """
+    base_weight = np.asarray(base_weight, float)
+    seen_variance = np.asarray(base_variance, float) * (1.0 - base_weight) / base_weight
+    felt = np.asarray(felt_variance, float)
+    return felt / (felt + seen_variance)
 
 
 def realignment_step(realignment, target, rate, step):

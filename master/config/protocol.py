@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rhi.components.body import kinematics
+from rhi.master.config.schedules import hidden_intervals, stroking_blocks
 
 HALF_RANGES = (40.0, 50.0)  # deg: shoulder, elbow, about the rest pose: the arm's working ranges in every task, and so
 #                                the decoders' training ranges (docs/design.md)
@@ -31,8 +32,9 @@ class Trial:
     # batch that runs several configurations at once (a sweep's chunk of several points); () = the config's
     overrides: tuple = ()
     touch: bool = True         # the stimulation's touch: tactile events follow the visual ones (false: vision only)
-    blocks: tuple = ()         # the stimulation's stroking blocks ((start_s, end_s), ...); () = one over the trial
+    blocks: tuple = ()         # the stroking blocks ((start_s, end_s), ...), the readings cut out; () = one over the trial
     arm_visible: bool = True   # the rubber arm is in view (false: the condition is in rubber_arm.hidden_conditions)
+    hidden: tuple = ()         # ((start_s, end_s), ...): when the rubber arm is out of view (hidden times, readings)
 
 
 def trial_seed(master_seed: int, condition: str, stimulation: str, index: int) -> int:
@@ -44,7 +46,8 @@ def trial_seed(master_seed: int, condition: str, stimulation: str, index: int) -
 def make_trial(config: dict, decoder: str, condition: str, stimulation: str, index: int,
                overrides: tuple = ()) -> Trial:
     """The trial of this cell and repetition under ``config``: its seed, rubber-hand offset and whether it is in
-    view, and its stimulation's delay law, touch and blocks.
+    view (and when not: the hidden times and readings), and its stimulation's delay law, touch and blocks (less
+    the readings, which pause the stroking).
 
     overrides: ``((key, value), ...)``, the trial's own values of parameter keys in a batch of several
     configurations (:func:`rhi.master.config.sources.parameters` gives them to the components per trial).
@@ -54,8 +57,20 @@ def make_trial(config: dict, decoder: str, condition: str, stimulation: str, ind
                  trial_seed(config["experiment"]["seed"], condition, stimulation, index),
                  float(config["conditions"][condition]), float(delays["delay_min"]), float(delays["delay_max"]),
                  tuple(overrides), bool(delays.get("touch", True)),
-                 tuple((float(start), float(end)) for start, end in delays.get("blocks", [])),
-                 condition not in config["rubber_arm"].get("hidden_conditions", []))
+                 stroking_blocks(delays.get("blocks", []), config.get("readings", NO_READINGS)),
+                 condition not in config["rubber_arm"].get("hidden_conditions", []),
+                 hidden_intervals({"rubber_arm": {"hidden_times": config["rubber_arm"].get("hidden_times", [])},
+                                   "readings": config.get("readings", NO_READINGS)}))
+
+
+NO_READINGS = {"times": [], "duration": 0.0, "hide_arm": False}  # a configuration from before [readings]
+
+
+def table_rows(config: dict, trials=()) -> tuple[int, int]:
+    """The rows the stimulus generator's ``blocks`` and ``hidden`` tables have in a run of ``config``: the most blocks
+    and hidden intervals of a trial of its protocol or of ``trials`` (at least one row each)."""
+    every = [*plan(config), *trials]
+    return (max([len(t.blocks) for t in every] + [1]), max([len(t.hidden) for t in every] + [1]))
 
 
 def plan(config: dict) -> list[Trial]:

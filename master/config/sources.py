@@ -15,9 +15,9 @@ from rhi.components.body.camera import Camera
 from rhi.components.body.plant import ArmPlant
 from rhi.components.body.rubber_arm import RubberArm
 from rhi.components.component import ComponentError
-from rhi.components.stimulus import Stimulus, block_rows
+from rhi.components.stimulus import Stimulus, block_rows, interval_rows
 from rhi.master import models
-from rhi.master.config.protocol import HALF_RANGES, Trial, per_trial, plan
+from rhi.master.config.protocol import HALF_RANGES, Trial, per_trial, plan, table_rows
 from rhi.master.cosim import ConfigError, System
 from rhi.master.models.base import TrialValues, config_key
 from rhi.master.models.paper import BRAIN_SOURCES
@@ -42,6 +42,9 @@ TASK_SOURCES = {
     "stimulus.touch": "stimulations.<stimulation>.touch (per trial: the trial's stimulation)",
     "stimulus.blocks": "stimulations.<stimulation>.blocks (per trial: the trial's stimulation, as "
                        "rhi.components.stimulus.block_rows lays them out)",
+    "stimulus.hidden": "rubber_arm.hidden_times (per trial: with the readings when readings.hide_arm, as "
+                       "rhi.master.config.schedules.hidden_intervals merges them)",
+    "stimulus.arm_in_view": "rubber_arm.hidden_conditions (per trial: false where the trial's condition is listed)",
     "camera.arm_visible": "rubber_arm.hidden_conditions (per trial: false where the trial's condition is listed)",
     "camera.resolution": "experiment.resolution (structural: build_system gives it to Camera(resolution=...))",
     "camera.blur": "camera.blur",
@@ -80,23 +83,26 @@ DERIVED = {
 }
 PER_TRIAL = {"rubber_arm.offset_x": "offset_x", "stimulus.delay_min": "delay_min",
              "stimulus.delay_max": "delay_max", "stimulus.seed": "seed", "stimulus.touch": "touch",
-             "stimulus.blocks": "blocks", "camera.arm_visible": "arm_visible"}
+             "stimulus.blocks": "blocks", "stimulus.hidden": "hidden", "stimulus.arm_in_view": "arm_visible",
+             "camera.arm_visible": "arm_visible"}
 # How a per-trial field becomes its parameter's value, where it is not the field as it is.
-PER_TRIAL_VALUE = {"stimulus.seed": lambda values: np.array(values).astype(np.int64),
-                   "stimulus.blocks": lambda values: np.stack([block_rows(blocks) for blocks in values])}
+# (the tables laid out with as many rows as the protocol's fullest, :func:`rhi.master.config.protocol.table_rows`)
+PER_TRIAL_VALUE = {"stimulus.seed": lambda values, rows: np.array(values).astype(np.int64),
+                   "stimulus.blocks": lambda values, rows: np.stack([block_rows(blocks, rows[0]) for blocks in values]),
+                   "stimulus.hidden": lambda values, rows: np.stack([interval_rows(hidden, rows[1]) for hidden in values])}
 CONSTRUCTED = ("camera.resolution", "decoder.relinearise_tolerance")  # given to the constructors instead
 
 
 def parameters(trials: list[Trial], config: dict) -> dict:
     """Per-trial and shared parameters, as ``component.variable`` paths: the task's components' as TASK_SOURCES
     says (but the CONSTRUCTED ones, fixed when the components are built), then the model's brain's."""
-    given = {}
+    given, rows = {}, table_rows(config, trials)
     for path, source in TASK_SOURCES.items():
         if path in CONSTRUCTED:
             continue
         if path in PER_TRIAL:
             values = [getattr(t, PER_TRIAL[path]) for t in trials]
-            given[path] = PER_TRIAL_VALUE.get(path, np.array)(values)
+            given[path] = PER_TRIAL_VALUE.get(path, lambda values, rows: np.array(values))(values, rows)
         elif path in DERIVED:
             given[path] = DERIVED[path]()
         else:
@@ -171,7 +177,9 @@ def check_parameters(config: dict) -> None:
     except ComponentError as error:
         raise ConfigError(f"experiment.resolution: {error}") from None
     model = models.of(config)
-    components = {c.name: c for c in (RubberArm(), Stimulus(), camera, model.brain(), ArmPlant())}
+    blocks, hidden = table_rows(config)
+    components = {c.name: c for c in (RubberArm(), Stimulus(blocks=blocks, hidden=hidden), camera, model.brain(),
+                                      ArmPlant())}
     for component in components.values():
         component.instantiate(len(trials))
     for path, value in given.items():

@@ -44,7 +44,8 @@ SEED_LOW, SEED_HIGH = "seed", "seed_high"  # its two FMI Integers: the low 32 bi
 FIXED_AT_BUILD = ("camera.blur",  # the decoder was trained on images of this blur (its checkpoint is checked)
                   # the schedule (docs/configuration.md, "Stimulation schedules"): the configuration's, its first
                   # condition's and stimulation's, so that the agent's ports stay those of earlier builds
-                  "stimulus.stroke_duration", "stimulus.touch", "stimulus.blocks", "camera.arm_visible")
+                  "stimulus.stroke_duration", "stimulus.touch", "stimulus.blocks", "stimulus.hidden",
+                  "stimulus.arm_in_view", "camera.arm_visible")
 # FMI name, inner path, element of an Array (None: a scalar): outputs beyond the action.
 OBSERVED = (
     ("mu_shoulder", "brain.mu", 0),

@@ -19,8 +19,10 @@ OWN_SOURCES = {
     "brain.ownership_prior": "brain.gamma0",
     "brain.stroke_period": "stimulus.period",
     "brain.coupling_prior": "ownership.coupling_prior",
-    "brain.timing_sd": "derived: ownership.timing_jnd / 0.6745, the sd of a temporal-order judgement's "
-                       "cumulative Gaussian (ownership_inference.timing_sd_from_jnd)",
+    "brain.timing_sd": "brain.sync_sd",
+    "brain.coupling_window_sd": "ownership.coupling_window_sd",
+    "brain.counter_evidence_leak": "ownership.counter_evidence_leak",
+    "brain.proprioceptive_fading_rate": "ownership.proprioceptive_fading_rate",
     "brain.peripersonal_sd": "derived: from ownership.peripersonal_boundary and the arm's reach, the spread at "
                              "which a touch seen that far from the felt one is neutral "
                              "(ownership_inference.peripersonal_sd_from_boundary)",
@@ -36,15 +38,21 @@ OWN_SOURCES = {
 SHARED_KEYS = {"brain.gamma0": "the paper's initial gamma (Rood et al. 2020: \"The initial gamma value was set to "
                                "0.01\"), here the prior of ownership and its chain's stationary probability",
                "stimulus.period": "s, the protocol's stroke period: the asynchrony under two causes is uniform over "
-                                  "one period, density 1/T"}
-# The keys derived parameters come from: brain.timing_sd from the JND, brain.peripersonal_sd from the boundary.
-DERIVED_FROM = {"brain.timing_sd": "ownership.timing_jnd", "brain.peripersonal_sd": "ownership.peripersonal_boundary"}
+                                  "one period, density 1/T",
+               "brain.sync_sd": "s, ownership's visuo-tactile window: the paper's sd of t_v - t_t under one cause (Rood "
+                                "et al. 2020, eq. 8, for strokes; the illusion survives delays up to about 300 ms, "
+                                "Shimada, Fukuda & Hiraki 2009, PLoS ONE 4:e6185)"}
+# The keys derived parameters come from: brain.peripersonal_sd from the boundary.
+DERIVED_FROM = {"brain.peripersonal_sd": "ownership.peripersonal_boundary"}
 # The free parameters, fitted on the training set: (prior, low, high) each, stated before the fit that uses it
 # (docs/model.md, "The ownership model": why these ranges, and why the coupling prior joined the rates). Their
 # values in ownership.toml are the posterior medians of the fit shipped in FIT_FOLDER (relative to the project).
 FREE_PARAMETERS = {"ownership.switching_rate": ("log-uniform", 1.0 / 600.0, 1.0),
                    "ownership.realignment_rate": ("log-uniform", 1.0 / 600.0, 1.0),
-                   "ownership.coupling_prior": ("uniform", 0.01, 0.99)}
+                   "ownership.coupling_prior": ("uniform", 0.01, 0.99),
+                   "ownership.coupling_window_sd": ("log-uniform", 0.1, 10.0),
+                   "ownership.counter_evidence_leak": ("log-uniform", 1.0 / 600.0, 1.0),
+                   "ownership.proprioceptive_fading_rate": ("log-uniform", 1.0 / 600.0, 1.0)}
 FIT_FOLDER = "docs/fit/human/ownership_rohde2011"
 
 
@@ -86,15 +94,13 @@ class OwnershipModel(Model):
         return with_paper_sources(_brain_class()(), OWN_SOURCES)
 
     def parameters(self, trials: TrialValues) -> dict:
-        """The plain sources' values, and the derived ones: timing_sd and peripersonal_sd per trial, the body
-        schema's lengths, the seeds."""
+        """The plain sources' values, and the derived ones: peripersonal_sd per trial, the body schema's lengths,
+        the seeds."""
         from rhi.components.body.kinematics import FOREARM, UPPER_ARM
-        from rhi.components.brain.ownership_inference import peripersonal_sd_from_boundary, timing_sd_from_jnd
+        from rhi.components.brain.ownership_inference import peripersonal_sd_from_boundary
 
         given = {**super().parameters(trials), "brain.mu0": rest_belief(trials)}
-        jnd, boundary = (positive(trials, DERIVED_FROM[path], unit) for path, unit in
-                         (("brain.timing_sd", "time in s"), ("brain.peripersonal_sd", "distance in m")))
-        given["brain.timing_sd"] = timing_sd_from_jnd(jnd)
+        boundary = positive(trials, DERIVED_FROM["brain.peripersonal_sd"], "distance in m")
         reach = UPPER_ARM + FOREARM
         try:
             given["brain.peripersonal_sd"] = np.vectorize(peripersonal_sd_from_boundary)(boundary, reach)

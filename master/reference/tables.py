@@ -254,7 +254,7 @@ def ownership_constants() -> str:
     computed by the code that derives it) and its source, from master/models/ownership.toml's comments; the free
     parameters with their prior ranges (rhi.master.models.ownership.FREE_PARAMETERS)."""
     from rhi.components.body.kinematics import FOREARM, UPPER_ARM
-    from rhi.components.brain.ownership_inference import QUARTILE_Z, peripersonal_sd_from_boundary, timing_sd_from_jnd
+    from rhi.components.brain.ownership_inference import peripersonal_sd_from_boundary
     from rhi.master import config as configuration
     from rhi.master.models.ownership import DERIVED_FROM, FIT_FOLDER, FREE_PARAMETERS, OWN_SOURCES, SHARED_KEYS
 
@@ -269,7 +269,6 @@ def ownership_constants() -> str:
 
     reach = UPPER_ARM + FOREARM
     derivations = {  # parameter: (how, value), each computed by the function the model derives it with
-        "brain.timing_sd": (f"/ {QUARTILE_Z:.4f}", float(timing_sd_from_jnd(value(DERIVED_FROM["brain.timing_sd"])))),
         "brain.peripersonal_sd": (f"and the reach L = {reach:.4f} m",
                                   peripersonal_sd_from_boundary(value(DERIVED_FROM["brain.peripersonal_sd"]), reach))}
     body = {"brain.upper_arm_length": UPPER_ARM, "brain.forearm_length": FOREARM}
@@ -287,10 +286,10 @@ def ownership_constants() -> str:
         elif source in FREE_PARAMETERS:
             prior, low, high = FREE_PARAMETERS[source]
             shown_low = f"1/{1 / low:g}" if prior == "log-uniform" else f"{low:g}"
-            fitted = estimates[source]
-            rows.append([name, f"`{source}`", f"{value(source):g}",
-                         f"fitted: the posterior median ({fitted['q05']:.2g}-{fitted['q95']:.2g}, 90 %) of "
-                         f"`{FIT_FOLDER}/`, prior {prior} on [{shown_low}, {high:g}]"])
+            fitted = estimates.get(source)
+            how = (f"fitted: the posterior median ({fitted['q05']:.2g}-{fitted['q95']:.2g}, 90 %) of `{FIT_FOLDER}/`"
+                   if fitted else "free, **not fitted yet**: the value is a start, not a result")
+            rows.append([name, f"`{source}`", f"{value(source):g}", f"{how}, prior {prior} on [{shown_low}, {high:g}]"])
         else:
             rows.append([name, f"`{source}`", f"{value(source):g}", comments.get(source) or SHARED_KEYS[source]])
     return markdown(["parameter", "from", "value", "source or derivation"], rows)

@@ -45,7 +45,8 @@ def target_pose(config: dict) -> tuple[float, float]:
 def scenario(config: dict, kind: str, path: str) -> Scenario:
     """The task as data: the illusion's scenario of decoder ``kind`` (checkpoint ``path``) with the goal's arm,
     camera, decoder and onset added before the model."""
-    illusion = wiring.scenario(decoder_component(kind, path, config, threads=JOB_THREADS), config)
+    illusion = wiring.scenario(decoder_component(kind, path, config, threads=JOB_THREADS), config,
+                               trials=[t for t in plan(config) if t.decoder == kind])
     goal = (PosedArm("goal"), Camera("goal_camera", resolution=config["experiment"]["resolution"]),
             decoder_component(kind, path, config, threads=JOB_THREADS, name="goal_decoder"), GoalOnset())
     return dataclasses.replace(illusion, world=(*illusion.world, *goal), links=(*illusion.links, *GOAL_LINKS),
@@ -61,7 +62,7 @@ def parameters(trials: list, config: dict, system) -> dict:
     given.update({"goal.shoulder": shoulder, "goal.elbow": elbow, "goal_onset.onset": after["release"],
                   "goal_decoder.visual_variance": config["decoder"]["visual_variance"] / after["precision_ratio"],
                   "goal_camera.blur": config["camera"]["blur"], "goal_camera.ball_radius": config["camera"]["ball_radius"]})
-    return given
+    return wiring.screen_parameters(given, system)
 
 
 def simulate_trials(config: dict, kind: str, path: str):

@@ -39,6 +39,9 @@ class Scenario:
     pixel_term : tuple of str
         The names of world components that only give the brain the decoder's pixel term (``visual_*``): left
         out, with what they would record, when the model reads no pixel term in any trial (:func:`reads_pixels`).
+    seen_image : str
+        The output that carries the image the participant sees: the camera's, or a screen's that hides the rubber
+        arm for part of a trial. The model's links from ``camera.image`` read it instead.
     """
 
     world: tuple
@@ -48,6 +51,7 @@ class Scenario:
     kind: str
     threads: int | None = None
     pixel_term: tuple = ()
+    seen_image: str = "camera.image"
 
 
 def reads_pixels(config: dict, trials=()) -> bool:
@@ -65,7 +69,9 @@ def build(scenario: Scenario, config: dict, trials=()) -> System:
     left_out = () if reads_pixels(config, trials) else scenario.pixel_term
     parts = [*(part for part in scenario.world if part.name not in left_out),
              *model_parts(config, scenario.kind, scenario.threads), *scenario.body]
-    return assemble(parts, [*scenario.links, *models.of(config).links])
+    model_links = [(scenario.seen_image if source == "camera.image" else source, target)
+                   for source, target in models.of(config).links]
+    return assemble(parts, [*scenario.links, *model_links])
 
 
 def run(scenario: Scenario, config: dict, parameters, batch_size: int, progress=None, trials=()):
