@@ -429,15 +429,15 @@ UNBOUNDED_NORMAL = '[fit.parameters.brain.proprioceptive_variance]\nprior = "nor
     (UNBOUNDED_NORMAL, "paper", "the normal prior's support [-inf, inf] leaves brain.proprioceptive_variance's range "
                                 "[0, inf] deg2: give low within that range"),
     (UNBOUNDED_NORMAL, "causal", "the normal prior's support [-inf, inf] leaves brain.proprioceptive_variance's range "
-                                 "[1e-12, inf] deg2: give low within that range"),
+                                 "[0, inf] deg2: give low within that range"),
     ('[fit.parameters.brain.gamma0]\nprior = "normal"\nmean = 0.5\nsd = 0.1\nlow = 0.01\n', "paper",
      "the normal prior's support [0.01, inf] leaves brain.gamma0's range [0, 1] 1: give high within that range"),
     ('[fit.parameters.brain.sync_sd]\nprior = "uniform"\nlow = -0.1\nhigh = 0.5\n', "paper",
      "the uniform prior's support [-0.1, 0.5] leaves brain.sync_sd's range [0, inf] s: give low within that range"),
 ])
 def test_a_prior_whose_support_leaves_the_parameter_s_range_is_refused_naming_both(tmp_path, spec, model, says):
-    """The ranges are the components' own (components/brain/integrator.py and causal_brain.py declare
-    proprioceptive_variance >= 0 and >= 1e-12, gamma0 in [0, 1], sync_sd >= 0)."""
+    """The ranges are the components' own (components/brain/base.py declares proprioceptive_variance >= 0 for every
+    brain, its check refusing 0 at initialization; integrator.py gamma0 in [0, 1], sync_sd >= 0)."""
     from rhi.components.brain.causal_brain import CausalBrain
     from rhi.components.brain.integrator import Brain
 
