@@ -9,7 +9,7 @@ import pytest
 from tests.in_process import rhi_in_process
 
 COMMANDS = ("train", "experiment", "export-body", "export-agent", "export-system", "run-system", "sweep", "fit", "bench",
-            "reach")
+            "reach", "power")
 
 
 def rhi(*args, cwd=None, env=None):
@@ -57,6 +57,7 @@ BAD_INPUT = {
     "fit": (["--data", "{tmp}/missing.csv", "--config", "{tmp}/bad.toml", "--out", "{tmp}/out"], "missing.csv does not exist"),
     "bench": (["--threads", "-2"], "--threads -2 must be 0 (all cores) to 1024 threads"),
     "reach": (["--config", "{tmp}/bad.toml", "--out", "{tmp}/out"], "unknown config key brain.sigma_p"),
+    "power": (["--config", "{tmp}/bad.toml", "--n", "10,20", "--out", "{tmp}/out"], "unknown config key brain.sigma_p"),
 }
 
 

@@ -17,8 +17,8 @@ ROOT = Path(__file__).resolve().parents[1]
 # never a higher layer, nor another member of its own layer (sweeps/bench). export sits on tasks: the
 # agent it exports is the experiment's system without its body (master/export/agent.py). reference writes
 # docs/'s tables from everything below it.
-MASTER_LAYERS = [("commands",), ("reference",), ("phenomena", "fit"), ("sweeps", "bench"), ("export",), ("tasks",),
-                 ("decoders",), ("config",), ("models",), ("runtime",), ("outputs",), ("cosim",)]
+MASTER_LAYERS = [("commands",), ("reference",), ("phenomena", "fit", "studies"), ("sweeps", "bench"), ("export",),
+                 ("tasks",), ("decoders",), ("config",), ("models",), ("runtime",), ("outputs",), ("cosim",)]
 # master's own files outside the sub-packages, and the sub-packages each may import.
 MASTER_FILES = {"master/__init__.py": ("cosim",), "master/__main__.py": ("commands",)}
 # ``from master import X`` (not a sub-package) reaches master/__init__.py, which re-exports this one:

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from rhi.components.vision.limits import MIN_VISUAL_VARIANCE
 from rhi.master import models
-from rhi.master.config import schedules
+from rhi.master.config import population, schedules
 from rhi.master.cosim import ConfigError
 
 OPEN_TABLES = ("conditions", "stimulations")  # users may add entries here (a new condition, say)
@@ -136,6 +136,9 @@ def merge(base: dict, overrides: dict, where: str = "") -> dict:
     merged = copy.deepcopy(base)
     for key, value in overrides.items():
         path = f"{where}{key}"
+        if key == "population" and not where:  # participants' distributions: no defaults, each entry checked alone
+            merged[key] = population.checked_table(value, base.get(key, {}))
+            continue
         if key not in base and "." in key and key.split(".")[0] in base:  # "a.b" = 1: the documented dotted form
             merged = merge(merged, nest({key: value}), where)
             continue
@@ -312,9 +315,10 @@ def validate(config: dict) -> None:
         raise ConfigError(f"this run would need about {size(needed)} of memory ({what}), more than this machine's "
                           f"{size(available)}; lower experiment.resolution, experiment.steps or experiment.trials "
                           "(or train.samples)")
-    from rhi.master.config.sources import check_parameters  # the components' own ranges (substeps, period, ...)
+    from rhi.master.config.sources import check_parameters, check_population  # the components' own ranges
 
-    check_parameters(config)
+    check_population(config)
+    check_parameters(config)  # with the population's draws of every participant the protocol plans
     check_step_size(config)  # after the components' ranges: it reads stimulus.period and [brain]
 
 

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rhi.components.body import kinematics
+from rhi.master.config import population
 from rhi.master.config.schedules import hidden_intervals, stroking_blocks
 
 HALF_RANGES = (40.0, 50.0)  # deg: shoulder, elbow, about the rest pose: the arm's working ranges in every task, and so
@@ -50,9 +51,14 @@ def make_trial(config: dict, decoder: str, condition: str, stimulation: str, ind
     the readings, which pause the stroking).
 
     overrides: ``((key, value), ...)``, the trial's own values of parameter keys in a batch of several
-    configurations (:func:`rhi.master.config.sources.parameters` gives them to the components per trial).
+    configurations (:func:`rhi.master.config.sources.parameters` gives them to the components per trial). The
+    participant's own values, drawn from the ``[population]`` table (:func:`rhi.master.config.population.participant`:
+    participant ``index``), follow them and so win: a batch of several configurations passes each point's
+    configured value of every batchable key, which is the median the participant's draw is centred on.
     """
     delays = config["stimulations"][stimulation]
+    if population.entries(config):
+        overrides = tuple(overrides) + population.participant(config, index)
     return Trial(decoder, condition, stimulation, index,
                  trial_seed(config["experiment"]["seed"], condition, stimulation, index),
                  float(config["conditions"][condition]), float(delays["delay_min"]), float(delays["delay_max"]),

@@ -17,6 +17,7 @@ from rhi.components.body.rubber_arm import RubberArm
 from rhi.components.component import ComponentError
 from rhi.components.stimulus import Stimulus, block_rows, interval_rows
 from rhi.master import models
+from rhi.master.config import population
 from rhi.master.config.protocol import HALF_RANGES, Trial, per_trial, plan, table_rows
 from rhi.master.cosim import ConfigError, System
 from rhi.master.models.base import TrialValues, config_key
@@ -196,6 +197,22 @@ def check_parameters(config: dict) -> None:
             component.check_parameters()
         except ComponentError as error:
             raise ConfigError(str(error)) from None
+
+
+def check_population(config: dict) -> None:
+    """The ``[population]`` table against the configuration: each key one that may differ between the trials of a
+    batch (:func:`batchable_keys`), its median and bounds, and its draws within the range its component declares
+    (:func:`rhi.master.config.population.check_entry`); a ConfigError naming the entry."""
+    import difflib
+
+    allowed = sorted(batchable_keys(config))
+    for key, entry in population.entries(config).items():
+        if key not in allowed:
+            close = difflib.get_close_matches(key, allowed, n=1)
+            hint = f"did you mean {close[0]}? " if close else ""
+            raise ConfigError(f"population.{key} is not a parameter of the {models.of(config).name} model that can "
+                              f"differ between participants ({hint}one of {', '.join(allowed)})")
+        population.check_entry(key, entry, config, declared_range(config, key))
 
 
 def check_reach(config: dict) -> None:

@@ -8,6 +8,10 @@ Columns (docs/fit.md):
   ``[stimulations]``) or ``delay_s`` (one fixed visuo-tactile delay after every touch, s); optionally
   ``time_s``, the trial's length (s), the same on every row;
 - the observed measures: ``drift_cm`` and optionally ``force_n`` (a trial outcome's final values);
+- optionally, beside a measure, its between-participant sd ``drift_cm_sd`` (``force_n_sd``): a group's row of a
+  cell gives the group's mean and sd there, and a fit of group data simulates each draw as a study of
+  ``fit.trials_per_cell`` participants of a ``[population]`` (docs/population.md), whose cell means and sds are
+  its statistics;
 - optionally, beside a measure, its noise column ``drift_cm_sem`` (``force_n_sem``): the standard error of the
   cell's value, in the measure's unit, the sd of the observation noise a fit adds to that cell's simulated mean
   in place of ``fit.noise.MEASURE`` (a group mean's reported SEM); one value per design cell, >= 0.
@@ -35,9 +39,10 @@ from rhi.master.cosim import ConfigError
 
 MEASURES = ("drift_cm", "force_n")  # observed measures a fit can explain: trial outcomes of the same name
 NOISE = tuple(f"{measure}_sem" for measure in MEASURES)  # each measure's per-cell noise sd (its standard error)
+SPREADS = tuple(f"{measure}_sd" for measure in MEASURES)  # a group's between-participant sd of the measure per cell
 DESIGN = ("condition", "offset_m", "stimulation", "delay_s", "time_s")
-COLUMNS = ("participant", *DESIGN, *MEASURES, *NOISE)
-NUMERIC = ("offset_m", "delay_s", "time_s", *MEASURES, *NOISE)
+COLUMNS = ("participant", *DESIGN, *MEASURES, *SPREADS, *NOISE)
+NUMERIC = ("offset_m", "delay_s", "time_s", *MEASURES, *SPREADS, *NOISE)
 MAX_NOISE_SD = 1000.0  # a noise sd, fit.noise.MEASURE or a MEASURE_sem value, in the measure's unit: docs/safety.md
 MAX_DATA_BYTES = 64 * 2**20  # a data file; a study's table is a few KiB
 
@@ -110,7 +115,11 @@ def read_data(path: str | Path) -> Data:
         if len(given) != 1:
             raise ConfigError(f"{name}: give exactly one of the columns {pair[0]} and {pair[1]}, got "
                               f"{', '.join(given) or 'neither'}")
-    measures = [m for m in MEASURES if m in header]
+    measures = [m for m in (*MEASURES, *SPREADS) if m in header]
+    for column in SPREADS:
+        if column in header and column.removesuffix("_sd") not in header:
+            raise ConfigError(f"{name}: column {column} without its measure {column.removesuffix('_sd')} (a group's "
+                              "between-participant sd beside its mean)")
     for column in NOISE:
         if column in header and column.removesuffix("_sem") not in header:
             raise ConfigError(f"{name}: column {column} without its measure {column.removesuffix('_sem')} (a noise "
@@ -138,6 +147,8 @@ def read_data(path: str | Path) -> Data:
                 if column in ("delay_s", "time_s") and not (number >= 0 if column == "delay_s" else number > 0):
                     raise ConfigError(f"{name} line {line}: column {column} = {text} must be "
                                       f"{'>= 0' if column == 'delay_s' else 'positive'}")
+                if column in SPREADS and number < 0:
+                    raise ConfigError(f"{name} line {line}: column {column} = {text} is an sd: it must be >= 0")
                 if column in NOISE and not 0 <= number <= MAX_NOISE_SD:
                     raise ConfigError(f"{name} line {line}: column {column} = {text} must be a standard error >= 0 "
                                       f"and at most {MAX_NOISE_SD:g} (in the measure's unit)")

@@ -30,7 +30,7 @@ from rhi.master import config as configuration
 from rhi.master.config.sources import TASK_SOURCES, batchable_keys
 from rhi.master.models.base import config_key
 from rhi.master.config.sources import declared_range
-from rhi.master.fit.data import MAX_NOISE_SD, MEASURES, Data, check_against
+from rhi.master.fit.data import MAX_NOISE_SD, MEASURES, SPREADS, Data, check_against
 
 PRIORS = ("uniform", "log-uniform", "normal")
 FIT_KEYS = ("model", "quick", "simulations", "calibration", "calibration_design", "seed", "trials_per_cell",
@@ -158,9 +158,31 @@ class FitPlan:
     estimator: dict = field(default_factory=dict)
 
 
+def population_field(written: str, config: dict) -> str | None:
+    """``population.KEY.FIELD`` (a field of an entry of the configuration's ``[population]``: its median, its
+    spread or a bound) as written, a fit of a population's median or spread; None for any other name; ConfigError
+    for a population name that names no such field."""
+    if not written.startswith("population."):
+        return None
+    key, _, field_name = written.removeprefix("population.").rpartition(".")
+    entry = config.get("population", {}).get(key)
+    if entry is None:
+        raise ConfigError(f"fit.parameters.{written}: the fit file's [population] has no entry {key!r} "
+                          f"({', '.join(config.get('population', {})) or 'none'})")
+    from rhi.master.config.population import fields
+
+    if field_name not in fields(entry["distribution"]):
+        raise ConfigError(f"fit.parameters.{written}: a {entry['distribution']} entry has no field {field_name!r} "
+                          f"to fit (its fields: {', '.join(fields(entry['distribution'])) or 'none'})")
+    return written
+
+
 def parameter_key(written: str, config: dict) -> str:
-    """The configuration key a fit file names, as a key (``brain.sync_sd``) or a component parameter
-    (``brain.timing_noise_sd`` -> ``causal.timing_noise_sd``); ConfigError unless a fit can vary it."""
+    """The configuration key a fit file names, as a key (``brain.sync_sd``), a component parameter
+    (``brain.timing_noise_sd`` -> ``causal.timing_noise_sd``) or a population's field
+    (``population.brain.gamma0.logit_sd``, :func:`population_field`); ConfigError unless a fit can vary it."""
+    if population_field(written, config):
+        return written
     key = written
     sources = {**TASK_SOURCES, **models.of(config).parameter_sources}
     if written in sources and config_key(sources[written]):
@@ -217,9 +239,8 @@ def read_parameter(written: str, spec, config: dict) -> Parameter:
                               f"(a prior draws values the simulator refuses, and a posterior follows it there)")
     for bound in (parameter.low, parameter.high):  # the prior's support must be a valid configuration
         if math.isfinite(bound):
-            table, name = key.split(".")
             try:
-                configuration.validate(configuration.merge(config, {table: {name: bound}}))
+                configuration.validate(configuration.merge(config, configuration.nest({key: bound})))
             except ConfigError as error:
                 raise ConfigError(f"{where}: the bound {bound:g} is not a valid value ({error})") from None
     return parameter
@@ -277,7 +298,7 @@ def read_plan(path: str, data: Data, model: str | None = None) -> FitPlan:
     measures = settings.get("measures", data.measures)
     if not isinstance(measures, list) or not measures or any(m not in data.measures for m in measures):
         raise ConfigError(f"fit.measures = {measures!r} must list measures of the data file ({', '.join(data.measures)})")
-    measures = [m for m in MEASURES if m in measures]
+    measures = [m for m in (*MEASURES, *SPREADS) if m in measures]
     noise = settings.get("noise", {})
     if not isinstance(noise, dict):
         raise ConfigError("fit.noise must be a table: measure = sd of the observation noise")

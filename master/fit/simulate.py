@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rhi.master.fit.data import Data
+from rhi.master.fit.data import SPREADS, Data
 from rhi.master.fit.plan import FitPlan, simulation_seed
 from rhi.master.sweeps import plan as sweeps
 
@@ -73,21 +73,29 @@ class Pool:
 
 
 def statistics(sweep: sweeps.Sweep, records: dict[str, dict], data: Data, measures: list[str]) -> np.ndarray:
-    """(participants, cells x measures): each simulated participant's cell means, NaN where a trial failed."""
+    """(participants, cells x measures): each simulated participant's cell means, NaN where a trial failed; a
+    group's spread (``drift_cm_sd``, :data:`rhi.master.fit.data.SPREADS`) is the sample sd (ddof 1) of the measure over
+    the cell's trials, each trial one participant of the simulated study (a ``[population]``)."""
     cells = {cell: n for n, cell in enumerate(data.cells)}
-    sums = np.zeros((len(sweep.points), len(data.cells), len(measures)))
-    counts = np.zeros((len(sweep.points), len(data.cells)))
+    bases = [m.removesuffix("_sd") if m in SPREADS else m for m in measures]
+    values = np.full((len(sweep.points), len(data.cells), len(measures)), None, dtype=object)
     for trial in sweep.trials:
         cell = cells.get((trial.condition, trial.stimulation))
         if cell is None:  # a cell of the full cross that the data lack
             continue
         record = records.get(trial.id)
-        if record is None or record.get("status") != "ok":
-            sums[trial.point, cell] = np.nan
-        else:
-            sums[trial.point, cell] += [record["outcome"][m] for m in measures]
-        counts[trial.point, cell] += 1
-    return (sums / counts[:, :, None]).reshape(len(sweep.points), -1)
+        failed = record is None or record.get("status") != "ok"
+        for position, base in enumerate(bases):
+            found = values[trial.point, cell, position] or []
+            values[trial.point, cell, position] = [*found, np.nan if failed else record["outcome"][base]]
+    result = np.full(values.shape, np.nan)
+    for index in np.ndindex(values.shape):
+        given = np.asarray(values[index] or [np.nan], dtype=float)
+        if measures[index[2]] in SPREADS:
+            result[index] = given.std(ddof=1) if given.size > 1 else np.nan
+        else:  # summed in trial order, then divided: the bits of the sums this function always made
+            result[index] = sum(given.tolist()) / given.size
+    return result.reshape(len(sweep.points), -1)
 
 
 def with_noise(values: np.ndarray, data: Data, measures: list[str], noise: dict[str, float], seed: int,

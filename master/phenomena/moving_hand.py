@@ -17,6 +17,7 @@ import numpy as np
 
 from rhi.components.body import kinematics
 from rhi.master import config as configuration
+from rhi.master.config import population
 from rhi.master import models
 from rhi.master.cosim import ConfigError
 from rhi.master.decoders.cache import check_decoders, per_decoder
@@ -49,6 +50,7 @@ def load(path=None, model_name: str = "paper") -> dict:
     config.pop("quick")
     config = configuration.with_model(config, model_name)
     config = configuration.merge({**config, "moving_hand": shipped}, {"moving_hand": protocol, **given})
+    population.refuse_in(config, "rhi phenomenon moving-hand")
     configuration.validate(config)
     moving = config["moving_hand"]
     step = config["experiment"]["step_size"]

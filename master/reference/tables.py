@@ -295,6 +295,27 @@ def ownership_constants() -> str:
     return markdown(["parameter", "from", "value", "source or derivation"], rows)
 
 
+def population_spreads() -> str:
+    """Every shipped population (docs/population/*.toml): each parameter's distribution, median, spread, bounds and
+    the source of its spread (the entry's ``source``), as the configuration reads them."""
+    from rhi.master import config as configuration
+    from rhi.master.config import population
+
+    rows = []
+    for path in sorted((Path(__file__).resolve().parents[2] / "docs" / "population").glob("*.toml")):
+        config = configuration.load(path)
+        for key, entry in population.entries(config).items():
+            name = entry["distribution"]
+            spread = population.DISTRIBUTIONS[name].spread
+            low, high = entry.get("low"), entry.get("high")
+            bounds = (f"[{low:g}, {high:g}]" if low is not None and high is not None else f">= {low:g}"
+                      if low is not None else f"<= {high:g}" if high is not None else "")
+            rows.append([f"`docs/population/{path.name}`", f"`{key}`", name,
+                         f"{population.median_of(entry, config, key):g}",
+                         f"{spread} = {entry[spread]:g}" if spread else "", bounds, entry.get("source", "")])
+    return markdown(["file", "key", "distribution", "median", "spread", "bounds", "source"], rows)
+
+
 def fmi_compat() -> str:
     """docs/fmi.md's compatibility matrix, from the results ``python -m rhi.master.export.compat`` measured."""
     from rhi.master.export.compat import stored_table
@@ -302,7 +323,7 @@ def fmi_compat() -> str:
     return stored_table()
 
 
-TABLES = {"model-columns": model_columns, "ownership-constants": ownership_constants, "configuration-keys": configuration_keys, "paper-preset": paper_preset, "summary-columns": summary_columns,
+TABLES = {"population-spreads": population_spreads, "model-columns": model_columns, "ownership-constants": ownership_constants, "configuration-keys": configuration_keys, "paper-preset": paper_preset, "summary-columns": summary_columns,
           "trials-columns": trials_columns, "sweep-columns": sweep_columns, "phenomenon-columns": phenomenon_columns,
           "agent-ports": agent_ports, "reach-agent-ports": lambda: agent_ports("reach"), "body-ports": body_ports,
           "c-body-fmi3-ports": c_body_fmi3_ports, "fmi-compat": fmi_compat, "worker-command": worker_command}

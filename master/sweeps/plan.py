@@ -238,12 +238,13 @@ def chunk_cells(configs: list[dict], batch: int | None,
 def check_batchable(configs: list[dict], points_per_batch: int) -> None:
     """ConfigError unless the points of each group of ``points_per_batch`` differ only where a lockstep batch
     lets its trials differ: the batchable parameter keys (:func:`rhi.master.config.sources.batchable_keys`),
-    the master seed, the conditions' offsets and the stimulations' delays (each trial's own)."""
+    the master seed, the conditions' offsets and the stimulations' delays (each trial's own), and the population
+    (its draws are each trial's own values of batchable keys)."""
     from rhi.master.config.sources import batchable_keys
 
     def shared(config: dict) -> str:
         kept = {table: dict(values) if isinstance(values, dict) else values for table, values in config.items()
-                if table not in ("conditions", "stimulations")}
+                if table not in ("conditions", "stimulations", "population")}
         kept["experiment"].pop("seed")
         for key in batchable_keys(config):
             table, name = key.split(".")
@@ -256,7 +257,7 @@ def check_batchable(configs: list[dict], points_per_batch: int) -> None:
             if shared(configs[number]) != reference:
                 raise ConfigError(f"sweep points {first} and {number} share a lockstep batch but differ in more than "
                                   "the per-trial parameters (batchable keys, experiment.seed, conditions, "
-                                  "stimulations)")
+                                  "stimulations, population)")
 
 
 def plan(configs: list[dict], task: str, batch: int | None = None,

@@ -21,8 +21,9 @@ from rhi.master.decoders.cache import check_decoders, ensure_checkpoints, jacobi
 from rhi.master.tasks.illusion.fast_check import verdicts
 from rhi.master.runtime.pool import Workers, call
 from rhi.master.tasks.illusion.measures import end_of_trial
+from rhi.master.config import population
 from rhi.master.config.protocol import plan, rubber_pose
-from rhi.master.outputs import figures, tables
+from rhi.master.outputs import cohort, figures, tables
 from rhi.master.outputs.files import atomic_write, check_output, output_folder
 from rhi.master.outputs.provenance import package_versions
 from rhi.master.outputs.animation import frames, gif_bytes
@@ -76,8 +77,14 @@ class ExperimentResult:
         """summary.csv, trials.csv, figures/ and run.json into the folder ``staging``, the files on ``workers``."""
         trials, per_step, config = self.trials, self.per_step, self.config
         columns = tables.summary_columns(config["experiment"]["probe_times"])
-        atomic_write(staging / "summary.csv", tables.csv_text(columns, self.summary))
+        measures = cohort_measures(config)
+        header = columns + cohort.columns(measures, columns)
+        atomic_write(staging / "summary.csv", tables.csv_text(header, self.summary))
         (staging / "figures").mkdir()
+        if measures:
+            write_participants(staging / "participants.csv", config)
+            cohort.write_strip_figure(staging / "figures" / "cohort.png", trials, self.final,
+                                      [*cohort.STRIPS, *models.of(config).measures])
         shown = next((i for i, t in enumerate(trials) if (t.condition, t.stimulation) == ("left", "sync")), 0)
         name = f"trial_{trials[shown].decoder}_{trials[shown].condition}_{trials[shown].stimulation}.gif"
         animated = {key: per_step[key][:, shown] for key in ANIMATED}
@@ -159,7 +166,13 @@ def simulate_protocol(config: dict, body: str | None, context: RunContext, worke
         config, checkpoints, body, context, fast={kind: mode["fast"] for kind, mode in modes.items()}, workers=workers)
     probe_times = config["experiment"]["probe_times"]
     final = end_of_trial(times, per_step, probe_times)
-    summary = tables.summary(trials, final, planned=tables.cells(plan(config)), probe_times=probe_times)
+    planned = tables.cells(plan(config))
+    summary = tables.summary(trials, final, planned=planned, probe_times=probe_times)
+    measures = cohort_measures(config)
+    if measures:  # a population that varies: the between-participant statistics appended to each row
+        present = tables.summary_columns(probe_times)
+        summary = [row + more for row, more in
+                   zip(summary, cohort.summary_cells(trials, final, planned, measures, present))]
     log.debug(f"measured {len(trials)} trials into {len(summary)} cells ({len(failures)} failed)")
     provenance = {
         "schema_version": tables.SCHEMA_VERSION,
@@ -192,6 +205,22 @@ def run_into(out, config: dict, body: str | None = None, context: RunContext | N
         result.began = began
         result.write_files(staging, workers)
     return result.failures
+
+
+def cohort_measures(config: dict) -> dict[str, str]:
+    """The measures whose between-participant statistics summary.csv appends (:mod:`rhi.master.outputs.cohort`):
+    none unless the configuration's population varies, so that a run without one keeps its bytes."""
+    if not population.varies(config):
+        return {}
+    return cohort.measures_of(tuple(models.of(config).measures),
+                              tuple(tables.probe_measures(config["experiment"]["probe_times"])))
+
+
+def write_participants(path, config: dict) -> None:
+    """participants.csv: every participant the protocol plans (``experiment.trials``), with its drawn values."""
+    indices = range(config["experiment"]["trials"])
+    seeds = [population.participant_seed(config["experiment"]["seed"], index) for index in indices]
+    atomic_write(path, cohort.participants_csv(indices, seeds, population.cohort(config, indices)))
 
 
 ANIMATED = ("ball_x_m", "ball_y_m", "mu_shoulder_deg", "mu_elbow_deg")  # the measures the animation shows

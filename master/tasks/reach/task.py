@@ -22,6 +22,7 @@ from rhi.components.body.plant import ArmPlant
 from rhi.master import models
 from rhi.master.cosim import ConfigError, System
 from rhi.master import config as configuration
+from rhi.master.config import population
 from rhi.master.config.protocol import per_trial
 from rhi.master.decoders.training_data import HALF_RANGES
 from rhi.master.config.sources import model_parameters, shared_parameters
@@ -78,6 +79,7 @@ def load(path=None, quick: bool = False, model_name: str = "paper", overrides: d
             for name in new_bands:
                 config["reach"]["ranges"].setdefault(name, [0.0, 0.0])
         config = configuration.merge(config, given)
+        population.refuse_in(config, "rhi reach")
     config = configuration.merge(config, configuration.nest(overrides or {}))
     configuration.validate(config)
     validate(config)
