@@ -241,18 +241,20 @@ def test_a_fixed_population_leaves_every_models_trials_and_parameters_as_they_we
 
 
 def test_a_models_own_key_varies_its_derived_parameter_per_participant():
-    """ownership.timing_jnd reaches the ownership brain as its timing sd, JND / 0.6745 per participant."""
-    from rhi.components.brain.ownership_inference import timing_sd_from_jnd
+    """ownership.peripersonal_boundary reaches the ownership brain as its peripersonal sd, derived per participant
+    from the drawn boundary and the arm's reach."""
+    from rhi.components.body.kinematics import FOREARM, UPPER_ARM
+    from rhi.components.brain.ownership_inference import peripersonal_sd_from_boundary
     from rhi.master.config.sources import parameters
 
     base = configuration.load(model_name="ownership", overrides={"experiment.trials": 3})
-    config = configuration.merge(base, {"population": {"ownership.timing_jnd": {"distribution": "log-normal",
-                                                                               "log_sd": 0.3}}})
+    config = configuration.merge(base, {"population": {"ownership.peripersonal_boundary": {
+        "distribution": "log-normal", "log_sd": 0.1}}})
     configuration.validate(config)
     trials = plan(config)
-    drawn = population.cohort(config, range(3))["ownership.timing_jnd"]
-    expected = [timing_sd_from_jnd(drawn[t.index]) for t in trials]
-    assert np.allclose(parameters(trials, config)["brain.timing_sd"], expected, rtol=1e-15, atol=0)
+    drawn = population.cohort(config, range(3))["ownership.peripersonal_boundary"]
+    expected = [peripersonal_sd_from_boundary(drawn[t.index], UPPER_ARM + FOREARM) for t in trials]
+    assert np.allclose(parameters(trials, config)["brain.peripersonal_sd"], expected, rtol=1e-15, atol=0)
     assert len(set(drawn)) == 3
 
 
