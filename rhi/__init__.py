@@ -10,6 +10,7 @@ The public API, one call per job. Importing ``rhi`` is light: each name loads it
 ``load_config``           a configuration: the defaults, a preset, a model, a file, overrides
 ``models``                the registered models' names (built in, entry points ``rhi.models``)
 ``load_sweep``            a sweep file as a plan of trials; ``run_sweep`` runs it in memory
+``power``                 the power of a paired contrast over study sizes, by simulated studies of a population
 ``fit``                   ``rhi fit`` in memory over arrays: ``read_data``, ``read_plan``, ``draw``, ``simulate``,
                           ``train``, ``sample`` (:mod:`rhi.master.fit.memory`)
 ========================  ======================================================================================
@@ -48,6 +49,7 @@ _EXPORTS = {
     "load_sweep": "rhi.api:load_sweep",
     "run_sweep": "rhi.api:run_sweep",
     "fit": "rhi.fit:",
+    "power": "rhi.api:power",
 }
 __all__ = sorted(_EXPORTS) + ["__version__"]
 

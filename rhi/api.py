@@ -199,3 +199,40 @@ def run_sweep(sweep):
 
     records = run_in_memory(sweep)
     return pd.DataFrame([{**sweep.points[record["point"]], **record} for record in records.values()])
+
+
+def power(config: dict, ns, studies: int, contrast: tuple[str, str] = ("sync", "async"), measure: str = "drift_cm",
+          alpha: float = 0.05):
+    """The power of a paired t test of ``contrast`` on ``measure``, over study sizes, by simulated studies of the
+    configuration's ``[population]`` (docs/population.md; ``rhi power``).
+
+    Parameters
+    ----------
+    config : dict
+        A configuration with a ``[population]`` (:func:`load_config`).
+    ns : sequence of int
+        Participants per study.
+    studies : int
+        Simulated studies per size, K.
+    contrast : (str, str)
+        The two stimulations compared within each participant.
+    measure : str
+        The end-of-trial measure (a trials.csv column).
+    alpha : float
+        The test's level.
+
+    Returns
+    -------
+    pandas.DataFrame
+        A row per size: ``n_participants``, ``studies``, ``power``, ``power_mc_error`` (sqrt(p (1 - p) / K)), and
+        the mean and the between-participant sd of the difference in the measure's unit.
+    """
+    import pandas as pd
+
+    from rhi.master.studies import power as studies_power
+
+    curve = studies_power.power(studies_power.protocol_simulator(config, tuple(contrast), measure), ns=tuple(ns),
+                                studies=studies, alpha=alpha)
+    return pd.DataFrame([{"n_participants": p.n, "studies": p.studies, "power": p.power, "power_mc_error": p.mc_error,
+                          f"mean_difference_{measure}": p.mean_difference,
+                          f"sd_difference_{measure}": p.sd_difference} for p in curve])

@@ -28,7 +28,7 @@ SCALARS = {
     Camera: ["resolution", "blur", "ball_radius", "arm_visible"],
     RubberArm: ["offset_x", "offset_y"],
     Stimulus: ["period", "delay_min", "delay_max", "seed", "ball_distance", "stop_time", "visual_time", "tactile_time",
-               "stroke_duration", "touch"],
+               "stroke_duration", "touch", "arm_in_view", "arm_visible"],
     Brain: ["proprioceptive_variance", "gamma0", "sync_sd", "async_density", "decay_rate", "action_limit",
             "spatial_sd", "action_time_constant", "q_shoulder", "q_elbow", "visual_error", "visual_stiffness",
             "goal_error", "goal_stiffness", "hand_x", "hand_y", "visual_time", "tactile_time", "u_shoulder", "u_elbow", "gamma", "free_energy"],
@@ -40,7 +40,7 @@ ARRAYS = {
              "image": ("output", "64 64", "arm_pose ball")},
     RubberArm: {"pose": ("output", "2", ""), "hand": ("output", "2", "")},
     Stimulus: {"target": ("input", "2", None), "ball": ("output", "2", "target"),
-               "blocks": ("parameter", "16 2", None)},
+               "blocks": ("parameter", "1 2", None), "hidden": ("parameter", "1 2", None)},  # rows: Stimulus(blocks=1)
     Brain: {"mu0": ("parameter", "2", None), "visual_drive": ("input", "2", None), "goal_drive": ("input", "2", None),
             "seen_hand": ("input", "2", None),
             "mu": ("output", "2", ""),

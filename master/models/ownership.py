@@ -80,7 +80,8 @@ class OwnershipModel(Model):
     pose_encoder_key = "ownership.{kind}_pose_encoder"
     pose_encoder_stem = "pose-ownership-{kind}"  # its own, over the rubber arm's whole reach (pose_encoders.py)
     batchable = tuple(DERIVED_FROM.values())
-    links = (("camera.image", "pose_encoder.image"), ("pose_encoder.pose", "brain.seen_pose"))
+    links = (("camera.image", "pose_encoder.image"), ("pose_encoder.pose", "brain.seen_pose"),
+             ("stimulus.arm_visible", "brain.arm_visible"))  # the scene declares whether a rubber arm is in view
     record = ("brain.coupling", "brain.realignment", "brain.ownership_onset")
     measures = {"ownership_onset_s": "brain.ownership_onset", "coupling": "brain.coupling"}
 

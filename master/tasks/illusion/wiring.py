@@ -30,7 +30,6 @@ CONNECTIONS = [
     ("decoder.visual_stiffness", "brain.visual_stiffness"),
     ("stimulus.visual_time", "brain.visual_time"),
     ("stimulus.tactile_time", "brain.tactile_time"),
-    ("stimulus.arm_visible", "brain.arm_visible"),     # the scene declares whether a rubber arm is in view
     ("rubber_arm.hand", "brain.seen_hand"),            # read only by the spatial extension (brain.spatial_sd)
     ("body.hand_x", "brain.hand_x"),
     ("body.hand_y", "brain.hand_y"),
