@@ -35,6 +35,8 @@ def pytest_configure(config):
 def pytest_collection_modifyitems(items):
     rank = {name: position for position, name in enumerate(FIRST)}
     items.sort(key=lambda item: rank.get(item.path.name, len(FIRST)))  # stable: file order kept otherwise
+    if os.environ.get("RHI_TEST_ORDER") == "reversed":  # a check that no test leans on one run before it
+        items.reverse()
 
 
 @pytest.fixture(autouse=True)
