@@ -9,10 +9,10 @@ import math
 import numpy as np
 import pytest
 from scipy.stats import norm
-from test_ownership_model import place_evidence
+from test_ownership_model import brain, place_evidence
 
 from rhi.components.brain import ownership_inference as oi
-from rhi.components.brain.ownership_brain import NOISE_STREAM, OwnershipBrain
+from rhi.components.brain.ownership_brain import NOISE_STREAM
 from rhi.master import config as configuration
 from rhi.master import models
 from rhi.master.config.protocol import make_trial
@@ -22,14 +22,6 @@ from rhi.master.tasks.illusion.measures import measures
 STEP = 0.02
 
 
-def brain(batch, **given):
-    """An ownership brain of ``batch`` trials, initialized with ``given`` parameters (the rest its defaults)."""
-    made = OwnershipBrain()
-    made.instantiate(batch)
-    for name, value in {"mu0": (140.0, -90.0), **given}.items():
-        made.set(name, value)
-    made.initialize()
-    return made
 
 
 def step(made, t, s_p, seen, visual=-np.inf, tactile=-np.inf, visible=1.0):

@@ -23,13 +23,12 @@ IEEE operations in the same order.
 """
 from __future__ import annotations
 
-import math
 
 import numpy as np
 
 from .kinematics import FOREARM, SHOULDER, UPPER_ARM
-from .plant import CELL_ARM, ArmPlant, smallest_inertia
-from ..component import Component, ComponentError, StepFailure
+from .plant import CELL_ARM, ArmPlant, checked_step
+from ..component import Component, ComponentError
 
 # the parameters' columns as the C loop takes them, per trial (the first two the step's command, rad/s)
 PACKED = ("command_shoulder", "command_elbow", "gain", "limit", "upper_mass", "forearm_mass", "stiffness", "damping",
@@ -186,17 +185,9 @@ class BatchedArm(Component):
         if due.any():
             self._held &= ~due
             self._set_cells()
-        command = np.radians(np.stack([v["u_shoulder"], v["u_elbow"]]))
-        if not np.all(np.isfinite(command)):
-            raise StepFailure(f"{self.name}: commanded velocity is not finite: {np.degrees(command).T.tolist()}")
-        substeps = int(v["substeps"][0])
-        dt = h / substeps
-        rate = v["servo_gain"] / smallest_inertia(v["upper_arm_mass"], v["forearm_mass"], v["q_elbow"])
-        if np.any(dt * rate > 1.0):
-            raise StepFailure(f"{self.name}.substeps = {substeps} is too few for servo_gain: a sub-step of "
-                              f"{dt:.3g} s exceeds the servo time constant {1 / rate.max():.3g} s; "
-                              f"use substeps >= {math.ceil(h * rate.max())}")
-        self._packed[:, :2] = command.T
+        command, substeps, dt = checked_step(self.name, v, h)
+        self._packed[:, :2] = command
+        command = command.T  # (2, B): the numpy sub-step's layout
         impulse = np.zeros((self.batch_size, 2))
         if C_LOOP is not None:
             C_LOOP.substeps(self._state, self._packed, impulse, self.batch_size, substeps, dt)

@@ -100,6 +100,38 @@ def state_output(name, unit, description, start):
     return Variable(name, "output", start=start, unit=unit, description=description, depends_on=())
 
 
+def checked_step(name: str, values, h: float):
+    """A step's commanded joint velocities and its sub-steps, checked: StepFailure if the command is not finite,
+    or a sub-step is longer than the servo's time constant (the explicit servo is stable only below it).
+
+    Parameters
+    ----------
+    name : str
+        The plant's instance name (for the message).
+    values : dict
+        The plant's values: ``u_shoulder``, ``u_elbow`` (deg/s), ``substeps``, ``servo_gain``, the rods' masses and
+        ``q_elbow``.
+    h : float
+        The step, s.
+
+    Returns
+    -------
+    tuple
+        The command ((B, 2) rad/s, shoulder and elbow), the sub-steps per step and their length (s).
+    """
+    command = np.radians(np.stack([values["u_shoulder"], values["u_elbow"]], axis=1))
+    if not np.all(np.isfinite(command)):
+        raise StepFailure(f"{name}: commanded velocity is not finite: {np.degrees(command).tolist()}")
+    substeps = int(values["substeps"][0])
+    dt = h / substeps
+    rate = values["servo_gain"] / smallest_inertia(values["upper_arm_mass"], values["forearm_mass"], values["q_elbow"])
+    if np.any(dt * rate > 1.0):
+        raise StepFailure(f"{name}.substeps = {substeps} is too few for servo_gain: a sub-step of "
+                          f"{dt:.3g} s exceeds the servo time constant {1 / rate.max():.3g} s; "
+                          f"use substeps >= {math.ceil(h * rate.max())}")
+    return command, substeps, dt
+
+
 def smallest_inertia(upper_mass, forearm_mass, elbow_deg):
     """Smallest eigenvalue (kg m^2) of the joint-space inertia M of two uniform rods at ``elbow_deg``.
 
@@ -247,16 +279,7 @@ class ArmPlant(Component):
         """
         v = self.values
         self._release(t)
-        command = np.radians(np.stack([v["u_shoulder"], v["u_elbow"]], axis=1))
-        if not np.all(np.isfinite(command)):
-            raise StepFailure(f"{self.name}: commanded velocity is not finite: {np.degrees(command).tolist()}")
-        substeps = int(v["substeps"][0])
-        dt = h / substeps
-        rate = v["servo_gain"] / smallest_inertia(v["upper_arm_mass"], v["forearm_mass"], v["q_elbow"])
-        if np.any(dt * rate > 1.0):
-            raise StepFailure(f"{self.name}.substeps = {substeps} is too few for servo_gain: a sub-step of "
-                              f"{dt:.3g} s exceeds the servo time constant {1 / rate.max():.3g} s; "
-                              f"use substeps >= {math.ceil(h * rate.max())}")
+        command, substeps, dt = checked_step(self.name, v, h)
         if C_LOOP is None:
             impulses = self._substeps_numpy(command, substeps, dt)
         else:  # pymunk's Space.step adds to cpSpaceStep only a check of new bodies' masses (positive here by
