@@ -19,8 +19,9 @@ ROOT = Path(__file__).resolve().parents[1]
 # 2 cores of an AVX2 EPYC; a module not named here runs after these, in file order. The tutorial second: it needs no
 # --quick decoders, so the other worker runs it while the first trains them (the rest would wait on the lock).
 FIRST = ("test_experiment.py", "test_tutorial.py", "test_models.py", "test_cli_catalogue.py", "test_phenomena.py",
-         "test_sweep_resume.py", "test_sweep.py", "test_hostile_limits.py", "test_bench.py", "test_paper.py",
-         "test_hostile_files.py", "test_fit.py", "test_hostile_folders.py", "test_hostile_inputs.py",
+         "test_doc_snippets.py", "test_sweep_resume.py", "test_sweep.py", "test_hostile_limits.py",
+         "test_hostile_bodies.py", "test_api.py", "test_bench.py", "test_paper.py", "test_hostile_files.py", "test_fit.py",
+         "test_power.py", "test_hostile_folders.py", "test_hostile_inputs.py", "test_logging.py", "test_figures.py",
          "test_reproducibility.py", "test_cli_runs.py", "test_parallel.py", "test_shipped.py", "test_fast_check.py",
          "test_fast.py")
 
