@@ -191,14 +191,20 @@ def load_sweep(path: str | Path, model: str | None = None):
 
 
 def run_sweep(sweep):
-    """Every trial of a sweep (:func:`load_sweep`) run here, nothing written, as a pandas DataFrame: one row per
-    trial, its point's values and its outcome (the columns of the sweep's trial records)."""
+    """Every trial of a sweep (:func:`load_sweep`) run here, nothing written, as a pandas DataFrame: a row per
+    trial, its point's values (one column per swept key), ``id``, ``point``, ``status`` and its end-of-trial
+    outcome (``drift_cm``, ``force_n``, ``gamma_final``, ...), or ``error`` for a failed trial."""
     import pandas as pd
 
     from rhi.master.sweeps.runner import run_in_memory
 
-    records = run_in_memory(sweep)
-    return pd.DataFrame([{**sweep.points[record["point"]], **record} for record in records.values()])
+    rows = []
+    for record in run_in_memory(sweep).values():
+        outcome = record.get("outcome") or {}
+        rows.append({**sweep.points[record["point"]], "id": record["id"], "point": record["point"],
+                     "status": record.get("status"), **outcome,
+                     **({"error": record["error"]} if "error" in record else {})})
+    return pd.DataFrame(rows)
 
 
 def power(config: dict, ns, studies: int, contrast: tuple[str, str] = ("sync", "async"), measure: str = "drift_cm",

@@ -133,3 +133,19 @@ def test_a_local_cluster_from_an_unguarded_script_is_refused_in_one_line(monkeyp
     with pytest.raises(ConfigError, match='if __name__ == "__main__":'):
         with dask_client(None, 1, False):
             pass
+
+
+def test_a_sweep_runs_in_memory_as_a_frame_a_row_per_trial(tmp_path, monkeypatch, quick_cache):
+    """rhi.run_sweep: a row per trial with its point's values beside its record; the points' values reach the
+    trials (gamma0's prior changes the drift: the paper's eq. 9 weighs vision by it)."""
+    monkeypatch.setenv("RHI_CACHE", str(quick_cache))
+    path = tmp_path / "sweep.toml"
+    path.write_text('[experiment]\ndecoders = ["conv"]\nconditions = ["left"]\nstimulations = ["sync"]\nsteps = 20\n'
+                    '[sweep]\nquick = true\ntrials = 1\n[sweep.grid]\n"brain.gamma0" = [0.01, 0.9]\n')
+    sweep = rhi.load_sweep(path)
+    frame = rhi.run_sweep(sweep)
+    assert isinstance(frame, pd.DataFrame) and len(frame) == len(sweep.trials) == 2
+    assert sorted(frame["brain.gamma0"]) == [0.01, 0.9]
+    assert list(frame["point"]) == [sweep.points.index({"brain.gamma0": g}) for g in frame["brain.gamma0"]]
+    drift = dict(zip(frame["brain.gamma0"], frame["drift_cm"]))
+    assert drift[0.01] != drift[0.9]
