@@ -122,6 +122,19 @@ BAD = [
     ("[experiment]\nprobe_times = [10, 31]\n", "experiment.probe_times: 31 s is beyond the trial, which lasts 30 s"),
     ("[experiment]\nprobe_times = [10, 5]\n", "must be strictly increasing"),
     ("[rubber_arm]\nhidden_conditions = [\"nowhere\"]\n", "'nowhere' is not defined in [conditions]"),
+    # readings and the rubber arm's visibility (tests/test_readings.py)
+    ("[readings]\ntimes = [10, 5]\n", "readings.times = [10, 5] must be strictly increasing"),
+    ("[readings]\ntimes = [10, 12]\nduration = 3.0\n", "the reading at 10 s lasts 3 s and overlaps the one at 12 s"),
+    ("[readings]\ntimes = [-1]\n", "readings.times: -1 s is not within the trial"),
+    ("[readings]\ntimes = [nan]\n", "must be a list of finite times"),
+    ("[readings]\ntimes = [inf]\n", "must be a list of finite times"),
+    ("[readings]\nduration = -2.0\n", "readings.duration = -2.0 must be a finite time >= 0"),
+    ("[readings]\nduration = nan\n", "readings.duration = nan must be a finite number"),  # the loader's own check
+    ("[readings]\nhide_arm = 1\n", "readings.hide_arm = 1 must be a bool"),  # the loader's own type check
+    ("[rubber_arm]\nhidden_times = [[0, 10], [5, 20]]\n", "rubber_arm.hidden_times: [5, 20] overlaps"),
+    ("[rubber_arm]\nhidden_times = [[5, inf]]\n", "must be a pair [start_s, end_s] of finite numbers"),
+    ("[rubber_arm]\nhidden_times = [[-5, 2]]\n", "needs 0 <= start < end"),
+    ("[stimulations.sync]\nblocks = [[0, nan]]\n", "must be a pair [start_s, end_s] of finite numbers"),
 ]
 
 
