@@ -48,13 +48,7 @@ def run(args) -> int:
         if checkpoint or getattr(args, "training", False):
             raise ConfigError("--cohort measures the shipped decoders' cohorts: give neither --checkpoint nor --training")
         from rhi.master.bench.cohort import cohort_report, cohort_table
-        report = cohort_report(quick=getattr(args, "quick", False))
-        if getattr(args, "json", False):
-            json.dump(report, sys.stdout, indent=1, default=float)
-            print()
-        else:
-            print(cohort_table(report))
-        return 0
+        return shown(args, cohort_report(quick=getattr(args, "quick", False)), cohort_table)
     if checkpoint and getattr(args, "training", False):
         raise ConfigError("--checkpoint names the decoder of the fast mode's drift error; --training measures the "
                           "training step, which uses none: give one or the other")
@@ -70,18 +64,17 @@ def run(args) -> int:
         quick = getattr(args, "quick", False)
         report = training.training_rates(configuration.load(quick=quick, preset_name=None if quick else "paper"),
                                          steps=2 if quick else 3, threads=threads)
-        if getattr(args, "json", False):
-            json.dump(report, sys.stdout, indent=1, default=float)
-            print()
-        else:
-            print(training.table(report))
-        return 0
+        return shown(args, report, training.table)
     settings = replace(settings, threads=threads, error_checkpoint=checkpoint,
                        **({"error_model": "cached"} if checkpoint else {}))  # --quick measures it on CKPT too
-    report = run_suite(settings)
+    return shown(args, run_suite(settings), table)
+
+
+def shown(args, report: dict, table_of) -> int:
+    """Print ``report`` on stdout: as JSON with ``--json``, else as ``table_of(report)``; exit status 0."""
     if getattr(args, "json", False):
         json.dump(report, sys.stdout, indent=1, default=float)
         print()
     else:
-        print(table(report))
+        print(table_of(report))
     return 0
