@@ -238,18 +238,29 @@ def test_the_decoder_component_on_the_cpu_device_is_the_default_bit_for_bit():
 
 # -- the paper path end to end at 32 x 32 -----------------------------------------------------------------
 @pytest.fixture(scope="module")
-def paper_cache(tmp_path_factory):
-    return tmp_path_factory.mktemp("paper-decoders")
+def paper_training(tmp_path_factory):
+    """The small paper decoders trained once into an empty cache of this module's: (cache, paths, seconds), what
+    that first training gave, whichever test asks first."""
+    cache = tmp_path_factory.mktemp("paper-decoders")
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("RHI_CACHE", str(cache))
+        paths, seconds = ensure_checkpoints(small_paper_config(), progress=False)
+    return cache, paths, seconds
+
+
+@pytest.fixture
+def paper_cache(paper_training):
+    return paper_training[0]
 
 
 def small_paper_config():
     return configuration.load(preset_name="paper", overrides=SMALL)
 
 
-def test_paper_decoders_train_once_and_are_cached_by_their_settings(paper_cache, monkeypatch):
+def test_paper_decoders_train_once_and_are_cached_by_their_settings(paper_training, monkeypatch):
+    paper_cache, paths, seconds = paper_training
     monkeypatch.setenv("RHI_CACHE", str(paper_cache))
     config = small_paper_config()
-    paths, seconds = ensure_checkpoints(config, progress=False)
     assert set(seconds) == {"data", "conv", "vae"}  # the training set once, then each decoder
     for kind, path in paths.items():
         assert Path(path).name.startswith(f"{kind}-r32-paper-") and Path(path).parent == paper_cache
@@ -269,7 +280,6 @@ def test_paper_decoders_train_once_and_are_cached_by_their_settings(paper_cache,
 
 def test_rhi_experiment_with_the_paper_preset_runs_end_to_end_at_32_px(paper_cache, monkeypatch, tmp_path, capsys):
     monkeypatch.setenv("RHI_CACHE", str(paper_cache))
-    ensure_checkpoints(small_paper_config(), progress=False)  # trained once (by the test above when it ran)
     config = write(tmp_path / "small.toml", "[train]\nsamples = 96\nepochs = 2\npatience = 2\nquality_poses = 4\n"
                                             "threads = 1\n")
     out = tmp_path / "run"
