@@ -16,12 +16,12 @@ ROOT = Path(__file__).resolve().parents[1]
 
 # The modules that take longest run first (the longest first: a greedy schedule), so that under pytest-xdist (`make test`: two
 # workers, a module to a worker) neither worker is left with a long module at the end. By their summed --durations on
-# 2 cores of an AVX2 EPYC; a module not named here runs after these, in file order. The tutorial second: it needs no
-# --quick decoders, so the other worker runs it while the first trains them (the rest would wait on the lock).
-FIRST = ("test_experiment.py", "test_tutorial.py", "test_models.py", "test_cli_catalogue.py", "test_phenomena.py",
-         "test_doc_snippets.py", "test_sweep_resume.py", "test_sweep.py", "test_hostile_limits.py",
-         "test_hostile_bodies.py", "test_api.py", "test_bench.py", "test_paper.py", "test_hostile_files.py", "test_fit.py",
-         "test_power.py", "test_hostile_folders.py", "test_hostile_inputs.py", "test_logging.py", "test_figures.py",
+# 2 cores of an AVX2 EPYC; a module not named here runs after these, in file order. The tutorial and the four after it
+# need no --quick decoders, so the other worker runs them while the first trains them (the rest would wait on the lock).
+FIRST = ("test_experiment.py", "test_tutorial.py", "test_hostile_bodies.py", "test_power.py", "test_logging.py",
+         "test_figures.py", "test_models.py", "test_cli_catalogue.py", "test_phenomena.py", "test_doc_snippets.py",
+         "test_sweep_resume.py", "test_sweep.py", "test_hostile_limits.py", "test_api.py", "test_bench.py",
+         "test_paper.py", "test_hostile_files.py", "test_fit.py", "test_hostile_folders.py", "test_hostile_inputs.py",
          "test_reproducibility.py", "test_cli_runs.py", "test_parallel.py", "test_shipped.py", "test_fast_check.py",
          "test_fast.py")
 
