@@ -28,34 +28,20 @@ def finite(value) -> bool:
 
 
 def check_blocks(name: str, blocks, period: float, length: float) -> None:
-    """``stimulations.NAME.blocks``: [start, end] pairs of finite seconds with 0 <= start < end,
-    each at least one ``period`` long (else it holds no touch), starting before the trial ends (``length``), in
-    order and not overlapping; else a ConfigError naming the key."""
+    """``stimulations.NAME.blocks``: intervals as :func:`check_intervals` has them, each at least one ``period``
+    long (else it holds no touch); else a ConfigError naming the key."""
     key = f"stimulations.{name}.blocks"
-    if not isinstance(blocks, list):
-        raise ConfigError(f"{key} must be a list of [start_s, end_s] pairs, got {blocks!r}")
-    previous_end = 0.0
+    check_intervals(key, blocks, length, "block ")
     for block in blocks:
-        if not (isinstance(block, list) and len(block) == 2 and all(finite(v) for v in block)):
-            raise ConfigError(f"{key}: {block!r} must be a pair [start_s, end_s] of finite numbers")
-        start, end = block
-        if not 0 <= start < end:
-            raise ConfigError(f"{key}: block {block!r} needs 0 <= start < end, s")
-        if start < previous_end:
-            raise ConfigError(f"{key}: block {block!r} overlaps the block before it, which ends at {previous_end:g} s "
-                              "(blocks in order, not overlapping)")
-        if end - start < period:
+        if block[1] - block[0] < period:
             raise ConfigError(f"{key}: block {block!r} is shorter than stimulus.period = {period:g} s, so it holds "
                               "no touch")
-        if start >= length:
-            raise ConfigError(f"{key}: block {block!r} starts at or after the trial's end, {length:g} s "
-                              "(experiment.steps x experiment.step_size)")
-        previous_end = end
 
 
-def check_intervals(key: str, intervals, length: float) -> None:
+def check_intervals(key: str, intervals, length: float, noun: str = "") -> None:
     """``key``: a list of [start, end] pairs of finite seconds, 0 <= start < end, starting before the trial ends
-    (``length``), in order and not overlapping; else a ConfigError naming the key."""
+    (``length``, experiment.steps x experiment.step_size), in order and not overlapping; else a ConfigError naming
+    the key and the pair (``noun`` before it, e.g. ``"block "``)."""
     if not isinstance(intervals, list):
         raise ConfigError(f"{key} must be a list of [start_s, end_s] pairs, got {intervals!r}")
     previous_end = 0.0
@@ -64,11 +50,12 @@ def check_intervals(key: str, intervals, length: float) -> None:
             raise ConfigError(f"{key}: {pair!r} must be a pair [start_s, end_s] of finite numbers")
         start, end = pair
         if not 0 <= start < end:
-            raise ConfigError(f"{key}: {pair!r} needs 0 <= start < end, s")
+            raise ConfigError(f"{key}: {noun}{pair!r} needs 0 <= start < end, s")
         if start < previous_end:
-            raise ConfigError(f"{key}: {pair!r} overlaps the interval before it, which ends at {previous_end:g} s")
+            raise ConfigError(f"{key}: {noun}{pair!r} overlaps the one before it, which ends at {previous_end:g} s "
+                              "(in order, not overlapping)")
         if start >= length:
-            raise ConfigError(f"{key}: {pair!r} starts at or after the trial's end, {length:g} s")
+            raise ConfigError(f"{key}: {noun}{pair!r} starts at or after the trial's end, {length:g} s")
         previous_end = end
 
 
