@@ -29,12 +29,12 @@ COMMANDS_IMPORTERS = ("master/__main__.py", "master/commands/")
 COSIM_MAY_IMPORT = ("master.cosim", "components.component", "components.variables")
 COSIM_FORBIDDEN_WORDS = ("decoder", "drift", "gamma", "rubber", "brain")
 # components/ never imports master. A component folder imports the core and itself, no other folder;
-# a module directly in components/ (stimulus, the core) imports the core only.
-# The body FMUs' slaves load the bundle and the slave bases from their bundled copy.
+# a module directly in components/ (stimulus, the core) imports the core only. fmi_export (a component as an
+# FMU) is a folder like the others: no component imports it (the body FMUs' slave scripts load it by its path
+# from their bundled copy), and fmu (an FMU as a component) is its opposite.
 COMPONENT_CORE = ("components.component", "components.variables", "components.model_description",
-                  "components.model_description3", "components.archives", "components.fmu_bundle",
-                  "components.fmu_calls", "components.fmu_slave_base", "components.fmu_slave3_base")
-COMPONENT_FOLDERS = ("body", "vision", "brain", "fmu")
+                  "components.archives")
+COMPONENT_FOLDERS = ("body", "vision", "brain", "fmu", "fmi_export")
 PROJECT = ("master", "components")  # top-level packages whose imports are checked
 
 
@@ -195,6 +195,10 @@ def test_engine_knows_no_rubber_hand_words():
     ("components/brain/integrator.py", "from components import stimulus\n", "only the core"),
     ("components/fmu/adapter.py", "from components.body.plant import ArmPlant\n", "only the core"),
     ("components/vision/fast.py", "from ..fmu import adapter\n", "only the core"),
+    ("components/body/plant.py", "from ..fmi_export.calls import step\n", "only the core"),
+    ("components/component.py", "from .fmi_export import bundle\n", "only the core"),
+    ("components/fmi_export/slave_fmi3.py", "from ..body.contract import FMI3_ARRAYS\n", "only the core"),
+    ("components/fmi_export/calls.py", "from ..fmu.adapter import FMUComponent\n", "only the core"),
 ])
 def test_the_checker_catches_each_kind_of_violation(relative, source, expected):
     found = violations(relative, source)
@@ -212,6 +216,7 @@ def test_the_checker_catches_each_kind_of_violation(relative, source, expected):
     ("master/__main__.py", "from master.commands.cli import main\n"),
     ("components/body/variants.py", "from components.body.plant import ArmPlant\nfrom .kinematics import forward\n"),
     ("components/vision/component.py", "from components.model_description import to_xml\n"),
+    ("components/fmi_export/slave_fmi3.py", "from .calls import step\nfrom ..model_description import xml_value\n"),
 ])
 def test_the_checker_allows_what_the_table_allows(relative, source):
     assert violations(relative, source) == []

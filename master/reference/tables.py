@@ -213,7 +213,7 @@ def body_ports() -> str:
 def c_body_fmi3_ports() -> str:
     """The C body's FMI 3.0 variables (rhi.master.export.c_body.ARRAYS over the Python arm's declarations), each with
     the FMI 2.0 ports it carries."""
-    from rhi.components.model_description3 import TYPES, layout
+    from rhi.components.fmi_export.description_fmi3 import TYPES, layout
     from rhi.master.export.c_body import ARRAYS, declared_body
 
     body = declared_body()
