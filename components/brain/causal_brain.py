@@ -117,6 +117,7 @@ class CausalBrain(PerceptualNoise, BeliefBrain):
 
     def __init__(self, name="brain"):
         positive = dict(min=1e-12)
+        # The parameters' starts are the model's settings (master/models/causal.toml; tests/test_model_defaults.py).
         super().__init__(name, [
             Variable("sync_sd", "parameter", start=0.2, unit="s", **positive,
                      description="sd of the true visuo-tactile delay under a common cause (paper eq. 8)"),

@@ -57,17 +57,18 @@ class OwnershipBrain(PerceptualNoise, BeliefBrain):
     def __init__(self, name="brain"):
         positive = dict(min=1e-12)
         probability = dict(min=1e-6, max=1.0 - 1e-6)
+        # The parameters' starts are the model's settings (master/models/ownership.toml; tests/test_model_defaults.py).
         super().__init__(name, [
             Variable("ownership_prior", "parameter", start=0.01, unit="1", **probability,
                      description="gamma_t's prior and the stationary probability of its chain (the paper's gamma0)"),
-            Variable("coupling_prior", "parameter", start=0.73, unit="1", **probability,
+            Variable("coupling_prior", "parameter", start=0.505, unit="1", **probability,
                      description="rho's prior: a seen hand is coupled to the felt one before any touch"),
             Variable("timing_sd", "parameter", start=0.2, unit="s", **positive,
                      description="sigma_t, sd of the perceived visuo-tactile asynchrony: ownership's window"),
-            Variable("coupling_window_sd", "parameter", start=1.0, unit="s", **positive,
+            Variable("coupling_window_sd", "parameter", start=0.354, unit="s", **positive,
                      description="sigma_c, the coupling's (visuo-proprioceptive) window: the sd of a touch's "
                                  "asynchrony under unity"),
-            Variable("counter_evidence_leak", "parameter", start=0.0, unit="1/s", min=0.0,
+            Variable("counter_evidence_leak", "parameter", start=0.106, unit="1/s", min=0.0,
                      description="kappa, the rate at which the touches' accumulated evidence about unity is "
                                  "forgotten"),
             Variable("stroke_period", "parameter", start=2.0, unit="s", **positive,
@@ -78,13 +79,13 @@ class OwnershipBrain(PerceptualNoise, BeliefBrain):
                      description="the body schema's upper arm (shoulder to elbow)"),
             Variable("forearm_length", "parameter", start=0.3694, unit="m", **positive,
                      description="the body schema's forearm (elbow to hand); the reach L is the two summed"),
-            Variable("switching_rate", "parameter", start=0.0, unit="1/s", min=0.0,
+            Variable("switching_rate", "parameter", start=0.0319, unit="1/s", min=0.0,
                      description="lambda = k_on + k_off of ownership's chain (0: evidence kept for good)"),
             Variable("realignment_weight", "parameter", start=0.39, unit="1", min=1e-6, max=1.0,
                      description="w0: the fraction of the way a seen arm pulls the felt one, proprioception rested"),
-            Variable("proprioceptive_fading_rate", "parameter", start=0.0, unit="1/s", min=0.0,
+            Variable("proprioceptive_fading_rate", "parameter", start=0.0597, unit="1/s", min=0.0,
                      description="phi: Sigma_p grows by phi Sigma_p0 per second while the arm rests (0: constant)"),
-            Variable("realignment_rate", "parameter", start=0.0, unit="1/s", min=0.0,
+            Variable("realignment_rate", "parameter", start=0.0394, unit="1/s", min=0.0,
                      description="k: the rate of the realignment b toward w rho (x_v - s_p)"),
             Variable("participant_seed", "parameter", "Integer", start=0, min=0, unit="1",
                      description="seeds this trial's perceptual timing noise"),
