@@ -28,7 +28,8 @@ from rhi.components.body.variants import KinematicArm
 from rhi.components.fmi_export.description_fmi3 import sizes, to_xml3
 from rhi.master.cosim import ConfigError
 from rhi.master.export.fmu_files import check_target
-from rhi.master.outputs.files import atomic_write, place_file
+from rhi.master.outputs.files import atomic_write
+from rhi.master.outputs.out_file import place_file
 
 SOURCE = Path(__file__).resolve().parents[2] / "bodies" / "kinematic_c" / "kinematic_arm.c"
 MODEL_IDENTIFIER = "KinematicArmC"  # the FMI model identifier, which names the shared library
