@@ -26,8 +26,9 @@ import numpy as np
 
 from .body_inference import hazard_predict, participants, posterior, spatial_likelihood_ratio, \
     timing_likelihood_ratio
-from .base import JOINT, STATE, BeliefBrain, BeliefRate, PerceptualNoise, add_goal_drive, pixel_inputs, \
-    require_finite
+from .action_law import add_goal_drive
+from .base import BeliefBrain, BeliefRate, PerceptualNoise, require_finite
+from .contract import JOINT, STATE, pixel_inputs
 from ..component import ComponentError, StepFailure
 from ..variables import Variable
 

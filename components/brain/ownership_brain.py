@@ -32,7 +32,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import JOINT, STATE, BeliefBrain, PerceptualNoise, BeliefRate, add_goal_drive
+from .action_law import add_goal_drive
+from .base import BeliefBrain, BeliefRate, PerceptualNoise
+from .contract import JOINT, STATE
 from .body_inference import hazard_predict, posterior
 from .ownership_inference import asynchrony_log_likelihood_ratio, coupling_belief, hand_separation, \
     ownership_belief, ownership_onset, relaxation_step, seen_hand, spatial_log_likelihood_ratio
