@@ -3,12 +3,15 @@
 Every ``import x`` and ``from x import y`` counts, at any depth (a lazy import inside a function too);
 a relative import is resolved against the file's package. The folders are installed as ``rhi.master`` and
 ``rhi.components``: the rules speak of ``master.x`` and ``components.x``, and an import of ``rhi.master.x``
-counts as one of ``master.x``. docs/architecture.md mirrors the table.
+counts as one of ``master.x`` (:func:`rhi.master.reference.imports.imports` reads them). docs/architecture.md
+mirrors the table and shows the floors' import graph that reading gives.
 """
 import ast
 from pathlib import Path
 
 import pytest
+
+from rhi.master.reference.imports import imports  # the one reading of imports, docs/architecture.md's graph's too
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -41,31 +44,6 @@ PROJECT = ("master", "components")  # top-level packages whose imports are check
 def within(module: str, prefixes) -> bool:
     """``module`` is one of ``prefixes`` or inside one (dotted boundaries)."""
     return any(module == p or module.startswith(p + ".") for p in prefixes)
-
-
-def folder_name(module: str) -> str:
-    """``rhi.master.x`` -> ``master.x``: the installed name of a module, as the folders name it."""
-    return module.removeprefix("rhi.") if module.split(".")[:2] in (["rhi", "master"], ["rhi", "components"]) \
-        else module
-
-
-def imports(relative: str, source: str):
-    """(line, what the import names, the module path it reaches) for every project import in a file."""
-    parts = relative[:-3].split("/")
-    package = parts[:-1]  # a module and a package's __init__ both live in their folder's package
-    for node in ast.walk(ast.parse(source, relative)):
-        if isinstance(node, ast.Import):
-            for alias in node.names:
-                yield node.lineno, f"import {alias.name}", folder_name(alias.name)
-        elif isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level:  # relative: from the file's package, one level up per extra dot
-                anchor = package[:len(package) - node.level + 1]
-                base = ".".join(anchor + ([base] if base else []))
-            for alias in node.names:
-                target = base if alias.name == "*" else f"{base}.{alias.name}"
-                yield (node.lineno, f"from {'.' * node.level}{node.module or ''} import {alias.name}",
-                       target if node.level else folder_name(target))
 
 
 def rank(layer: str) -> int:
