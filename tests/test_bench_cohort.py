@@ -84,7 +84,7 @@ def test_a_cohort_report_names_its_machine_and_prints_its_study_rows(monkeypatch
     monkeypatch.setattr(cohort, "measure", lambda model, batch, body, steps: {
         "model": model, "batch": batch, "body": body, "steps": steps, "us_per_participant_step": 1.0,
         "first_batch_us": 2.0, "shares": {"body": 1.0}})
-    monkeypatch.setattr(study_cost, "study_rows", lambda quick: [{
+    monkeypatch.setattr(study_cost, "study_rows", lambda steps, quick: [{
         "model": "paper", "participants": 2, "cells": 6, "batch": 12, "steps": 4, "study_cpu_s": 0.3,
         "trial_cpu_s": 0.02, "ratio": 1.25, "study_decoder_points": 9, "clone_decoder_points": 6}])
     report = cohort.cohort_report(quick=True, model_names=["paper"])

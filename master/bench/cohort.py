@@ -102,7 +102,7 @@ def cohort_report(quick: bool = False, model_names=None) -> dict:
     batches, steps = (QUICK_BATCHES, QUICK_STEPS) if quick else (BATCHES, STEPS)
     rows = [measure(model, batch, body, steps) for model in (model_names or models.names())
             for body in BODIES for batch in batches]
-    studies = study_rows(quick)
+    studies = study_rows(steps, quick)
     return {"cell": "/".join(CELL), "steps": steps, "rows": rows, "studies": studies,
             "machine": {"cpu": cpu_description()["model"], "usable_cores": available_cores(),
                         "load_average_before": load, "load_average_after": os.getloadavg()[0]}}

@@ -98,11 +98,9 @@ def study_cost(model: str, n: int, steps: int) -> dict:
             "study_decoder_points": study_points, "clone_decoder_points": clone_points}
 
 
-def study_rows(quick: bool = False) -> list[dict]:
-    """:func:`study_cost` for each of :data:`STUDY_MODELS` and study size."""
-    from rhi.master.bench.cohort import QUICK_STEPS, STEPS
-
-    sizes, steps = (QUICK_STUDY_SIZES, QUICK_STEPS) if quick else (STUDY_SIZES, STEPS)
+def study_rows(steps: int, quick: bool = False) -> list[dict]:
+    """:func:`study_cost` of ``steps`` steps for each of :data:`STUDY_MODELS` and study size."""
+    sizes = QUICK_STUDY_SIZES if quick else STUDY_SIZES
     return [study_cost(model, n, steps) for model in STUDY_MODELS for n in sizes]
 
 
