@@ -74,3 +74,14 @@ def test_the_default_body_leaves_the_trial_ids_of_a_configuration_without_the_ke
     assert [t.id for t in planned[0].trials] == [t.id for t in planned[1].trials]
     assert planned[0].fingerprint == planned[1].fingerprint
     assert not {t.id for t in planned[0].trials} & {t.id for t in planned[2].trials}
+
+
+def test_rhi_experiment_and_rhi_power_s_batches_take_the_configured_body_unless_one_is_given():
+    from rhi.master.tasks.illusion.runner import body_factory
+
+    base = configuration.load(quick=True)
+    batched = configuration.merge(base, {"experiment": {"body": "batched"}})
+    assert body_factory(None, base) == (None, None)  # the default: the task's own pymunk arm, as before the key
+    made, declared = body_factory(None, batched)
+    assert made is BatchedArm and declared == set(BatchedArm().variables)
+    assert body_factory("kinematic", batched)[0] is not BatchedArm  # --body wins over the configuration
