@@ -21,7 +21,7 @@ from rhi.master.decoders.cache import check_decoders, ensure_checkpoints, jacobi
 from rhi.master.tasks.illusion.fast_check import verdicts
 from rhi.master.runtime.pool import Workers, call
 from rhi.master.tasks.illusion.measures import end_of_trial
-from rhi.master.config import population
+from rhi.master.config import bodies, population
 from rhi.master.config.protocol import plan, rubber_pose
 from rhi.master.outputs import cohort, figures, tables
 from rhi.master.outputs.files import atomic_write, check_output, output_folder
@@ -135,6 +135,7 @@ def run_experiment(config: dict | None = None, body: str | None = None, context:
     began = time.perf_counter()
     config = configuration.load() if config is None else config
     context = context or RunContext()
+    body = body if body is not None else bodies.configured(config)  # --body, else experiment.body
     declared = checked_before_work(config, body, context.device)
     if workers is None:
         with Workers(1 if context.device != "cpu" else context.processes) as own:
