@@ -132,3 +132,41 @@ def test_a_batch_of_several_studies_gives_each_trial_its_participants_draws(tmp_
     for spec, trial in zip(chunk, built):
         drawn = population.cohort(sweep.configs[spec.point], [spec.index])["brain.gamma0"][0]
         assert dict(trial.overrides)["brain.gamma0"] == drawn != sweep.configs[spec.point]["brain"]["gamma0"]
+
+
+PROBES = """participant,condition,stimulation,drift_cm,drift_at_2s_cm,drift_at_2s_cm_sd,drift_cm_sd
+group,left,sync,-2.0,-0.5,0.3,1.5
+group,left,async,-0.1,-0.5,0.3,0.4
+"""
+
+
+def test_the_drift_read_within_the_trial_is_a_measure_whose_time_the_fit_reads(tmp_path):
+    """A probe column (drift_at_2s_cm, its _sd) is a measure: ordered after drift_cm, its spread after drift_cm_sd; the
+    fit's trials read the drift then (experiment.probe_times); a study's statistics are the hand mean and sd of the
+    probe's values in made-up records."""
+    from rhi.master.fit.plan import read_plan
+    from rhi.master.fit.simulate import participants_sweep, statistics
+
+    data = read_data(write(tmp_path / "p.csv", PROBES))
+    assert data.measures == ["drift_cm", "drift_at_2s_cm", "drift_cm_sd", "drift_at_2s_cm_sd"]
+    assert data.probe_times() == [2.0]
+    assert data.observed.tolist() == [[-0.1, -0.5, 0.4, 0.3, -2.0, -0.5, 1.5, 0.3]]
+    plan = read_plan(str(write(tmp_path / "fit.toml", FIT.format(participants=3).replace("steps = 5", "steps = 150"))),
+                     data)
+    assert plan.base["experiment"]["probe_times"] == [2.0] and plan.measures == data.measures
+    sweep = participants_sweep(plan, np.array([[np.log(0.05), 1.0]]), "test")
+    outcomes = {t.id: {"status": "ok", "outcome": {"drift_cm": -float(n), "drift_at_2s_cm": float(n) ** 2}}
+                for n, t in enumerate(sweep.trials)}
+    x = statistics(sweep, outcomes, data, plan.measures)
+    for cell, stimulation in enumerate(("async", "sync")):
+        probe = [outcomes[t.id]["outcome"]["drift_at_2s_cm"] for t in sweep.trials if t.stimulation == stimulation]
+        assert x[0, 4 * cell + 1] == pytest.approx(python.mean(probe), rel=1e-12)
+        assert x[0, 4 * cell + 3] == pytest.approx(python.stdev(probe), rel=1e-12)
+    for old, new, message in (("drift_at_2s_cm,", "drift_at_2.0s_cm,", "write the probe's time as 'drift_at_2s_cm'"),
+                              ("drift_at_2s_cm,drift_at_2s_cm_sd", "drift_at_3s_cm,drift_at_2s_cm_sd",
+                               "drift_at_2s_cm_sd without its measure"),
+                              ("drift_at_2s_cm,", "drift_at_2s_m,", "unknown column 'drift_at_2s_m'")):
+        with pytest.raises(ConfigError, match=message):
+            read_data(write(tmp_path / "bad.csv", PROBES.replace(old, new)))
+    with pytest.raises(ConfigError, match="beyond the trial"):  # 5 steps of 0.02 s: the trial ends at 0.1 s
+        read_plan(str(write(tmp_path / "short.toml", FIT.format(participants=3))), data)

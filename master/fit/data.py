@@ -7,7 +7,9 @@ Columns (docs/fit.md):
   ``offset_m`` (the rubber hand's lateral offset from the real hand, m); ``stimulation`` (a name of
   ``[stimulations]``) or ``delay_s`` (one fixed visuo-tactile delay after every touch, s); optionally
   ``time_s``, the trial's length (s), the same on every row;
-- the observed measures: ``drift_cm`` and optionally ``force_n`` (a trial outcome's final values);
+- the observed measures: ``drift_cm`` and optionally ``force_n`` (a trial outcome's final values) and the drift
+  read at times within the trial, ``drift_at_<t>s_cm`` (``drift_at_2s_cm``: a participant's pointing at 2 s; the
+  fit reads the simulated drift then, ``experiment.probe_times``);
 - optionally, beside a measure, its between-participant sd ``drift_cm_sd`` (``force_n_sd``): a group's row of a
   cell gives the group's mean and sd there, and a fit of group data simulates each draw as a study of
   ``fit.trials_per_cell`` participants of a ``[population]`` (docs/population.md), whose cell means and sds are
@@ -29,6 +31,7 @@ import difflib
 import io
 import math
 import os
+import re
 import stat
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from rhi.master.cosim import ConfigError
+from rhi.master.outputs.tables import probe_name
 
 MEASURES = ("drift_cm", "force_n")  # observed measures a fit can explain: trial outcomes of the same name
 NOISE = tuple(f"{measure}_sem" for measure in MEASURES)  # each measure's per-cell noise sd (its standard error)
@@ -43,6 +47,7 @@ SPREADS = tuple(f"{measure}_sd" for measure in MEASURES)  # a group's between-pa
 DESIGN = ("condition", "offset_m", "stimulation", "delay_s", "time_s")
 COLUMNS = ("participant", *DESIGN, *MEASURES, *SPREADS, *NOISE)
 NUMERIC = ("offset_m", "delay_s", "time_s", *MEASURES, *SPREADS, *NOISE)
+PROBE = re.compile(r"drift_at_(\d+(?:\.\d+)?)s_cm")  # the drift read at a time within the trial: probe_name
 MAX_NOISE_SD = 1000.0  # a noise sd, fit.noise.MEASURE or a MEASURE_sem value, in the measure's unit: docs/safety.md
 MAX_DATA_BYTES = 64 * 2**20  # a data file; a study's table is a few KiB
 
@@ -56,7 +61,7 @@ class Data:
     cells: list[tuple[str, str]]                # (condition, stimulation) names, sorted
     conditions: dict[str, float]                # offset_m columns' conditions: name -> offset (m); named: {}
     stimulations: dict[str, float]              # delay_s columns' stimulations: name -> fixed delay (s)
-    measures: list[str]                         # observed measures, in MEASURES order
+    measures: list[str]                         # observed measures, in measure_order
     observed: np.ndarray                        # (participants, cells x measures): cell means, cell-major
     counts: np.ndarray                          # (participants, cells): rows averaged per cell
     time_s: float | None                        # the trials' length, when the file gives it
@@ -81,6 +86,10 @@ class Data:
         return np.array([self.noise[m][n] if m in self.noise else default.get(m, 0.0)
                          for n in range(len(self.cells)) for m in measures], dtype=float)
 
+    def probe_times(self) -> list[float]:
+        """The times (s) within the trial at which the data read the drift (their ``drift_at_<t>s_cm`` columns)."""
+        return [probe_time(m) for m in self.measures if probe_time(m) is not None]
+
     def statistic_names(self) -> list[str]:
         """One name per column of ``observed``: ``drift_cm[left/sync]``."""
         return [f"{measure}[{condition}/{stimulation}]" for condition, stimulation in self.cells
@@ -97,12 +106,52 @@ def delay_name(delay: float) -> str:
     return f"delay_{delay:.6g}_s"
 
 
+def probe_time(column: str) -> float | None:
+    """The time (s) a probe measure's column reads the drift at (``drift_at_2s_cm``: 2.0), else None."""
+    found = PROBE.fullmatch(column)
+    return float(found.group(1)) if found else None
+
+
+def is_measure(column: str) -> bool:
+    """A measure a fit can explain: one of :data:`MEASURES` or a probe of the drift (``drift_at_2s_cm``)."""
+    return column in MEASURES or probe_time(column) is not None
+
+
+def spread_of(column: str) -> str | None:
+    """The measure whose between-participant sd the column gives (``drift_cm_sd``: ``drift_cm``), else None."""
+    base = column.removesuffix("_sd")
+    return base if base != column and is_measure(base) else None
+
+
+def noise_of(column: str) -> str | None:
+    """The measure whose observation noise's sd the column gives (``drift_cm_sem``: ``drift_cm``), else None."""
+    base = column.removesuffix("_sem")
+    return base if base != column and is_measure(base) else None
+
+
+def measure_order(columns) -> list[str]:
+    """The measures and spreads among ``columns`` in the statistics' order: :data:`MEASURES`, the probes by time,
+    then the spreads in the same order."""
+    means = [m for m in MEASURES if m in columns] + sorted((c for c in columns if probe_time(c) is not None),
+                                                           key=probe_time)
+    return means + [f"{m}_sd" for m in means if f"{m}_sd" in columns]
+
+
+def known_column(column: str) -> bool:
+    """A column read_data knows: :data:`COLUMNS`, a probe measure, its sd or its noise column."""
+    return column in COLUMNS or is_measure(column) or spread_of(column) is not None or noise_of(column) is not None
+
+
 def read_data(path: str | Path) -> Data:
     """Read and check FILE.csv (module notes); a ConfigError names the first problem, with its line."""
     rows, header = read_rows(path)
     name = Path(path).name
     for column in header:
-        if column not in COLUMNS:
+        base = column.removesuffix("_sd").removesuffix("_sem")
+        if probe_time(base) is not None and probe_name(probe_time(base)) != base:
+            raise ConfigError(f"{name}: column {column}: write the probe's time as {probe_name(probe_time(base))!r}, "
+                              "the name of the measure a trial gives")
+        if not known_column(column):
             close = difflib.get_close_matches(column, COLUMNS, n=1)
             raise ConfigError(f"{name}: unknown column {column!r}{f' (did you mean {close[0]!r}?)' if close else ''}; "
                               f"known: {', '.join(COLUMNS)}")
@@ -115,13 +164,13 @@ def read_data(path: str | Path) -> Data:
         if len(given) != 1:
             raise ConfigError(f"{name}: give exactly one of the columns {pair[0]} and {pair[1]}, got "
                               f"{', '.join(given) or 'neither'}")
-    measures = [m for m in (*MEASURES, *SPREADS) if m in header]
-    for column in SPREADS:
-        if column in header and column.removesuffix("_sd") not in header:
+    measures = measure_order(header)
+    for column in header:
+        if spread_of(column) is not None and spread_of(column) not in header:
             raise ConfigError(f"{name}: column {column} without its measure {column.removesuffix('_sd')} (a group's "
                               "between-participant sd beside its mean)")
-    for column in NOISE:
-        if column in header and column.removesuffix("_sem") not in header:
+    for column in header:
+        if noise_of(column) is not None and noise_of(column) not in header:
             raise ConfigError(f"{name}: column {column} without its measure {column.removesuffix('_sem')} (a noise "
                               "column gives the sd of that measure's observation noise)")
     if "drift_cm" not in measures:
@@ -137,7 +186,7 @@ def read_data(path: str | Path) -> Data:
             text = text.strip()
             if not text:
                 raise ConfigError(f"{name} line {line}: empty value in column {column}")
-            if column in NUMERIC:
+            if column in NUMERIC or is_measure(column) or spread_of(column) or noise_of(column):
                 try:
                     number = float(text)
                 except ValueError:
@@ -147,9 +196,9 @@ def read_data(path: str | Path) -> Data:
                 if column in ("delay_s", "time_s") and not (number >= 0 if column == "delay_s" else number > 0):
                     raise ConfigError(f"{name} line {line}: column {column} = {text} must be "
                                       f"{'>= 0' if column == 'delay_s' else 'positive'}")
-                if column in SPREADS and number < 0:
+                if spread_of(column) is not None and number < 0:
                     raise ConfigError(f"{name} line {line}: column {column} = {text} is an sd: it must be >= 0")
-                if column in NOISE and not 0 <= number <= MAX_NOISE_SD:
+                if noise_of(column) is not None and not 0 <= number <= MAX_NOISE_SD:
                     raise ConfigError(f"{name} line {line}: column {column} = {text} must be a standard error >= 0 "
                                       f"and at most {MAX_NOISE_SD:g} (in the measure's unit)")
                 record[column] = number

@@ -27,7 +27,7 @@ from rhi.master import config as configuration
 from rhi.master.config.sources import TASK_SOURCES, batchable_keys
 from rhi.master.models.base import config_key
 from rhi.master.config.sources import declared_range
-from rhi.master.fit.data import MAX_NOISE_SD, MEASURES, SPREADS, Data, check_against
+from rhi.master.fit.data import MAX_NOISE_SD, MEASURES, Data, check_against, is_measure, probe_time
 from rhi.master.fit.estimator_settings import ESTIMATOR_DEFAULTS, MAX_ESTIMATOR, MAX_LEARNING_RATE, read_estimator
 from rhi.master.fit.priors import (CALIBRATION_DESIGNS, MAX_SIMULATIONS, PRIORS, Parameter, draw_participants,
                                    draw_prior, simulation_seed)
@@ -213,13 +213,14 @@ def read_plan(path: str, data: Data, model: str | None = None) -> FitPlan:
     measures = settings.get("measures", data.measures)
     if not isinstance(measures, list) or not measures or any(m not in data.measures for m in measures):
         raise ConfigError(f"fit.measures = {measures!r} must list measures of the data file ({', '.join(data.measures)})")
-    measures = [m for m in (*MEASURES, *SPREADS) if m in measures]
+    measures = [m for m in data.measures if m in measures]  # the statistics' order (measure_order)
     noise = settings.get("noise", {})
     if not isinstance(noise, dict):
         raise ConfigError("fit.noise must be a table: measure = sd of the observation noise")
     for key, value in noise.items():
-        if key not in MEASURES:
-            raise configuration.unknown_key(f"fit.noise.{key}", MEASURES, "fit")
+        if not is_measure(key):
+            raise configuration.unknown_key(f"fit.noise.{key}", [*MEASURES, *(m for m in data.measures if
+                                                                             probe_time(m) is not None)], "fit")
         if key in data.noise:
             raise ConfigError(f"fit.noise.{key}: the data's column {key}_sem gives each cell's noise sd; give one of them")
         if not isinstance(value, (int, float)) or isinstance(value, bool) or not (math.isfinite(value) and value >= 0):
@@ -243,6 +244,8 @@ def with_design(config: dict, data: Data, trials: int) -> dict:
     config["experiment"]["conditions"] = sorted({c for c, _ in data.cells})
     config["experiment"]["stimulations"] = sorted({s for _, s in data.cells})
     config["experiment"]["trials"] = trials
+    if data.probe_times():  # the drift read when the data read it (checked against the trial's length below)
+        config["experiment"]["probe_times"] = sorted({*config["experiment"]["probe_times"], *data.probe_times()})
     if data.time_s is not None:
         steps = round(data.time_s / config["experiment"]["step_size"])
         if steps < 1 or abs(steps * config["experiment"]["step_size"] - data.time_s) > 1e-9 * max(1.0, data.time_s):

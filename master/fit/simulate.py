@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rhi.master.fit.data import SPREADS, Data
+from rhi.master.fit.data import Data, spread_of
 from rhi.master.fit.plan import FitPlan, simulation_seed
 from rhi.master.sweeps import plan as sweeps
 
@@ -74,10 +74,10 @@ class Pool:
 
 def statistics(sweep: sweeps.Sweep, records: dict[str, dict], data: Data, measures: list[str]) -> np.ndarray:
     """(participants, cells x measures): each simulated participant's cell means, NaN where a trial failed; a
-    group's spread (``drift_cm_sd``, :data:`rhi.master.fit.data.SPREADS`) is the sample sd (ddof 1) of the measure over
+    group's spread (``drift_cm_sd``, :func:`rhi.master.fit.data.spread_of`) is the sample sd (ddof 1) of the measure over
     the cell's trials, each trial one participant of the simulated study (a ``[population]``)."""
     cells = {cell: n for n, cell in enumerate(data.cells)}
-    bases = [m.removesuffix("_sd") if m in SPREADS else m for m in measures]
+    bases = [spread_of(m) or m for m in measures]
     values = np.full((len(sweep.points), len(data.cells), len(measures)), None, dtype=object)
     for trial in sweep.trials:
         cell = cells.get((trial.condition, trial.stimulation))
@@ -91,7 +91,7 @@ def statistics(sweep: sweeps.Sweep, records: dict[str, dict], data: Data, measur
     result = np.full(values.shape, np.nan)
     for index in np.ndindex(values.shape):
         given = np.asarray(values[index] or [np.nan], dtype=float)
-        if measures[index[2]] in SPREADS:
+        if spread_of(measures[index[2]]) is not None:
             result[index] = given.std(ddof=1) if given.size > 1 else np.nan
         else:  # summed in trial order, then divided: the bits of the sums this function always made
             result[index] = sum(given.tolist()) / given.size
