@@ -81,10 +81,10 @@ def run(args) -> int:
               f"stimulations x {config['experiment']['trials']} trials x {config['experiment']['steps']} steps")
     from rhi.components.vision.component import resolve_device
     from rhi.master.runtime.context import RunContext
-    from rhi.master.tasks.illusion.publish import run_into
+    from rhi.master.tasks import TASKS, run_into
 
-    failures = run_into(args.out, config, args.body,
-                        RunContext.of(args, progress=True, device=resolve_device(args.device)))
+    failures = run_into(TASKS["illusion"].with_body(args.body), args.out, config,
+                        RunContext.of(args, progress=True, device=resolve_device(args.device))).failures
     for trial, error in failures.items():
         log.error(f"rhi experiment: trial failed and left out: {trial.decoder}/{trial.condition}/{trial.stimulation} "
                   f"trial {trial.index}: {error}")

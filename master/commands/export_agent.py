@@ -53,7 +53,7 @@ def load(args) -> dict:
     """The task's configuration: defaults (and master/reach.toml for the reach), --quick, --config, and
     --checkpoint for the --decoder it belongs to."""
     from rhi.master.cosim import ConfigError
-    from rhi.master.export.tasks import task
+    from rhi.master.tasks import exportable as task
 
     if args.checkpoint and not args.decoder:
         raise ConfigError("--checkpoint needs --decoder (conv or vae): the kind of decoder it holds")

@@ -190,10 +190,10 @@ PORTS = ["port", "causality", "type", "unit", "range", "start", "meaning"]
 
 
 def agent_ports(task: str = "illusion") -> str:
-    """The ports of ``task``'s agent (``rhi.master.export.tasks``), under the task's default configuration."""
+    """The ports of ``task``'s agent (:func:`rhi.master.tasks.exportable`), under the task's default configuration."""
     from rhi.master.decoders.cache import checkpoint_path
     from rhi.master.export.agent_fmu import make_agent
-    from rhi.master.export.tasks import TASKS
+    from rhi.master.tasks import TASKS
 
     defaults = TASKS[task].load(None, {}, False)
     agent = make_agent(checkpoint_path("conv", defaults, must_exist=True), "conv", defaults, task)

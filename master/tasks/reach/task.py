@@ -53,9 +53,14 @@ class ReachTrial:
 
 
 # -- configuration -----------------------------------------------------------------------------------------
+def settings_path():
+    """The reach's settings file, master/reach.toml."""
+    return resources.files("rhi.master").joinpath("reach.toml")
+
+
 def task() -> dict:
     """master/reach.toml: the task's own table [reach] (and its [quick]), and the keys it changes elsewhere."""
-    with resources.files("rhi.master").joinpath("reach.toml").open("rb") as file:
+    with settings_path().open("rb") as file:
         return tomllib.load(file)
 
 
