@@ -29,6 +29,7 @@ class Illusion(Task):
     summary = "the paper's protocol: the hidden arm held, the rubber arm seen and touched, in time or late"
     command = "rhi experiment"
     body = None
+    own_settings: dict = {}  # a task built on this one: its new tables and their defaults (examples/my_task.py)
     # the FMI export hooks
     agent, model_name = "rhi.master.export.agent:Agent", "RubberHandAgent"  # the component; the FMI model identifier
     system_name, system_description = "RubberHandIllusion", "the rubber-hand agent and a body"
@@ -41,8 +42,17 @@ class Illusion(Task):
         return task
 
     def load(self, path=None, overrides: dict | None = None, quick: bool = False, model_name: str = "paper") -> dict:
-        """The experiment's configuration (:func:`rhi.master.config.load`)."""
-        return configuration.load(path, overrides or {}, quick=quick, model_name=model_name)
+        """The experiment's configuration (:func:`rhi.master.config.load`), with :attr:`own_settings`' tables (the file
+        and ``overrides`` may set their keys)."""
+        if not self.own_settings:
+            return configuration.load(path, overrides or {}, quick=quick, model_name=model_name)
+        config = {**configuration.load(None, {}, quick=quick, model_name=model_name),
+                  **copy.deepcopy(self.own_settings)}
+        if path is not None:
+            config = configuration.merge(config, configuration.read_toml(path))
+        config = configuration.merge(config, configuration.nest(overrides or {}))
+        configuration.validate(config)
+        return config
 
     def plan(self, config: dict) -> list[Trial]:
         return plan(config)
@@ -59,6 +69,20 @@ class Illusion(Task):
 
     def measures(self, result, config: dict, trials: list) -> dict:
         return measures(result, models.of(config))
+
+    def outcome(self, config: dict, trial: Trial) -> dict:
+        """One trial alone (a sweep's trial of this task): its end-of-trial values, ``{name: float}`` (drift_cm,
+        force_n, gamma_final, and every other measure's), through :meth:`scenario`, :meth:`parameters` and
+        :meth:`measures`."""
+        from rhi.master.tasks.illusion.measures import end_of_trial
+        from rhi.master.tasks.scene import run as run_scenario
+
+        result = run_scenario(self.scenario(config, trial.decoder, [trial]), config,
+                              lambda system: self.parameters([trial], config, system), 1, trials=[trial])
+        final = end_of_trial(result.times, self.measures(result, config, [trial]),
+                             config["experiment"]["probe_times"])
+        renamed = {"force_x_n": "force_n", "gamma": "gamma_final"}
+        return {renamed.get(key, key): float(np.asarray(values)[0]) for key, values in final.items()}
 
     def check_before_work(self, config: dict, context) -> None:
         from rhi.master.tasks.illusion.publish import checked_before_work
