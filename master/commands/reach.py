@@ -15,8 +15,8 @@ log = logging.getLogger("rhi.reach")
 
 def add_arguments(parser) -> None:
     """Add `rhi reach`'s arguments to ``parser``."""
-    parser.add_argument("--config", metavar="FILE", help="TOML file overriding master/defaults.toml and "
-                                                         "master/reach.toml (reach.goals, reach.ranges, ...)")
+    parser.add_argument("--config", metavar="FILE", help="TOML file overriding master/config/defaults.toml and "
+                                                         "master/tasks/reach/reach.toml (reach.goals, reach.ranges, ...)")
     add_model(parser)
     parser.add_argument("--quick", action="store_true", help="a small version, for smoke tests (tiny decoders "
                                                              "at 32 px, 2 near goals, 500 steps)")

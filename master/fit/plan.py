@@ -1,6 +1,6 @@
 """FIT.toml: which parameters to fit, their priors, the simulations and the estimator; the prior sampled.
 
-A fit file is an ordinary configuration file (any tables of ``master/defaults.toml``, fixed for every
+A fit file is an ordinary configuration file (any tables of ``master/config/defaults.toml``, fixed for every
 simulation) plus a ``[fit]`` table (docs/fit.md)::
 
     [fit]

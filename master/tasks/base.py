@@ -21,9 +21,9 @@ from __future__ import annotations
 
 import json
 import re
+import sys
 import time
 from dataclasses import dataclass, field
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -130,12 +130,9 @@ class Task:
         return method != "tables" and type(self).simulate is not Task.simulate
 
     def settings_file(self) -> str:
-        """Its settings file's path: :attr:`settings` beside the module that defines the class."""
-        module = type(self).__module__
-        if module.startswith("rhi."):
-            return str(resources.files(module.rpartition(".")[0]).joinpath(self.settings))
-        import sys
-        return str(Path(sys.modules[module].__file__).parent / self.settings)
+        """Its settings file's path: :attr:`settings` beside the module of the class that declares it."""
+        declaring = next(cls for cls in type(self).__mro__ if "settings" in vars(cls))
+        return str(Path(sys.modules[declaring.__module__].__file__).parent / self.settings)
 
     @property
     def exportable(self) -> bool:

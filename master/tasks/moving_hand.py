@@ -92,9 +92,9 @@ def simulate_delays(config: dict, kind: str, path: str):
 
 
 def shipped_file() -> Path:
-    """The shipped protocol file, master/phenomena/moving_hand.toml."""
+    """The shipped protocol file, master/tasks/moving_hand.toml."""
     from importlib import resources
-    return Path(str(resources.files("rhi.master.phenomena").joinpath("moving_hand.toml")))
+    return Path(str(resources.files("rhi.master.tasks").joinpath("moving_hand.toml")))
 
 
 def load(path=None, model_name: str = "paper") -> dict:
@@ -182,9 +182,7 @@ class MovingHand(Task):
     name = NAME
     summary = "the free arm swinging, the rubber arm repeating the movement after a delay, no touch"
     command = f"rhi phenomenon {NAME}"
-
-    def settings_file(self) -> str:
-        return str(shipped_file())
+    settings = "moving_hand.toml"
 
     def load(self, path=None, overrides: dict | None = None, quick: bool = False, model_name: str = "paper") -> dict:
         """:func:`load` (``quick`` does not apply: the protocol's file sets its size), then ``overrides``."""

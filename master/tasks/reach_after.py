@@ -87,9 +87,9 @@ def simulate_trials(config: dict, kind: str, path: str):
 
 
 def shipped_file() -> Path:
-    """The shipped protocol file, master/phenomena/reach_after.toml."""
+    """The shipped protocol file, master/tasks/reach_after.toml."""
     from importlib import resources
-    return Path(str(resources.files("rhi.master.phenomena").joinpath("reach_after.toml")))
+    return Path(str(resources.files("rhi.master.tasks").joinpath("reach_after.toml")))
 
 
 def load(path=None, model_name: str = "paper") -> dict:
@@ -184,9 +184,7 @@ class ReachAfter(Task):
     name = NAME
     summary = "the illusion's trial, then a reach to a target once the touches stop"
     command = f"rhi phenomenon {NAME}"
-
-    def settings_file(self) -> str:
-        return str(shipped_file())
+    settings = "reach_after.toml"
 
     def load(self, path=None, overrides: dict | None = None, quick: bool = False, model_name: str = "paper") -> dict:
         """:func:`load` (``quick`` does not apply: the protocol's file sets its size), then ``overrides``."""

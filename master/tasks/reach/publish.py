@@ -101,9 +101,6 @@ class Reach(Task):
     system_name, system_description = "RubberHandReach", "the reach agent and a free body"
     trial_form = "BAND/INDEX, e.g. near/0"
 
-    def settings_file(self) -> str:
-        return str(reach.settings_path())
-
     def load(self, path=None, overrides: dict | None = None, quick: bool = False, model_name: str = "paper") -> dict:
         """The reach's configuration (:func:`rhi.master.tasks.reach.task.load`)."""
         return reach.load(path, quick=quick, model_name=model_name, overrides=overrides)
