@@ -36,6 +36,6 @@ def run(args) -> int:
     from rhi.master.tasks import run_into
 
     result = run_into(task, args.out, config, RunContext.of(args, progress=True, device=resolve_device(args.device)))
-    written = sorted(path.name for path in Path(args.out).iterdir())
+    written = sorted(path.name for path in Path(args.out).iterdir() if not path.name.startswith("."))
     print(f"rhi run {args.task}: wrote {args.out}: {', '.join(written)} ({time.perf_counter() - started:.0f} s)")
     return 1 if result.failures else 0

@@ -31,7 +31,7 @@ import numpy as np
 from rhi.components.body import kinematics
 from rhi.components.component import Component, ComponentError, StepFailure
 from rhi.components.variables import Variable
-from rhi.master.cosim import Connection, SimulationError, Session, System
+from rhi.master.cosim import SimulationError, Session, System
 from rhi.master.tasks.illusion import wiring
 from rhi.master.config.protocol import make_trial
 from rhi.master.config import sources as parameter_sources

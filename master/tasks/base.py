@@ -268,12 +268,14 @@ def run(task: Task, config: dict | None = None, context: RunContext | None = Non
 
 
 def run_into(task: Task, out, config: dict, context: RunContext | None = None) -> TaskResult:
-    """Run ``task`` and write DIR = ``out`` (:meth:`TaskResult.write`), the folder checked before any work."""
+    """Run ``task`` and write DIR = ``out`` as :meth:`TaskResult.write` does; the folder is checked and its staging
+    folder made before any work (a folder that cannot be written is refused before the run, not after it)."""
     from rhi.master.runtime.pool import Workers
 
     context = context or RunContext()
     check_output(out, context.force)
-    with Workers(1 if context.device != "cpu" else context.processes) as workers:
+    with output_folder(out, context.force) as staging, \
+            Workers(1 if context.device != "cpu" else context.processes) as workers:
         result = run(task, config, context, workers)
-        result.write(out, context.force, workers)
+        result.write_files(Path(staging), workers)
     return result

@@ -97,8 +97,9 @@ def shipped_file() -> Path:
     return Path(str(resources.files("rhi.master.tasks").joinpath("moving_hand.toml")))
 
 
-def load(path=None, model_name: str = "paper") -> dict:
-    """The defaults, the model, and the protocol's [moving_hand] table (and any other keys of the file) over them."""
+def load(path=None, model_name: str = "paper", overrides: dict | None = None) -> dict:
+    """The defaults, the model, and the protocol's [moving_hand] table (and any other keys of the file) over them,
+    then ``overrides`` (``{"moving_hand.delays": [0.0]}``); checked."""
     given = configuration.read_toml(path if path is not None else shipped_file())
     protocol = given.pop("moving_hand", None)
     if not isinstance(protocol, dict):
@@ -108,6 +109,7 @@ def load(path=None, model_name: str = "paper") -> dict:
     config.pop("quick")
     config = configuration.with_model(config, model_name)
     config = configuration.merge({**config, "moving_hand": shipped}, {"moving_hand": protocol, **given})
+    config = configuration.merge(config, configuration.nest(overrides or {}))
     population.refuse_in(config, "rhi phenomenon moving-hand")
     configuration.validate(config)
     moving = config["moving_hand"]
@@ -185,12 +187,8 @@ class MovingHand(Task):
     settings = "moving_hand.toml"
 
     def load(self, path=None, overrides: dict | None = None, quick: bool = False, model_name: str = "paper") -> dict:
-        """:func:`load` (``quick`` does not apply: the protocol's file sets its size), then ``overrides``."""
-        config = load(path, model_name)
-        if overrides:
-            config = configuration.merge(config, configuration.nest(overrides))
-            configuration.validate(config)
-        return config
+        """:func:`load` (``quick`` does not apply: the protocol's file sets its size)."""
+        return load(path, model_name, overrides)
 
     def plan(self, config: dict) -> list[Delay]:
         delays = list(config["moving_hand"]["delays"])

@@ -92,9 +92,9 @@ def shipped_file() -> Path:
     return Path(str(resources.files("rhi.master.tasks").joinpath("reach_after.toml")))
 
 
-def load(path=None, model_name: str = "paper") -> dict:
+def load(path=None, model_name: str = "paper", overrides: dict | None = None) -> dict:
     """The defaults, the model, the file's [reach_after] table and its other keys over them (the shipped file's
-    first)."""
+    first), then ``overrides`` (``{"reach_after.release": 1.0}``); checked."""
     config = configuration.defaults()
     config.pop("quick")
     config = configuration.with_model(config, model_name)
@@ -102,6 +102,7 @@ def load(path=None, model_name: str = "paper") -> dict:
     config = configuration.merge({**config, "reach_after": shipped.pop("reach_after")}, shipped)
     if path is not None:
         config = configuration.merge(config, configuration.read_toml(path))
+    config = configuration.merge(config, configuration.nest(overrides or {}))
     configuration.validate(config)
     after, step = config["reach_after"], config["experiment"]["step_size"]
     for key in ("release", "window", "precision_ratio"):
@@ -187,12 +188,8 @@ class ReachAfter(Task):
     settings = "reach_after.toml"
 
     def load(self, path=None, overrides: dict | None = None, quick: bool = False, model_name: str = "paper") -> dict:
-        """:func:`load` (``quick`` does not apply: the protocol's file sets its size), then ``overrides``."""
-        config = load(path, model_name)
-        if overrides:
-            config = configuration.merge(config, configuration.nest(overrides))
-            configuration.validate(config)
-        return config
+        """:func:`load` (``quick`` does not apply: the protocol's file sets its size)."""
+        return load(path, model_name, overrides)
 
     def plan(self, config: dict) -> list:
         return plan(config)

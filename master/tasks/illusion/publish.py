@@ -126,19 +126,9 @@ def run_experiment(config: dict | None = None, body: str | None = None, context:
         result = run_experiment(config.load(quick=True, model_name="causal"))
         result.final["drift_cm"]         # (trials,) cm
     """
-    from rhi.master import config as configuration
+    from rhi.master.tasks import TASKS, run
 
-    began = time.perf_counter()
-    config = configuration.load() if config is None else config
-    context = context or RunContext()
-    declared = checked_before_work(config, body, context.device)
-    if workers is None:
-        with Workers(1 if context.device != "cpu" else context.processes) as own:
-            result = simulate_protocol(config, body, context, own, declared)
-    else:
-        result = simulate_protocol(config, body, context, workers, declared)
-    result.began = began
-    return result
+    return run(TASKS["illusion"].with_body(body), config, context, workers)
 
 
 def checked_before_work(config: dict, body: str | None, device: str):

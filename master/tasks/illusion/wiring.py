@@ -4,8 +4,6 @@ Its parameters come from :mod:`rhi.master.config.sources` (their table and value
 """
 from __future__ import annotations
 
-import numpy as np
-
 from rhi.components.body.camera import Camera
 from rhi.components.body.plant import ArmPlant
 from rhi.components.body.rubber_arm import RubberArm

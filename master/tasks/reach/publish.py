@@ -12,7 +12,6 @@ from rhi.master.cosim import ConfigError, SimulationError
 from rhi.master.tasks.reach import task as reach
 from rhi.master.decoders.cache import check_decoders, ensure_checkpoints
 from rhi.master.decoders.cache import pose_encoder_path
-from rhi.master.runtime.context import RunContext
 from rhi.master.runtime.pool import JOB_THREADS, Workers, run_jobs
 from rhi.master.tasks.illusion.runner import bar_positions, step_bar, without_failures
 from rhi.master.outputs import tables
