@@ -138,7 +138,7 @@ def test_a_task_refused_on_the_command_line_is_exit_2_and_one_line(tmp_path, cap
     """An unknown task (rhi run), and one without export hooks (export-agent --task): one line, exit 2, no file."""
     for command, message in ((["run", "nope", "--out", str(tmp_path / "out")], "task 'nope' is unknown"),
                              (["export-agent", "--quick", "--task", "moving-hand", "--out", str(tmp_path / "A.fmu")],
-                              "cannot be exported")):
+                              "--task 'moving-hand' is not one of illusion, reach")):
         assert main(command) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and message in err[0], err

@@ -77,13 +77,18 @@ def get(name: str) -> Task:
 
 
 def exportable(name: str) -> Task:
-    """:func:`get`, refused in one line unless the task has the FMI export hooks (``--task`` of the exporters)."""
-    task = get(name)
-    if not task.exportable:
-        able = [known for known in names() if known in BUILT_IN and get(known).exportable]
-        raise ConfigError(f"--task {name!r} cannot be exported as an agent (it has no export hooks); "
-                          f"exportable: {', '.join(able)}")
-    return task
+    """The registered task ``name`` if it has the FMI export hooks (the exporters' ``--task``; an agent FMU names its
+    task, so a task of one's own by path is not one); else a ConfigError of one line naming those that have."""
+    able = []
+    for known in names():
+        try:
+            if get(known).exportable:
+                able.append(known)
+        except ConfigError:  # a broken plug-in breaks only a run that uses it
+            continue
+    if name not in able:
+        raise ConfigError(f"--task {name!r} is not one of {', '.join(able)} (the tasks an agent FMU can carry)")
+    return get(name)
 
 
 def described() -> str:
