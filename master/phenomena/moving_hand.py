@@ -22,6 +22,7 @@ class MovingHand(task.MovingHand):
     """The moving-hand task with its figure beside the human references (moving_hand.png)."""
 
     def figures(self, result: TaskResult, folder) -> list[str]:
+        """moving_hand.png: drift and gamma relative to 0 s against the delay, beside the human references."""
         from rhi.master.outputs.figures import save
         save(figure(result.config, self.found(result)), folder / "moving_hand.png")
         return ["moving_hand.png"]

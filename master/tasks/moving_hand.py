@@ -191,14 +191,17 @@ class MovingHand(Task):
         return load(path, model_name, overrides)
 
     def plan(self, config: dict) -> list[Delay]:
+        """A :class:`Delay` per decoder and ``moving_hand.delays`` entry, each with its seed."""
         delays = list(config["moving_hand"]["delays"])
         return [Delay(kind, delay, seed) for kind in config["experiment"]["decoders"]
                 for delay, seed in zip(delays, seeds(config, delays))]
 
     def scenario(self, config: dict, kind: str, trials=(), checkpoint: str | None = None) -> Scenario:
+        """The moving-hand system of decoder ``kind`` (:func:`scenario`)."""
         return scenario(config, kind, checkpoint or checkpoint_path(kind, config, must_exist=True))
 
     def parameters(self, trials: list, config: dict, system) -> dict:
+        """The system's parameters for the trials' delays (:func:`parameters`)."""
         return declared(parameters(config, [trial.delay for trial in trials]), system)
 
     def measures(self, result, config: dict, trials: list) -> dict:
@@ -224,4 +227,5 @@ class MovingHand(Task):
                        for key, values in result.per_step.items()} for kind in kinds}
 
     def tables(self, result: TaskResult) -> dict:
+        """moving_hand.csv: drift and gamma per decoder and delay, and each relative to 0 s (:func:`rows`)."""
         return {"moving_hand.csv": tables.csv_text(COLUMNS, rows(result.config, self.found(result)))}

@@ -192,12 +192,15 @@ class ReachAfter(Task):
         return load(path, model_name, overrides)
 
     def plan(self, config: dict) -> list:
+        """The illusion protocol's trials (:func:`rhi.master.config.protocol.plan`)."""
         return plan(config)
 
     def scenario(self, config: dict, kind: str, trials=(), checkpoint: str | None = None):
+        """The reach-after system of decoder ``kind`` (:func:`scenario`)."""
         return scenario(config, kind, checkpoint or checkpoint_path(kind, config, must_exist=True))
 
     def parameters(self, trials: list, config: dict, system) -> dict:
+        """The trials' parameters and the target's (:func:`parameters`)."""
         return parameters(trials, config, system)
 
     def measures(self, result, config: dict, trials: list) -> dict:
@@ -218,6 +221,7 @@ class ReachAfter(Task):
         return TaskResult(self, config, trials, None, per_trial, provenance)
 
     def tables(self, result: TaskResult) -> dict:
+        """reach_after.csv: per decoder x condition x stimulation, drift at release and endpoint bias (:func:`rows`)."""
         kinds = list(dict.fromkeys(trial.decoder for trial in result.trials))
         found = []
         for kind in kinds:

@@ -56,6 +56,7 @@ class ExperimentResult(TaskResult):
         write_figures(self, staging, workers, with_trials=True)
 
     def write_figures(self, staging, workers=None) -> list[str]:
+        """None here: the figures are written with trials.csv, side by side (:meth:`write_tables`)."""
         return []  # written with trials.csv (write_tables)
 
 

@@ -55,9 +55,12 @@ class Illusion(Task):
         return config
 
     def plan(self, config: dict) -> list[Trial]:
+        """The protocol's trials (:func:`rhi.master.config.protocol.plan`)."""
         return plan(config)
 
     def scenario(self, config: dict, kind: str, trials=(), checkpoint: str | None = None):
+        """The rubber-hand system of decoder ``kind`` (:func:`rhi.master.tasks.illusion.wiring.scenario`), the
+        native body."""
         from rhi.master.decoders.cache import checkpoint_path, decoder_component
         from rhi.master.runtime.pool import JOB_THREADS
 
@@ -65,9 +68,12 @@ class Illusion(Task):
         return wiring.scenario(decoder_component(kind, path, config, threads=JOB_THREADS), config, trials=trials)
 
     def parameters(self, trials: list, config: dict, system) -> dict:
+        """The trials' parameters that the system declares
+        (:func:`rhi.master.tasks.illusion.wiring.system_parameters`)."""
         return wiring.system_parameters(trials, config, system)
 
     def measures(self, result, config: dict, trials: list) -> dict:
+        """Drift, force, gamma and the others per step (:func:`rhi.master.tasks.illusion.measures.measures`)."""
         return measures(result, models.of(config))
 
     def outcome(self, config: dict, trial: Trial) -> dict:
@@ -85,6 +91,7 @@ class Illusion(Task):
         return {renamed.get(key, key): float(np.asarray(values)[0]) for key, values in final.items()}
 
     def check_before_work(self, config: dict, context) -> None:
+        """The decoders' checkpoints or training settings, the model's pose encoders, the body FMU."""
         from rhi.master.tasks.illusion.publish import checked_before_work
         checked_before_work(config, self.body, context.device)
 
@@ -106,6 +113,7 @@ class Illusion(Task):
         return table_texts(result)
 
     def figures(self, result, folder) -> list[str]:
+        """figures/: the panels, the Jacobian images, a trial's animation (a cohort's strips)."""
         from rhi.master.tasks.illusion.publish import write_figures
         return write_figures(result, folder, None)
 

@@ -105,19 +105,24 @@ class Reach(Task):
         return reach.load(path, quick=quick, model_name=model_name, overrides=overrides)
 
     def plan(self, config: dict) -> list:
+        """Every reach (:func:`rhi.master.tasks.reach.task.plan`)."""
         return reach.plan(config)
 
     def scenario(self, config: dict, kind: str, trials=(), checkpoint: str | None = None):
+        """The reach system of decoder ``kind`` (:func:`rhi.master.tasks.reach.task.scenario`)."""
         from rhi.master.decoders.cache import checkpoint_path
         return reach.scenario(kind, checkpoint or checkpoint_path(kind, config, must_exist=True), config, JOB_THREADS)
 
     def parameters(self, trials: list, config: dict, system) -> dict:
+        """The reaches' parameters (:func:`rhi.master.tasks.reach.task.parameters`)."""
         return reach.parameters(trials, config, system)
 
     def measures(self, result, config: dict, trials: list) -> dict:
+        """The hand, its distance to the goal and more per step (:func:`rhi.master.tasks.reach.task.measures`)."""
         return reach.measures(result)
 
     def check_before_work(self, config: dict, context) -> None:
+        """The decoders' checkpoints or training settings, and the pose encoders the wiring reads."""
         check_decoders(config)
         for kind in config["experiment"]["decoders"]:  # the encoders and the wiring, before any work
             if reach.attractor(config) == "body" or models.of(config).sees_pose:
@@ -170,6 +175,7 @@ class Reach(Task):
                                           result.config["reach"]["record_every"])}
 
     def figures(self, result: TaskResult, folder) -> list[str]:
+        """figures/: the reaches' paths and distances (:func:`rhi.master.tasks.reach.figures.write_figures`)."""
         from rhi.master.tasks.reach.figures import write_figures
 
         (folder / "figures").mkdir()
