@@ -1,8 +1,8 @@
 """A task of one's own, in one file: the rubber arm moved further from the real hand in the middle of a trial.
 
-The paper's protocol (any model, any condition), but at ``moved_arm.move_time_s`` (60 s) the rubber arm jumps
-``moved_arm.shift_cm`` (10 cm) further from the real hand, along x, away from it. The drift is read just before
-the move and at the end: does the belief follow the arm it now sees farther away? Run it as any task::
+The paper's protocol (any model, any condition), its trials 120 s long, but at ``moved_arm.move_time_s`` (60 s) the
+rubber arm jumps ``moved_arm.shift_cm`` (10 cm) further from the real hand, along x, away from it. The drift is read
+just before the move and at the end: does the belief follow the arm it now sees farther away? Run it as any task::
 
     rhi run examples/my_task.py:MovedArm --model causal --out moved
     rhi.run("examples/my_task.py:MovedArm", model="causal")        # in memory: .tables()["drift.csv"]
@@ -17,6 +17,7 @@ import pandas as pd
 
 from rhi.components.body.rubber_arm import RubberArm
 from rhi.components.variables import Variable
+from rhi.master.cosim import ConfigError
 from rhi.master.tasks.base import Task
 from rhi.master.tasks.illusion.task import Illusion
 
@@ -48,9 +49,19 @@ class MovedArm(Illusion):
     name = "moved-arm"
     summary = "the rubber arm moved 10 cm further from the real hand mid-trial; the drift before and after"
     command = ""
-    own_settings = {"moved_arm": {"move_time_s": 60.0, "shift_cm": 10.0}}
+    own_settings = {"moved_arm": {"move_time_s": 60.0, "shift_cm": 10.0},
+                    "experiment": {"steps": 6000}}  # 120 s of 0.02 s steps: 60 s before the move, 60 s after
     simulate = Task.simulate  # the generic run: each decoder's trials in one lockstep batch
     figures = Task.figures   # no figures
+
+    def load(self, path=None, overrides=None, quick=False, model_name="paper"):
+        """The illusion's configuration with [moved_arm]; the move must fall inside the trial."""
+        config = super().load(path, overrides, quick, model_name)
+        length = config["experiment"]["steps"] * config["experiment"]["step_size"]
+        if not 0 < config["moved_arm"]["move_time_s"] < length:
+            raise ConfigError(f"moved_arm.move_time_s = {config['moved_arm']['move_time_s']:g} s must fall inside the "
+                              f"trial (0 to {length:g} s = experiment.steps x step_size)")
+        return config
 
     def scenario(self, config, kind, trials=(), checkpoint=None):
         scenario = super().scenario(config, kind, trials, checkpoint)

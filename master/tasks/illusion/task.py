@@ -29,7 +29,7 @@ class Illusion(Task):
     summary = "the paper's protocol: the hidden arm held, the rubber arm seen and touched, in time or late"
     command = "rhi experiment"
     body = None
-    own_settings: dict = {}  # a task built on this one: its new tables and their defaults (examples/my_task.py)
+    own_settings: dict = {}  # a task built on this one: its new tables, and keys it changes (examples/my_task.py)
     # the FMI export hooks
     agent, model_name = "rhi.master.export.agent:Agent", "RubberHandAgent"  # the component; the FMI model identifier
     system_name, system_description = "RubberHandIllusion", "the rubber-hand agent and a body"
@@ -42,12 +42,13 @@ class Illusion(Task):
         return task
 
     def load(self, path=None, overrides: dict | None = None, quick: bool = False, model_name: str = "paper") -> dict:
-        """The experiment's configuration (:func:`rhi.master.config.load`), with :attr:`own_settings`' tables (the file
-        and ``overrides`` may set their keys)."""
+        """The experiment's configuration (:func:`rhi.master.config.load`), with :attr:`own_settings` over it (its new
+        tables added, its keys of existing ones merged), then the file and ``overrides``."""
         if not self.own_settings:
             return configuration.load(path, overrides or {}, quick=quick, model_name=model_name)
-        config = {**configuration.load(None, {}, quick=quick, model_name=model_name),
-                  **copy.deepcopy(self.own_settings)}
+        base, own = configuration.load(None, {}, quick=quick, model_name=model_name), copy.deepcopy(self.own_settings)
+        config = configuration.merge({**base, **{table: values for table, values in own.items() if table not in base}},
+                                     {table: values for table, values in own.items() if table in base})
         if path is not None:
             config = configuration.merge(config, configuration.read_toml(path))
         config = configuration.merge(config, configuration.nest(overrides or {}))
