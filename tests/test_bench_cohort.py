@@ -55,3 +55,40 @@ def test_cohort_with_training_or_a_checkpoint_is_refused(tmp_path):
     for extra in (["--training"], ["--checkpoint", str(tmp_path / "x.pt")]):
         with pytest.raises(ConfigError, match="--cohort measures"):
             run_bench(build_parser().parse_args(["bench", "--cohort", *extra]))
+
+
+def test_a_study_row_sets_a_population_of_distinct_participants_against_as_many_clone_trials():
+    from rhi.master import config as configuration
+    from rhi.master.bench import study_cost
+    from rhi.master.config.protocol import plan
+    from rhi.master.models.ownership import FREE_PARAMETERS
+
+    row = study_cost.study_cost("ownership", 2, 2)
+    config = configuration.load(model_name="ownership", overrides={"experiment.decoders": ["conv"]})
+    cells = len(config["experiment"]["conditions"]) * len(config["experiment"]["stimulations"])
+    assert (row["participants"], row["cells"], row["batch"]) == (2, cells, 2 * cells)
+    # the ratio is the two batches' CPU, as the row's own columns give it
+    assert row["ratio"] == pytest.approx(row["study_cpu_s"] / (row["trial_cpu_s"] * row["batch"]), rel=1e-12)
+    assert row["study_decoder_points"] is None  # the ownership model reads no pixel term
+    # every free parameter varies within its prior's range, and each participant is one person across the cells
+    study = configuration.merge(config, {"population": study_cost.population_of("ownership"), "experiment": {"trials": 3}})
+    drawn = [dict(t.overrides) for t in plan(study)]
+    for key, (_, low, high) in FREE_PARAMETERS.items():
+        values = {d[key] for d in drawn}
+        assert len(values) == 3 and all(low <= v <= high for v in values), key
+
+
+def test_a_cohort_report_names_its_machine_and_prints_its_study_rows(monkeypatch):
+    from rhi.master.bench import study_cost
+
+    monkeypatch.setattr(cohort, "measure", lambda model, batch, body, steps: {
+        "model": model, "batch": batch, "body": body, "steps": steps, "us_per_participant_step": 1.0,
+        "first_batch_us": 2.0, "shares": {"body": 1.0}})
+    monkeypatch.setattr(study_cost, "study_rows", lambda steps, quick: [{
+        "model": "paper", "participants": 2, "cells": 6, "batch": 12, "steps": 4, "study_cpu_s": 0.3,
+        "trial_cpu_s": 0.02, "ratio": 1.25, "study_decoder_points": 9, "clone_decoder_points": 6}])
+    report = cohort.cohort_report(quick=True, model_names=["paper"])
+    text = cohort.cohort_table(report)
+    assert report["machine"]["cpu"] and text.startswith(f"machine: {report['machine']['cpu']}")
+    # 0.02 s x 12 trials = 0.240 s of clones against the study's 0.300 s
+    assert "paper         2     6     12     0.300        0.240  1.250  9, 6" in text

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from rhi.components.brain import Brain
-from rhi.components.brain.base import action_update, euler_step
+from rhi.components.brain.action_law import action_update, euler_step
 from rhi.components.brain.touch_timing import observe_events
 from rhi.components.brain.integrator import belief_rate
 from rhi.components.component import ComponentError, Status

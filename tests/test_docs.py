@@ -104,7 +104,7 @@ def test_the_fit_pages_tables_are_made_from_the_shipped_fits():
 
     page = (DOCS / "fit.md").read_text()
     variants = ("recovery_zscore", "recovery_bounded", "recovery_ensemble")
-    for folder in ("recovery", *variants, "human/kocur2022", "group_recovery"):
+    for folder in ("recovery", *variants, "human/kocur2022", "group_recovery", "group_recovery_n20"):
         tables = results_markdown(DOCS / "fit" / folder)
         first = tables.split("\n\n")[0]  # the variants' page shows their calibration table only
         assert (first if folder in variants else tables) in page, folder
@@ -115,7 +115,7 @@ def test_the_shipped_fits_coverage_is_that_of_their_ranks():
     the central 50 % interval when its rank is 25 to 74, inside the 90 % interval when it is 5 to 94."""
     import csv
 
-    for folder in ("recovery", "recovery_noise", "human/kocur2022", "group_recovery"):
+    for folder in ("recovery", "recovery_noise", "human/kocur2022", "group_recovery", "group_recovery_n20"):
         with open(DOCS / "fit" / folder / "recovery.csv", newline="") as file:
             rows = list(csv.DictReader(file))
         with open(DOCS / "fit" / folder / "calibration.csv", newline="") as file:
@@ -175,3 +175,32 @@ def test_the_noisy_recovery_s_held_out_arithmetic_is_as_the_page_says():
     pooled = np.concatenate([draw_prior(plan.parameters, 200, 1), seed2])  # the selection set and seed 2's
     top_fifth = int(np.sum(unit[gamma0](pooled[:, gamma0]) >= 0.8))
     assert f"Those 400 hold {top_fifth} γ0 truths in the prior's top fifth" in page
+
+
+def test_the_floor_graph_is_read_from_the_imports_a_floor_above_each_floor_it_imports():
+    from rhi.master.reference.imports import floor_edges, floor_table
+
+    sources = {  # written here with the graph they make: lazy, relative and rhi.-prefixed imports all count
+        "master/__init__.py": "from rhi.master.cosim import System\n",
+        "master/cosim/loop.py": "from rhi.components.component import Component\nimport numpy\n",
+        "master/tasks/run.py": "def f():\n    from rhi.master.cosim import loop\n    from rhi.components.body import x\n",
+        "components/component.py": "from .variables import Variable\n",
+        "components/variables.py": "",
+        "components/body/x.py": "from ..component import Component\nfrom .y import z\n",
+        "rhi/api.py": "from rhi.master.tasks import run\nfrom rhi import api\n",
+    }
+    assert floor_edges(sources) == {"master": {"master/cosim"}, "master/cosim": {"components"},
+                                    "master/tasks": {"master/cosim", "components/body"}, "components": set(),
+                                    "components/body": {"components"}, "rhi": {"master/tasks"}}
+    # heights by hand: components 0; components/body, master/cosim 1; master, master/tasks 2; rhi 3 (ties by name)
+    assert floor_table(floor_edges(sources)).splitlines()[2:] == [
+        "| `rhi` | `master/tasks` |", "| `master` | `master/cosim` |",
+        "| `master/tasks` | `components/body`, `master/cosim` |", "| `components/body` | `components` |",
+        "| `master/cosim` | `components` |", "| `components` | nothing of the project |"]
+
+
+def test_floors_in_a_circle_have_no_order_and_are_named():
+    from rhi.master.reference.imports import top_down
+
+    with pytest.raises(ValueError, match="circle: master/a, master/b"):
+        top_down({"master/a": {"master/b"}, "master/b": {"master/a"}, "components": set()})

@@ -15,7 +15,7 @@ from fmpy.fmi3 import FMU3Slave
 from fmpy.validation import validate_fmu
 
 from rhi.components.body.variants import KinematicArm
-from rhi.components.model_description3 import to_xml3
+from rhi.components.fmi_export.description_fmi3 import to_xml3
 from rhi.master.export.c_body import ARRAYS, build_c_fmu
 
 FMUTOOL = Path(sys.executable).with_name("fmutool")  # fmu-manipulation-toolbox, in the test extra

@@ -1,4 +1,4 @@
-"""The pythonfmu bodies built for FMI 3.0 with pythonfmu3 (components/fmu_slave3_base.py): valid under two checkers
+"""The pythonfmu bodies built for FMI 3.0 with pythonfmu3 (components/fmi_export/slave_fmi3.py): valid under two checkers
 and the standard's table of ``initial``, declaring the C body's FMI 3.0 arrays over their FMI 2.0 twins' ports, and
 computing the twins' numbers bit for bit, under FMPy and stepped by hand.
 

@@ -69,7 +69,7 @@ def test_a_checkpoint_named_for_a_decoder_that_does_not_run_must_exist(tmp_path)
 @pytest.mark.parametrize("command", [["experiment", "--quick"], ["train", "--decoder", "conv"], ["sweep", "--config",
                                                                                                    "s.toml"]])
 def test_an_output_name_over_the_file_system_s_limit_is_refused_naming_it(tmp_path, command):
-    from rhi.master.outputs.files import NAME_MARGIN
+    from rhi.master.outputs.out_file import NAME_MARGIN
     from tests.sweep_files import sweep_file
 
     (tmp_path / "work").mkdir()
@@ -332,7 +332,7 @@ def test_docs_safety_states_the_code_s_limits():
     from rhi.components.vision import checkpoint
     from rhi.master import config
     from rhi.master.export import ssp_package
-    from rhi.master.outputs import files
+    from rhi.master.outputs import out_file
     from rhi.master.sweeps import plan, runner
 
     page = (REPO / "docs" / "safety.md").read_text()
@@ -342,7 +342,7 @@ def test_docs_safety_states_the_code_s_limits():
         LIMITS.members, LIMITS.member_bytes, LIMITS.total_bytes, f"{LIMITS.ratio:g}", checkpoint.MAX_HIDDEN,
         checkpoint.MAX_CHANNELS, checkpoint.MAX_STAGES, checkpoint.MAX_RESOLUTION, config.MAX_CONFIG_BYTES,
         config.MAX_DEPTH, plan.MAX_POINTS, ssp_package.MAX_STEPS, f"{runner.CONNECT_TIMEOUT_S:g}",
-        f"{runner.PROBE_S:g}", runner.MAX_HANDSHAKE_BYTES, config.MAX_THREADS, files.NAME_MARGIN)]
+        f"{runner.PROBE_S:g}", runner.MAX_HANDSHAKE_BYTES, config.MAX_THREADS, out_file.NAME_MARGIN)]
     assert f"over {LIMITS.ratio_floor} bytes" in table and "task" in page and "rhi --version" in page
     assert all(key in page for key in config.INFINITE_KEYS)
 

@@ -246,11 +246,11 @@ def test_fit_estimator_threads_over_the_limit_is_refused_by_the_command_before_a
 # 10. A loss that becomes NaN while the estimator trains: one line, exit status 1 (a failure during the work)
 # ======================================================================================================
 def test_a_loss_that_becomes_nan_in_training_is_one_line_and_exit_status_1(tmp_path, monkeypatch):
-    from rhi.master.fit import plan as fit_plan
+    from rhi.master.fit import estimator_settings
     import tests.test_hostile_folders as folders
 
     # the bound that refuses learning_rate = 1e30 before any work, lifted: here, where rhi runs (in this process)
-    monkeypatch.setattr(fit_plan, "MAX_LEARNING_RATE", float("inf"))
+    monkeypatch.setattr(estimator_settings, "MAX_LEARNING_RATE", float("inf"))
     monkeypatch.setattr(folders, "FIT", folders.FIT.replace("threads = 1\n", "threads = 1\nlearning_rate = 1e30\n"))
     work = prepared(tmp_path)
     out = folders.fit_folder(work)  # every simulation made up: the fit goes straight to the training
@@ -625,7 +625,8 @@ def test_bench_refuses_a_checkpoint_it_would_not_use_before_measuring_anything(t
 # docs/safety.md states the limits of a run that the code applies
 # ======================================================================================================
 def test_docs_safety_states_the_code_s_run_limits():
-    from rhi.master.fit import plan
+    from rhi.master.fit import data, priors
+    from rhi.master.fit import estimator_settings as estimator
     from rhi.master.runtime import pool
     from tests.faults import REPO
 
@@ -633,8 +634,10 @@ def test_docs_safety_states_the_code_s_run_limits():
     table = page.partition("<!-- run limits table")[2].split("\n\n")[0]
     values = [line.split("|")[2].strip().split()[0] for line in table.splitlines() if line.startswith("| ")][1:]
     assert values == [str(v) for v in (
-        pool.WORKERS_PER_CORE, *(plan.MAX_ESTIMATOR[key] for key in ("hidden_features", "transforms", "batch_size",
-                                                                     "max_epochs", "threads", "ensemble")),
-        f"{plan.MAX_LEARNING_RATE:g}", plan.MAX_SIMULATIONS, f"{plan.MAX_NOISE_SD:g}")]
-    assert f"{plan.FLOW_WEIGHTS_FACTOR} × transforms" in page and f"{plan.BYTES_PER_TRAINED_WEIGHT} bytes" in page
-    assert f"{plan.ACTIVATION_BYTES} bytes of activations" in page
+        pool.WORKERS_PER_CORE, *(estimator.MAX_ESTIMATOR[key] for key in ("hidden_features", "transforms",
+                                                                          "batch_size", "max_epochs", "threads",
+                                                                          "ensemble")),
+        f"{estimator.MAX_LEARNING_RATE:g}", priors.MAX_SIMULATIONS, f"{data.MAX_NOISE_SD:g}")]
+    assert f"{estimator.FLOW_WEIGHTS_FACTOR} × transforms" in page
+    assert f"{estimator.BYTES_PER_TRAINED_WEIGHT} bytes" in page
+    assert f"{estimator.ACTIVATION_BYTES} bytes of activations" in page

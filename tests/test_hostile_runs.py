@@ -51,7 +51,7 @@ def test_an_out_file_that_appears_while_run_system_or_an_export_runs_is_never_wr
     from rhi.master.cosim import ConfigError
     from rhi.master.export.fmu_files import built_beside
     from rhi.master.export.system import write_csv
-    from rhi.master.outputs.files import forget_checked
+    from rhi.master.outputs.out_file import forget_checked
 
     forget_checked()
     csv, fmu = tmp_path / "run.csv", tmp_path / "Agent.fmu"

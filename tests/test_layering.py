@@ -3,12 +3,15 @@
 Every ``import x`` and ``from x import y`` counts, at any depth (a lazy import inside a function too);
 a relative import is resolved against the file's package. The folders are installed as ``rhi.master`` and
 ``rhi.components``: the rules speak of ``master.x`` and ``components.x``, and an import of ``rhi.master.x``
-counts as one of ``master.x``. docs/architecture.md mirrors the table.
+counts as one of ``master.x`` (:func:`rhi.master.reference.imports.imports` reads them). docs/architecture.md
+mirrors the table and shows the floors' import graph that reading gives.
 """
 import ast
 from pathlib import Path
 
 import pytest
+
+from rhi.master.reference.imports import imports  # the one reading of imports, docs/architecture.md's graph's too
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -29,43 +32,18 @@ COMMANDS_IMPORTERS = ("master/__main__.py", "master/commands/")
 COSIM_MAY_IMPORT = ("master.cosim", "components.component", "components.variables")
 COSIM_FORBIDDEN_WORDS = ("decoder", "drift", "gamma", "rubber", "brain")
 # components/ never imports master. A component folder imports the core and itself, no other folder;
-# a module directly in components/ (stimulus, the core) imports the core only.
-# The body FMUs' slaves load the bundle and the slave bases from their bundled copy.
+# a module directly in components/ (stimulus, the core) imports the core only. fmi_export (a component as an
+# FMU) is a folder like the others: no component imports it (the body FMUs' slave scripts load it by its path
+# from their bundled copy), and fmu (an FMU as a component) is its opposite.
 COMPONENT_CORE = ("components.component", "components.variables", "components.model_description",
-                  "components.model_description3", "components.archives", "components.fmu_bundle",
-                  "components.fmu_calls", "components.fmu_slave_base", "components.fmu_slave3_base")
-COMPONENT_FOLDERS = ("body", "vision", "brain", "fmu")
+                  "components.archives")
+COMPONENT_FOLDERS = ("body", "vision", "brain", "fmu", "fmi_export")
 PROJECT = ("master", "components")  # top-level packages whose imports are checked
 
 
 def within(module: str, prefixes) -> bool:
     """``module`` is one of ``prefixes`` or inside one (dotted boundaries)."""
     return any(module == p or module.startswith(p + ".") for p in prefixes)
-
-
-def folder_name(module: str) -> str:
-    """``rhi.master.x`` -> ``master.x``: the installed name of a module, as the folders name it."""
-    return module.removeprefix("rhi.") if module.split(".")[:2] in (["rhi", "master"], ["rhi", "components"]) \
-        else module
-
-
-def imports(relative: str, source: str):
-    """(line, what the import names, the module path it reaches) for every project import in a file."""
-    parts = relative[:-3].split("/")
-    package = parts[:-1]  # a module and a package's __init__ both live in their folder's package
-    for node in ast.walk(ast.parse(source, relative)):
-        if isinstance(node, ast.Import):
-            for alias in node.names:
-                yield node.lineno, f"import {alias.name}", folder_name(alias.name)
-        elif isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level:  # relative: from the file's package, one level up per extra dot
-                anchor = package[:len(package) - node.level + 1]
-                base = ".".join(anchor + ([base] if base else []))
-            for alias in node.names:
-                target = base if alias.name == "*" else f"{base}.{alias.name}"
-                yield (node.lineno, f"from {'.' * node.level}{node.module or ''} import {alias.name}",
-                       target if node.level else folder_name(target))
 
 
 def rank(layer: str) -> int:
@@ -195,6 +173,10 @@ def test_engine_knows_no_rubber_hand_words():
     ("components/brain/integrator.py", "from components import stimulus\n", "only the core"),
     ("components/fmu/adapter.py", "from components.body.plant import ArmPlant\n", "only the core"),
     ("components/vision/fast.py", "from ..fmu import adapter\n", "only the core"),
+    ("components/body/plant.py", "from ..fmi_export.calls import step\n", "only the core"),
+    ("components/component.py", "from .fmi_export import bundle\n", "only the core"),
+    ("components/fmi_export/slave_fmi3.py", "from ..body.contract import FMI3_ARRAYS\n", "only the core"),
+    ("components/fmi_export/calls.py", "from ..fmu.adapter import FMUComponent\n", "only the core"),
 ])
 def test_the_checker_catches_each_kind_of_violation(relative, source, expected):
     found = violations(relative, source)
@@ -212,6 +194,7 @@ def test_the_checker_catches_each_kind_of_violation(relative, source, expected):
     ("master/__main__.py", "from master.commands.cli import main\n"),
     ("components/body/variants.py", "from components.body.plant import ArmPlant\nfrom .kinematics import forward\n"),
     ("components/vision/component.py", "from components.model_description import to_xml\n"),
+    ("components/fmi_export/slave_fmi3.py", "from .calls import step\nfrom ..model_description import xml_value\n"),
 ])
 def test_the_checker_allows_what_the_table_allows(relative, source):
     assert violations(relative, source) == []

@@ -105,3 +105,17 @@ def test_a_verbose_log_file_has_the_run_s_steps_and_no_overwritten_bar(tmp_path)
     assert "debug: model paper: decoders conv, 1 conditions x 1 stimulations x 1 trials x 10 steps" in lines
     assert any(line.startswith("debug: conv trials x1: 10 steps in ") for line in lines)
     assert any(line.startswith("conv trials x1: 100%") and "10/10" in line for line in lines)
+
+
+def test_training_missing_decoders_says_so_in_one_logged_line(tmp_path, monkeypatch):
+    """With progress on and the cache empty, the decoders to train are named in the log (the training itself is
+    stood in for: what is checked is the line, which once raised a TypeError before any training)."""
+    from rhi.master import config as configuration
+    from rhi.master.decoders import cache
+
+    monkeypatch.setenv("RHI_CACHE", str(tmp_path))
+    monkeypatch.setattr(cache, "prepare_data", lambda *args: None)
+    monkeypatch.setattr(cache, "run_jobs", lambda function, jobs, *rest: [(None, {"train": 1.0}) for _ in jobs])
+    config = configuration.load(quick=True, overrides={"experiment.decoders": ["conv"]})
+    text = said(1, lambda: cache.ensure_checkpoints(config, progress=True))
+    assert "training the conv decoder side by side" in text and str(tmp_path) in text

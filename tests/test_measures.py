@@ -115,8 +115,9 @@ def test_trial_outcome_is_the_last_row_of_the_trials_measures(monkeypatch):
                                               "brain.gamma": np.array([[0.01], [0.2], [0.5], [0.9]])})
     calls = []
 
-    def run_batch(decoder, trials, given):
+    def run_batch(decoder, trials, given, body=None):
         calls.append((decoder, trials, given))
+        assert body is None  # the configuration's body: the default pymunk arm
         return made
 
     monkeypatch.setattr(runner, "run_batch", run_batch)

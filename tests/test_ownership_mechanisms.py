@@ -12,6 +12,7 @@ from scipy.stats import norm
 from test_ownership_model import brain, place_evidence
 
 from rhi.components.brain import ownership_inference as oi
+from rhi.components.brain import realignment
 from rhi.components.brain.ownership_brain import NOISE_STREAM
 from rhi.master import config as configuration
 from rhi.master import models
@@ -98,7 +99,7 @@ def logistic(x):
 def test_the_counter_evidence_leaks_as_the_exact_exponential():
     c = np.array([-3.0, 2.0])
     for _ in range(500):  # 10 s
-        c = oi.counter_evidence_step(c, np.array([0.05, 0.0]), STEP)
+        c = oi.relaxation_step(c, 0.0, np.array([0.05, 0.0]), STEP)
     assert c[0] == pytest.approx(-3.0 * math.exp(-0.05 * 10.0), rel=1e-13)  # 500 roundings
     assert c[1] == 2.0  # no leak: kept
 
@@ -142,16 +143,16 @@ def test_the_felt_variance_grows_linearly_at_rest_and_a_movement_refreshes_it():
     base, rate = np.array([1.0, 2.0]), np.array([0.05, 0.0])
     variance = base.copy()
     for _ in range(1000):  # 20 s at rest
-        variance = oi.felt_variance_step(variance, base, rate, np.zeros(2), STEP)
+        variance = realignment.felt_variance_step(variance, base, rate, np.zeros(2), STEP)
     assert variance[0] == pytest.approx(1.0 * (1 + 0.05 * 20.0), rel=1e-12) and variance[1] == 2.0
     # a movement of 0.5 deg (summed over the joints) after a step of growth: the excess times exp(-0.5 / sqrt(1))
-    moved = oi.felt_variance_step(variance, base, rate, np.array([0.5, 0.5]), STEP)
+    moved = realignment.felt_variance_step(variance, base, rate, np.array([0.5, 0.5]), STEP)
     assert moved[0] == pytest.approx(1.0 + (1.0 + 0.05 * STEP) * math.exp(-0.5), rel=1e-13)
 
 
 def test_the_seen_hand_s_weight_is_reliability_weighting_anchored_at_the_measured_weight():
     # at Sigma_p0 the weight is w0; Sigma_v = Sigma_p0 (1 - w0) / w0 = 1.5 (1 - 0.4) / 0.4 = 2.25 deg^2
-    w = oi.visual_weight(np.array([1.5, 3.0, 1e9]), np.array([1.5, 1.5, 1.5]), np.array([0.4, 0.4, 0.4]))
+    w = realignment.visual_weight(np.array([1.5, 3.0, 1e9]), np.array([1.5, 1.5, 1.5]), np.array([0.4, 0.4, 0.4]))
     assert w[0] == pytest.approx(0.4, rel=1e-14)
     assert w[1] == pytest.approx(3.0 / (3.0 + 2.25), rel=1e-14)
     assert w[2] == pytest.approx(1.0, rel=1e-8)

@@ -91,6 +91,18 @@ def test_a_participant_runs_every_cell_and_a_key_added_leaves_the_others_draws()
                           population.cohort(config, range(3))["brain.gamma0"])
 
 
+def test_a_participant_is_drawn_once_however_often_the_protocol_is_planned():
+    one = {"brain.gamma0": {"distribution": "log-normal", "log_sd": 0.5, "high": 1.0},
+           "decoder.visual_variance": {"distribution": "log-normal", "log_sd": 0.3}}
+    config = with_population(one, **{"experiment.trials": 3})
+    population.drawn.cache_clear()
+    first = plan(config)
+    for _ in range(3):  # a lockstep batch plans its protocol three times as it is built
+        assert plan(config) == first
+    # 3 participants x 2 keys drawn, not again for each of the 6 cells x 2 decoders nor for each plan
+    assert population.drawn.cache_info().misses == 3 * 2
+
+
 @pytest.mark.parametrize("table, message", [
     ({"brain.gama0": {"distribution": "normal", "sd": 0.01}},
      r"population.brain.gama0 is not a parameter of the paper model .*did you mean brain.gamma0\?"),

@@ -212,11 +212,11 @@ def test_a_failing_trial_costs_its_chunk_only_itself(quick_decoders, monkeypatch
 
     calls, blamed = [], trials[2]
 
-    def blaming(decoder, batch, given):
+    def blaming(decoder, batch, given, body=None):
         calls.append(len(batch))
         if blamed in batch:
             raise SimulationError("body", 0.4, "NaN in this trial", trials=(batch.index(blamed),))
-        return run_batch(decoder, batch, given)
+        return run_batch(decoder, batch, given, body)
 
     monkeypatch.setattr(runner, "run_batch", blaming)
     got = single_core(runner.batch_outcomes, config, "conv", trials)
@@ -282,3 +282,13 @@ def test_the_documented_dask_worker_command_has_the_worker_settings():
     assert len(variables) == len(WORKER_SETTINGS)
     collected = dask.config.collect_env(variables)
     assert {key: dask.config.get(key, config=collected) for key in WORKER_SETTINGS} == WORKER_SETTINGS
+
+
+def test_the_index_is_rewritten_at_most_once_in_ten_times_its_own_duration():
+    from rhi.master.sweeps.run import INDEX_EVERY_S, INDEX_SHARE, index_due
+
+    assert (INDEX_EVERY_S, INDEX_SHARE) == (2.0, 10.0)
+    # a cheap rewrite (0.01 s): every 2 s, as always
+    assert not index_due(101.9, 100.0, 0.01) and index_due(102.1, 100.0, 0.01)
+    # a rewrite of 0.85 s (24 000 trials' index): not before 8.5 s, so at most 0.85 / (8.5 + 0.85) = 9 % of the time
+    assert not index_due(108.4, 100.0, 0.85) and index_due(108.6, 100.0, 0.85)

@@ -19,8 +19,8 @@ BODY_CONTRACT = (
 )
 
 # The FMI 3.0 form of the contract's pairs, one Float64 array each, as every FMI 3.0 body build declares them (the
-# C body, master/export/c_body.py; the pythonfmu3 ones, components/fmu_slave3_base.py; written by
-# components/model_description3.py): name -> (description, the FMI 2.0 ports it carries, in order).
+# C body, master/export/c_body.py; the pythonfmu3 ones, components/fmi_export/slave_fmi3.py; written by
+# components/fmi_export/description_fmi3.py): name -> (description, the FMI 2.0 ports it carries, in order).
 FMI3_ARRAYS = {
     "u": ("commanded joint velocities a: shoulder, elbow", ("u_shoulder", "u_elbow")),
     "q": ("joint angles (proprioception s_p): shoulder from +x, elbow relative to the upper arm",

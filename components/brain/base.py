@@ -1,4 +1,5 @@
-"""The brains' one base: a step of belief and action, its guards and the action law (docs/model.md).
+"""The brains' one base: a step of belief and action and its guards (docs/model.md); the step's equations are
+:mod:`rhi.components.brain.action_law`'s, the variables every brain declares :mod:`rhi.components.brain.contract`'s.
 
 A brain (:class:`BeliefBrain`) holds the belief mu of the arm's two joint angles and the action a. The
 models differ only in how fast the belief moves; each step of every model, for each of the B trials:
@@ -9,8 +10,8 @@ models differ only in how fast the belief moves; each step of every model, for e
    :mod:`rhi.components.brain.integrator`; the causal model's: :mod:`rhi.components.brain.causal_brain`);
 3. the guards of explicit Euler: the belief is stable only while the stiffness number < 2, the leaky
    action only while dt / tau < 2;
-4. mu <- mu + dt * mu_dot, then a_dot from the UPDATED mu (:func:`action_rate`, eq. 7) and the action law
-   (:func:`action_update`), the released agent's order (:func:`euler_step`);
+4. mu <- mu + dt * mu_dot, then a_dot from the UPDATED mu (eq. 7) and the action law, the released agent's order
+   (:func:`~rhi.components.brain.action_law.euler_step`);
 5. mu, a_dot and the free energy checked finite; only then is anything committed, so a failed step
    leaves the state as it was.
 
@@ -25,7 +26,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .goal import goal_inputs
+from .action_law import euler_step
+from .contract import contract
 from .touch_timing import observe_events
 from ..component import Component, ComponentError, StepFailure
 from ..variables import Variable
@@ -33,107 +35,6 @@ from ..variables import Variable
 STABILITY_LIMIT = 2.0  # explicit Euler on a linear decay of rate k is stable iff dt * k < 2
 GOAL_INPUTS = ("goal_drive", "goal_error", "goal_stiffness")  # rhi.components.brain.goal.goal_inputs
 EVENT_INPUTS = ("visual_time", "tactile_time")
-
-
-def action_rate(s_p, mu, proprioceptive_variance):
-    """Paper eq. 7 as docs/design.md and the released agent write it: a_dot = -(s_p - mu)/Sigma_p.
-
-    The paper's extra factor dt (from ds/da = dt) is left out, as in the released agent.
-
-    Parameters
-    ----------
-    s_p, mu : ndarray, (B, 2)
-        Sensed joint angles and belief, deg.
-    proprioceptive_variance : ndarray, (B,)
-        Sigma_p, deg^2.
-
-    Returns
-    -------
-    ndarray, (B, 2)
-        a_dot, deg/s^2 (with Sigma_p's implicit unit rate, 1/s per 1/deg^2).
-    """
-    return -(s_p - mu) / proprioceptive_variance[:, None]
-
-
-def action_update(action, a_dot, action_time_constant, action_limit, h):
-    """The action law: a <- clip(a + h * (a_dot - a/tau), -limit, limit).
-
-    tau = ``action_time_constant``: inf is the paper's law a <- clip(a + h * a_dot) (computed as written,
-    so bit for bit the released agent's), a finite tau the leaky integrator whose fixed point is
-    a = tau * a_dot (:mod:`rhi.components.brain.integrator`'s notes).
-
-    Parameters
-    ----------
-    action, a_dot : ndarray, (B, 2)
-        The action a (deg/s) and its rate (deg/s^2).
-    action_time_constant : ndarray, (B,)
-        tau, s; inf for the paper's law.
-    action_limit : ndarray, (B,)
-        The clip, deg/s.
-    h : float
-        The step, s.
-
-    Returns
-    -------
-    ndarray, (B, 2)
-        The new action, deg/s.
-    """
-    tau, limit = action_time_constant[:, None], action_limit[:, None]
-    paper = np.isinf(tau)
-    leaky = action + h * (a_dot - action / np.where(paper, 1.0, tau))
-    return np.clip(np.where(paper, action + h * a_dot, leaky), -limit, limit)
-
-
-def add_goal_drive(mu_dot, goal_drive):
-    """mu_dot plus a reach goal's pull on the belief, unweighted by gamma; mu_dot itself (same bits) without a goal.
-
-    Source: the released agent adds its attractor term so (``FepAgent.active_inference_step``: mu_dot =
-    dF_dmu_vis + dF_dmu_attr + proprioception); the term itself: a goal decoder's drive or
-    :mod:`rhi.components.brain.goal`.
-
-    Parameters
-    ----------
-    mu_dot : ndarray, (B, 2)
-        The model's belief rate, deg/s.
-    goal_drive : ndarray, (B, 2) or None
-        The goal's pull, deg/s; all 0 or None: no goal.
-
-    Returns
-    -------
-    ndarray, (B, 2)
-        deg/s.
-    """
-    if goal_drive is not None and np.any(goal_drive):  # no goal: no addition, so not even a -0.0 changes
-        return mu_dot + goal_drive
-    return mu_dot
-
-
-def euler_step(mu, mu_dot, action, s_p, proprioceptive_variance, action_limit, action_time_constant, h):
-    """One explicit Euler step of belief and action in the released agent's order.
-
-    mu <- mu + h * mu_dot; a_dot from the UPDATED mu (:func:`action_rate`, eq. 7: the action already
-    pursues the new belief, as the released agent computes ``a_dot`` after updating ``self.mu``); the
-    action by the action law (:func:`action_update`).
-
-    Parameters
-    ----------
-    mu, mu_dot : ndarray, (B, 2)
-        Belief (deg) and the model's belief rate (deg/s).
-    action, s_p : ndarray, (B, 2)
-        Action (deg/s) and sensed joint angles (deg).
-    proprioceptive_variance, action_limit, action_time_constant : ndarray, (B,)
-        Sigma_p (deg^2), the action's clip (deg/s), tau (s; inf: the paper's law).
-    h : float
-        The step, s.
-
-    Returns
-    -------
-    tuple of ndarray, each (B, 2)
-        (new_mu deg, a_dot deg/s^2, new_action deg/s).
-    """
-    new_mu = mu + h * mu_dot
-    a_dot = action_rate(s_p, new_mu, proprioceptive_variance)
-    return new_mu, a_dot, action_update(action, a_dot, action_time_constant, action_limit, h)
 
 
 def trials_text(mask) -> str:
@@ -203,88 +104,10 @@ class BeliefRate(NamedTuple):
     state: MappingProxyType = MappingProxyType({})  # read-only, so the one default cannot change
 
 
-JOINT = MappingProxyType(dict(type="Array", shape=(2,)))  # a (shoulder, elbow) pair per trial
-STATE = MappingProxyType(dict(causality="output", depends_on=()))  # an output of the state: no direct feedthrough
-
-
-def contract(gamma: str, free_energy: str = "F at the step's start mu") -> dict[str, list[Variable]]:
-    """The variables :meth:`BeliefBrain.step` reads and writes, declared once for every brain.
-
-    Parameters
-    ----------
-    gamma : str
-        What the model's ``gamma`` is (its description): the weight of vision, ownership, ...
-    free_energy : str
-        What the model's ``free_energy`` sums.
-
-    Returns
-    -------
-    dict of str to list of Variable
-        ``"parameters"``: Sigma_p, mu0, the action law's limit and tau; ``"inputs"``: s_p (q_shoulder,
-        q_elbow), the reach goal's term and the touch events; ``"outputs"``: mu, the action a and its rate,
-        gamma and the free energy.
-    """
-    return {
-        "parameters": [
-            Variable("proprioceptive_variance", "parameter", start=1.0, unit="deg2", min=0.0,
-                     description="Sigma_p, proprioceptive variance (1/Sigma_p is the belief's relaxation rate, 1/s)"),
-            Variable("mu0", "parameter", start=(0.0, 0.0), unit="deg", **JOINT,
-                     description="initial belief (shoulder, elbow); the master sets the rest pose"),
-            Variable("action_limit", "parameter", start=1.0, unit="deg/s", min=0.0,
-                     description="the action is clipped to [-action_limit, action_limit]"),
-            Variable("action_time_constant", "parameter", start=0.1, unit="s", min=0.0,
-                     description="tau of the action law a <- a + dt (a_dot - a/tau): the leaky (reflex) "
-                                 "action; inf = the paper's eq. 7, a pure integrator"),
-        ],
-        "inputs": [
-            Variable("q_shoulder", "input", start=np.nan, unit="deg",
-                     description="s_p: sensed shoulder angle (NaN until the body feeds it)"),
-            Variable("q_elbow", "input", start=np.nan, unit="deg",
-                     description="s_p: sensed elbow angle (NaN until the body feeds it)"),
-            *goal_inputs(),
-            Variable("visual_time", "input", start=-np.inf, unit="s",
-                     description="time of the last observed visual touch event (-inf: none yet)"),
-            Variable("tactile_time", "input", start=-np.inf, unit="s",
-                     description="time of the last observed tactile event (-inf: none yet)"),
-        ],
-        "outputs": [
-            Variable("mu", unit="deg", **JOINT, **STATE, description="belief of the joint angles (shoulder, elbow)"),
-            Variable("u_shoulder", unit="deg/s", **STATE, description="action a: commanded shoulder velocity"),
-            Variable("u_elbow", unit="deg/s", **STATE, description="action a: commanded elbow velocity"),
-            Variable("action_rate", unit="deg/s2", **JOINT, **STATE, description="a_dot (shoulder, elbow)"),
-            Variable("gamma", unit="1", min=0.0, max=1.0, **STATE, description=gamma),
-            Variable("free_energy", unit="1", **STATE, description=free_energy),
-        ],
-    }
-
-
-def pixel_inputs(note: str = "") -> list[Variable]:
-    """The decoder's pixel term as a brain reads it (the paper's eq. 6, :mod:`rhi.components.vision.component`).
-
-    Parameters
-    ----------
-    note : str
-        Appended to each description (e.g. when the brain reads the term).
-
-    Returns
-    -------
-    list of Variable
-        ``visual_drive`` ((2,) deg/s), ``visual_error`` (1), ``visual_stiffness`` (1/s).
-    """
-    return [
-        Variable("visual_drive", "input", start=(0.0, 0.0), unit="deg/s", **JOINT,
-                 description="J^T (s_v - g(mu)) / Sigma_v from the decoder, at this step's mu" + note),
-        Variable("visual_error", "input", start=0.0, unit="1", min=0.0,
-                 description="1/2 e^T Sigma_v^-1 e from the decoder, e = s_v - g(mu), at this step's mu" + note),
-        Variable("visual_stiffness", "input", start=0.0, unit="1/s", min=0.0,
-                 description="largest eigenvalue of J^T J / Sigma_v, for the stability guard" + note),
-    ]
-
-
 class BeliefBrain(Component, abc.ABC):
     """A brain of belief mu and action a for B trials: the shared step, guards and action law.
 
-    A model derives from it, declares only its own variables (the contract's are declared once, :func:`contract`)
+    A model derives from it, declares only its own variables (the contract's are declared once, :func:`~rhi.components.brain.contract.contract`)
     and implements :meth:`rate`, :meth:`stiffness_terms` and the publishing of gamma.
 
     Parameters
@@ -296,7 +119,7 @@ class BeliefBrain(Component, abc.ABC):
         variable there; those not named follow the contract's order, each group before the model's own of its
         causality. (An exported brain names them all, so that its FMU's value references keep their order.)
     gamma, free_energy : str
-        What the model's ``gamma`` is and its ``free_energy`` sums (:func:`contract`).
+        What the model's ``gamma`` is and its ``free_energy`` sums (:func:`~rhi.components.brain.contract.contract`).
 
     Attributes
     ----------

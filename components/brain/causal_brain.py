@@ -26,8 +26,9 @@ import numpy as np
 
 from .body_inference import hazard_predict, participants, posterior, spatial_likelihood_ratio, \
     timing_likelihood_ratio
-from .base import JOINT, STATE, BeliefBrain, BeliefRate, PerceptualNoise, add_goal_drive, pixel_inputs, \
-    require_finite
+from .action_law import add_goal_drive
+from .base import BeliefBrain, BeliefRate, PerceptualNoise, require_finite
+from .contract import JOINT, STATE, pixel_inputs
 from ..component import ComponentError, StepFailure
 from ..variables import Variable
 
@@ -117,6 +118,7 @@ class CausalBrain(PerceptualNoise, BeliefBrain):
 
     def __init__(self, name="brain"):
         positive = dict(min=1e-12)
+        # The parameters' starts are the model's settings (master/models/causal.toml; tests/test_model_defaults.py).
         super().__init__(name, [
             Variable("sync_sd", "parameter", start=0.2, unit="s", **positive,
                      description="sd of the true visuo-tactile delay under a common cause (paper eq. 8)"),

@@ -6,8 +6,8 @@ Each step, for each of the B trials, in the released agent's order (docs/design.
    extension over space there, ``spatial_sd`` finite, also from the seen and felt hands);
 2. mu_dot = (s_p - mu)/Sigma_p + gamma * visual_drive [+ goal_drive, a reach goal's pull, unweighted by
    gamma; 0 unless the reach task connects it, docs/reach.md];  mu <- mu + dt * mu_dot  (:func:`belief_rate`);
-3. a_dot = -(s_p - mu)/Sigma_p with the UPDATED mu  (:func:`~rhi.components.brain.base.action_rate`, eq. 7);
-4. a <- clip(a + dt * (a_dot - a/tau), -limit, limit)  (:func:`~rhi.components.brain.base.action_update`, the
+3. a_dot = -(s_p - mu)/Sigma_p with the UPDATED mu  (:func:`~rhi.components.brain.action_law.action_rate`, eq. 7);
+4. a <- clip(a + dt * (a_dot - a/tau), -limit, limit)  (:func:`~rhi.components.brain.action_law.action_update`, the
    action law).
 Steps 2-4 after gamma are every brain's (:class:`~rhi.components.brain.base.BeliefBrain`); this model computes
 gamma, mu_dot and the free energy (:meth:`Brain.rate`).
@@ -61,13 +61,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import JOINT, STABILITY_LIMIT, BeliefBrain, pixel_inputs, BeliefRate, action_rate, action_update, \
-    add_goal_drive, euler_step, trials_text
+from .action_law import action_rate, action_update, add_goal_drive, euler_step
+from .base import STABILITY_LIMIT, BeliefBrain, BeliefRate, trials_text
+from .contract import JOINT, pixel_inputs
 from .touch_timing import spatial_likelihood, update_gamma
 from ..component import ComponentError, StepFailure
 from ..variables import Variable
 
-# The action law and the Euler step are the base's, named here too: docs and master read them from this module.
+# The action law and the Euler step are action_law's, named here too: docs and master read them from this module.
 __all__ = ["STABILITY_LIMIT", "Brain", "action_rate", "action_update", "belief_rate", "euler_step", "free_energy",
            "stability_number"]
 

@@ -2,7 +2,7 @@
 slow realignment b driven by a coupling rho that needs no touch.
 
 Each step, for each of the B trials (docs/model.md, "The ownership model"; each equation one function of
-:mod:`rhi.components.brain.ownership_inference`):
+:mod:`rhi.components.brain.ownership_inference`, the beliefs, or :mod:`rhi.components.brain.realignment`, the drift):
 
 1. a hand is seen only where the scene says one is in view (``arm_visible``, :func:`seen_hand`); the seen
    hand's place (the pose encoder's reading against the sensed angles, by the body schema) is evidence about one
@@ -14,11 +14,11 @@ Each step, for each of the B trials (docs/model.md, "The ownership model"; each 
    (:func:`ownership_belief`), so it depends on the seen hand's place before any touch; its onset is the first
    time it reaches 1/2;
 3. the counter-evidence C sums the same touches' log ratios in the coupling's wider window and leaks
-   (:func:`counter_evidence_step`); the coupling rho is its prior with the place and C
+   (:func:`relaxation_step` toward 0); the coupling rho is its prior with the place and C
    (:func:`coupling_belief`);
 4. the proprioceptive variance grows while the arm rests and recovers as it moves (:func:`felt_variance_step`);
    the seen hand's weight w follows it (:func:`visual_weight`); the realignment b relaxes at rate k toward
-   w rho (x_v - s_p) while a hand is seen, and holds while none is (:func:`realignment_step`);
+   w rho (x_v - s_p) while a hand is seen, and holds while none is (:func:`relaxation_step`);
 5. mu_dot = (s_p + b - mu)/Sigma_p(t): the belief (the perceived arm) follows the realigned proprioception, so
    the drift is b as it builds; the action and the guards are every brain's
    (:class:`~rhi.components.brain.base.BeliefBrain`: a_dot = -(s_p - mu)/Sigma_p0, the belief-sense gap).
@@ -32,11 +32,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import JOINT, STATE, BeliefBrain, PerceptualNoise, BeliefRate, add_goal_drive
+from .action_law import add_goal_drive
+from .base import BeliefBrain, BeliefRate, PerceptualNoise
+from .contract import JOINT, STATE
 from .body_inference import hazard_predict, posterior
-from .ownership_inference import asynchrony_log_likelihood_ratio, belief_rate, counter_evidence_step, \
-    coupling_belief, felt_variance_step, free_energy, hand_separation, ownership_belief, ownership_onset, \
-    realignment_step, realignment_target, seen_hand, spatial_log_likelihood_ratio, visual_weight
+from .ownership_inference import asynchrony_log_likelihood_ratio, coupling_belief, hand_separation, \
+    ownership_belief, ownership_onset, relaxation_step, seen_hand, spatial_log_likelihood_ratio
+from .realignment import belief_rate, felt_variance_step, free_energy, realignment_target, visual_weight
 from ..component import ComponentError
 from ..variables import Variable
 
@@ -57,17 +59,18 @@ class OwnershipBrain(PerceptualNoise, BeliefBrain):
     def __init__(self, name="brain"):
         positive = dict(min=1e-12)
         probability = dict(min=1e-6, max=1.0 - 1e-6)
+        # The parameters' starts are the model's settings (master/models/ownership.toml; tests/test_model_defaults.py).
         super().__init__(name, [
             Variable("ownership_prior", "parameter", start=0.01, unit="1", **probability,
                      description="gamma_t's prior and the stationary probability of its chain (the paper's gamma0)"),
-            Variable("coupling_prior", "parameter", start=0.73, unit="1", **probability,
+            Variable("coupling_prior", "parameter", start=0.505, unit="1", **probability,
                      description="rho's prior: a seen hand is coupled to the felt one before any touch"),
             Variable("timing_sd", "parameter", start=0.2, unit="s", **positive,
                      description="sigma_t, sd of the perceived visuo-tactile asynchrony: ownership's window"),
-            Variable("coupling_window_sd", "parameter", start=1.0, unit="s", **positive,
+            Variable("coupling_window_sd", "parameter", start=0.354, unit="s", **positive,
                      description="sigma_c, the coupling's (visuo-proprioceptive) window: the sd of a touch's "
                                  "asynchrony under unity"),
-            Variable("counter_evidence_leak", "parameter", start=0.0, unit="1/s", min=0.0,
+            Variable("counter_evidence_leak", "parameter", start=0.106, unit="1/s", min=0.0,
                      description="kappa, the rate at which the touches' accumulated evidence about unity is "
                                  "forgotten"),
             Variable("stroke_period", "parameter", start=2.0, unit="s", **positive,
@@ -78,13 +81,13 @@ class OwnershipBrain(PerceptualNoise, BeliefBrain):
                      description="the body schema's upper arm (shoulder to elbow)"),
             Variable("forearm_length", "parameter", start=0.3694, unit="m", **positive,
                      description="the body schema's forearm (elbow to hand); the reach L is the two summed"),
-            Variable("switching_rate", "parameter", start=0.0, unit="1/s", min=0.0,
+            Variable("switching_rate", "parameter", start=0.0319, unit="1/s", min=0.0,
                      description="lambda = k_on + k_off of ownership's chain (0: evidence kept for good)"),
             Variable("realignment_weight", "parameter", start=0.39, unit="1", min=1e-6, max=1.0,
                      description="w0: the fraction of the way a seen arm pulls the felt one, proprioception rested"),
-            Variable("proprioceptive_fading_rate", "parameter", start=0.0, unit="1/s", min=0.0,
+            Variable("proprioceptive_fading_rate", "parameter", start=0.0597, unit="1/s", min=0.0,
                      description="phi: Sigma_p grows by phi Sigma_p0 per second while the arm rests (0: constant)"),
-            Variable("realignment_rate", "parameter", start=0.0, unit="1/s", min=0.0,
+            Variable("realignment_rate", "parameter", start=0.0394, unit="1/s", min=0.0,
                      description="k: the rate of the realignment b toward w rho (x_v - s_p)"),
             Variable("participant_seed", "parameter", "Integer", start=0, min=0, unit="1",
                      description="seeds this trial's perceptual timing noise"),
@@ -140,7 +143,7 @@ class OwnershipBrain(PerceptualNoise, BeliefBrain):
         with np.errstate(divide="ignore"):  # rate 0: switching time inf, no relaxation
             switching_time = 1.0 / v["switching_rate"]
         timing = hazard_predict(v["timing_belief"], v["ownership_prior"], switching_time, h)
-        counter = counter_evidence_step(v["counter_evidence"], v["counter_evidence_leak"], h)
+        counter = relaxation_step(v["counter_evidence"], 0.0, v["counter_evidence_leak"], h)  # leaks toward 0
         streams, seen = {}, seen_hand(v["arm_visible"])
         upper, forearm = v["upper_arm_length"], v["forearm_length"]
         place = seen * spatial_log_likelihood_ratio(hand_separation(v["seen_pose"], s_p, upper, forearm),
@@ -161,7 +164,7 @@ class OwnershipBrain(PerceptualNoise, BeliefBrain):
         variance = v["felt_variance"]  # this step's Sigma_p; the next is stepped below
         weight = visual_weight(variance, v["proprioceptive_variance"], v["realignment_weight"])
         target = realignment_target(v["seen_pose"], s_p, weight, coupling, seen)
-        realignment = realignment_step(v["realignment"], target, v["realignment_rate"] * seen, h)
+        realignment = relaxation_step(v["realignment"], target, v["realignment_rate"] * seen, h)
         felt = felt_variance_step(variance, v["proprioceptive_variance"], v["proprioceptive_fading_rate"], moved, h)
 
         mu = v["mu"]

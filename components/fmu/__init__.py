@@ -1,4 +1,5 @@
-"""Any FMI 2.0 co-simulation FMU as a native component, on top of fmpy.
+"""Any FMI 2.0 co-simulation FMU imported as a native component, on top of fmpy (the other way, a component exported
+as an FMU: :mod:`..fmi_export`).
 
 Modules: :mod:`contract` (a file checked against a contract before it loads), :mod:`library` (unzipped
 once, its library held), :mod:`watchdog` (time limits and signals during calls), :mod:`adapter`

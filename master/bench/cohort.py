@@ -1,5 +1,6 @@
 """``rhi bench --cohort``: CPU-µs per participant-step of every registered model at cohort batch sizes, each part's
-share, on the batched arm and on the pymunk arm.
+share, on the batched arm and on the pymunk arm; a study's cost against its participants' trials
+(:mod:`rhi.master.bench.study_cost`); the machine.
 
 A participant-step is one simulated participant advanced one communication step (20 ms), everything included.
 Each measurement runs one cell of the protocol (the conv decoder's slot, the left offset, synchronous stroking),
@@ -89,20 +90,36 @@ def measure(model: str, batch: int, body: str, steps: int) -> dict:
 
 
 def cohort_report(quick: bool = False, model_names=None) -> dict:
-    """:func:`measure` for every registered model (or ``model_names``), batch size and body."""
+    """:func:`measure` for every registered model (or ``model_names``), batch size and body; the study rows
+    (:func:`rhi.master.bench.study_cost.study_rows`); the machine (its CPU, and the load before and after)."""
+    import os
+
+    from rhi.components.vision.component import available_cores
+    from rhi.master.bench.study_cost import study_rows
+    from rhi.master.outputs.provenance import cpu_description
+
+    load = os.getloadavg()[0]
     batches, steps = (QUICK_BATCHES, QUICK_STEPS) if quick else (BATCHES, STEPS)
     rows = [measure(model, batch, body, steps) for model in (model_names or models.names())
             for body in BODIES for batch in batches]
-    return {"cell": "/".join(CELL), "steps": steps, "rows": rows}
+    studies = study_rows(steps, quick)
+    return {"cell": "/".join(CELL), "steps": steps, "rows": rows, "studies": studies,
+            "machine": {"cpu": cpu_description()["model"], "usable_cores": available_cores(),
+                        "load_average_before": load, "load_average_after": os.getloadavg()[0]}}
 
 
 def cohort_table(report: dict) -> str:
     """The report as text: a row per model, body and batch, the parts' shares in percent."""
-    lines = [f"CPU-µs per participant-step, one cell ({report['cell']}), {report['steps']} steps, one thread "
+    from rhi.master.bench.study_cost import study_table
+
+    machine = report["machine"]
+    lines = [f"machine: {machine['cpu']}, {machine['usable_cores']} usable cores; load average "
+             f"{machine['load_average_before']:.1f} before, {machine['load_average_after']:.1f} after",
+             f"CPU-µs per participant-step, one cell ({report['cell']}), {report['steps']} steps, one thread "
              "(first: the cell's first batch, which draws and encodes every picture)",
              f"{'model':10s} {'body':8s} {'batch':>6s} {'µs':>8s} {'first':>8s}  shares"]
     for row in report["rows"]:
         shares = ", ".join(f"{name} {share:.0%}" for name, share in row["shares"].items())
         lines.append(f"{row['model']:10s} {row['body']:8s} {row['batch']:6d} {row['us_per_participant_step']:8.2f} "
                      f"{row['first_batch_us']:8.2f}  {shares}")
-    return "\n".join(lines)
+    return "\n".join([*lines, "", study_table(report["studies"])])

@@ -106,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
     watchdog.on_stuck = _stuck_handler(args.command)
     status = None
     _RECEIVED.clear()
-    from rhi.master.outputs.files import forget_checked
+    from rhi.master.outputs.out_file import forget_checked
 
     forget_checked()
     try:

@@ -42,7 +42,7 @@ def check_out(args, noun: str, suffix: str) -> None:
     """--out FILE checked before any work: an existing file is replaced only with --force, and only if rhi wrote
     it, a file of its kind (rhi.master.export.own_files)."""
     from rhi.master.export import own_files
-    from rhi.master.outputs.files import check_output_file, guard_out_file
+    from rhi.master.outputs.out_file import check_output_file, guard_out_file
 
     ours = {".fmu": own_files.fmu_problem, ".ssp": own_files.ssp_problem, ".csv": own_files.csv_problem}[suffix]
     check_output_file(args.out, noun, suffix, getattr(args, "force", False), ours)

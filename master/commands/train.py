@@ -23,7 +23,7 @@ def run(args) -> int:
     (default auto); everything checked before training."""
     from rhi.components.vision.component import resolve_device
     from rhi.master.decoders.training import check_target, train_decoder, train_settings
-    from rhi.master.outputs.files import guard_out_file
+    from rhi.master.outputs.out_file import guard_out_file
 
     config = configuration.load(args.config, preset_name=getattr(args, "preset", None))
     settings = train_settings(config)

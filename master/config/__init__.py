@@ -19,7 +19,7 @@ from pathlib import Path
 
 from rhi.components.vision.limits import MIN_VISUAL_VARIANCE
 from rhi.master import models
-from rhi.master.config import population, schedules
+from rhi.master.config import bodies, population, schedules
 from rhi.master.cosim import ConfigError
 
 OPEN_TABLES = ("conditions", "stimulations")  # users may add entries here (a new condition, say)
@@ -284,6 +284,7 @@ def validate(config: dict) -> None:
         low, high = stimulation.get("delay_min"), stimulation.get("delay_max")
         if not isinstance(low, (int, float)) or not isinstance(high, (int, float)) or not 0 <= low <= high:
             raise ConfigError(f"stimulations.{name}: need 0 <= delay_min <= delay_max, got {low!r}, {high!r}")
+    bodies.check(config)
     schedules.check(config)  # blocks, touch, stroke duration, hidden rubber arms, probe times
     brain = config["brain"]
     if brain["proprioceptive_variance"] <= 0:

@@ -23,6 +23,7 @@ standard normal z: :data:`DISTRIBUTIONS` holds, per name, the function giving th
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import math
 import re
@@ -249,7 +250,14 @@ def draw(config: dict, master_seed: int, index: int, key: str) -> float:
     median = median_of(entry, config, key)
     if not spread(entry):
         return median
-    return float(quantile(entry, median, variate(participant_seed(master_seed, index), key)))
+    return drawn(master_seed, index, key, tuple(sorted(entry.items())), median)
+
+
+@functools.lru_cache(maxsize=2**16)
+def drawn(master_seed: int, index: int, key: str, entry: tuple, median: float) -> float:
+    """:func:`draw` of a varying entry (``entry``: its items), kept: a participant is drawn once, not again for each
+    of its cells and each time a lockstep batch plans the protocol (three times as it is built)."""
+    return float(quantile(dict(entry), median, variate(participant_seed(master_seed, index), key)))
 
 
 def participant(config: dict, index: int) -> tuple:

@@ -16,7 +16,6 @@ import hashlib
 import json
 import logging
 import os
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -158,7 +157,7 @@ def ensure_checkpoints(config: dict, progress: bool = True, device: str = "cpu",
     seconds = {"data": time.perf_counter() - began}
     if progress:
         log.info(f"training the {' and '.join(missing)} decoder{'s' * (len(missing) > 1)} side by side "
-              f"({settings.preset}, {settings.resolution} px) into {cache_folder()}", file=sys.stderr)
+                 f"({settings.preset}, {settings.resolution} px) into {cache_folder()}")
     processes = None
     if device != "cpu":  # one GPU: the decoders one after the other
         processes, workers = 1, None

@@ -29,7 +29,8 @@ from rhi.components.vision.optimised import optimised
 from rhi.master.cosim import ConfigError
 from rhi.master.decoders import training_data
 from rhi.master.decoders.quality import hand_error, read_off_error
-from rhi.master.outputs.files import atomic_write, check_output_file, place_file
+from rhi.master.outputs.files import atomic_write
+from rhi.master.outputs.out_file import check_output_file, place_file
 from rhi.master.runtime.progress import bar
 
 SIGNATURE_TOLERANCE = 1e-3  # relative; the signature moves by far more when the camera changes

@@ -19,7 +19,7 @@ from xml.etree import ElementTree as ET
 import numpy as np
 from pythonfmu3 import Boolean, Dimension, Fmi3Causality, Fmi3Slave, Fmi3Variability, Float64, Int32
 
-from rhi.components.fmu_slave3_base import Fmi3Lifecycle
+from rhi.components.fmi_export.slave_fmi3 import Fmi3Lifecycle
 from rhi.components.model_description import typed_attributes, unit_definitions, xml_value
 from rhi.master.export.agent_fmu import agent_from_resources
 

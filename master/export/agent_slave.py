@@ -6,13 +6,13 @@ the Python that loads it, which must have rhi and its dependencies (torch, ...) 
 resources hold the decoder checkpoint and ``rhi_agent.json``: the task (the illusion's agent or the
 reach's), the decoder's kind, the configuration it was built with and the ports it declared; a package whose agent declares other ports is refused
 when the FMU is instantiated. One FMU instance is one trial (batch size 1); the slave base,
-:class:`rhi.components.fmu_slave_base.ComponentSlaveBase`, registers the variables and runs the lifecycle.
+:class:`rhi.components.fmi_export.slave_fmi2.ComponentSlaveBase`, registers the variables and runs the lifecycle.
 pythonfmu takes the class of this file that has ``Fmi2Slave`` deepest among its bases.
 """
 from __future__ import annotations
 
 try:
-    from rhi.components.fmu_slave_base import ComponentSlaveBase
+    from rhi.components.fmi_export.slave_fmi2 import ComponentSlaveBase
     from rhi.components.model_description import xml_value
     from rhi.master.export.agent_fmu import agent_from_resources
 except ImportError as error:

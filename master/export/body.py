@@ -21,7 +21,7 @@ import shutil
 import tempfile
 from pathlib import Path
 
-from rhi.components.fmu_bundle import COMPONENT_FILE
+from rhi.components.fmi_export.bundle import COMPONENT_FILE
 from rhi.master.config.bodies import VARIANTS
 from rhi.master.cosim import ConfigError
 from rhi.master.export.fmu_files import build_with_pythonfmu, built_beside, check_target, staged_script
@@ -30,7 +30,9 @@ C_VARIANT = "kinematic-c"  # the kinematic arm written in C (master/export/c_bod
 VARIANT_NAMES = (*VARIANTS, C_VARIANT)
 FMI_VERSIONS = ("2.0", "3.0")  # every variant is built for both
 PACKAGE = Path(__file__).resolve().parents[2] / "components"
-SLAVES = {"2.0": ("fmu_slave.py", "fmu_slave_base.py"), "3.0": ("fmu_slave3.py", "fmu_slave3_base.py")}  # script, base
+SLAVES = {"2.0": "fmu_slave.py", "3.0": "fmu_slave3.py"}  # the slave script of each version, in components/body
+# What a slave script takes in when it is imported, besides itself: the FMI export code and the description writer.
+SLAVE_LOADS = sorted((PACKAGE / "fmi_export").glob("*.py")) + [PACKAGE / "model_description.py"]
 
 
 def build_fmu(out, variant: str = "native", component: str | None = None, model_name: str | None = None,
@@ -73,12 +75,12 @@ def export_body(out, variant: str = "native", fmi: str = "2.0") -> Path:
 
 
 def _build(target: Path, model_name: str, component: str, extra_files, fmi: str) -> Path:
-    script, base = SLAVES[fmi]
+    script = SLAVES[fmi]
     with tempfile.TemporaryDirectory(prefix="rhi_export_") as staging:
         staging = Path(staging)
         # One prefix for both versions (master/export/own_files.py knows it); the content's hash tells them apart.
         script = staged_script(PACKAGE / "body" / script, staging, "rhi_fmu_slave",
-                               loads=[PACKAGE / base, PACKAGE / "fmu_bundle.py"])
+                               loads=SLAVE_LOADS)
         # Python sources only: no caches, checkpoints or data files in the FMU.
         shutil.copytree(PACKAGE, staging / "components",
                         ignore=lambda folder, names: [n for n in names if not (

@@ -4,7 +4,7 @@ The source, ``bodies/kinematic_c/kinematic_arm.c``, is the ideal kinematic arm o
 :class:`rhi.components.body.variants.KinematicArm` (free: q follows the command; held: the servo's
 statics give the hand force); ``-DFMI_VERSION=3`` selects its FMI 3.0 interface. Its
 ``modelDescription.xml`` is written from the Python arm's own declarations, for FMI 2.0
-(:mod:`rhi.components.model_description`) or FMI 3.0 (:mod:`rhi.components.model_description3`, the pairs in
+(:mod:`rhi.components.model_description`) or FMI 3.0 (:mod:`rhi.components.fmi_export.description_fmi3`, the pairs in
 ARRAYS as Float64 arrays), and its start values and FMI 3.0 array sizes are compiled in from the same
 declarations, so the bodies declare the same variables, units, ranges and starts.
 
@@ -25,10 +25,11 @@ from pathlib import Path
 
 from rhi.components.body.contract import FMI3_ARRAYS
 from rhi.components.body.variants import KinematicArm
-from rhi.components.model_description3 import sizes, to_xml3
+from rhi.components.fmi_export.description_fmi3 import sizes, to_xml3
 from rhi.master.cosim import ConfigError
 from rhi.master.export.fmu_files import check_target
-from rhi.master.outputs.files import atomic_write, place_file
+from rhi.master.outputs.files import atomic_write
+from rhi.master.outputs.out_file import place_file
 
 SOURCE = Path(__file__).resolve().parents[2] / "bodies" / "kinematic_c" / "kinematic_arm.c"
 MODEL_IDENTIFIER = "KinematicArmC"  # the FMI model identifier, which names the shared library

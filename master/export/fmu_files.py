@@ -3,14 +3,14 @@ pythonfmu's builder run on a slave script (the body's pythonfmu FMUs, the agent 
 from __future__ import annotations
 
 import hashlib
-import os
 import shutil
 import sys
 import tempfile
 from pathlib import Path
 
 from rhi.master.cosim import ConfigError
-from rhi.master.outputs.files import check_output_file, place_file, umask
+from rhi.master.outputs.atomic import umask
+from rhi.master.outputs.out_file import check_output_file, place_file
 
 
 def check_target(out) -> Path:

@@ -30,7 +30,8 @@ from rhi.master.cosim import ConfigError
 from rhi.master.config.sources import shared_parameters
 from rhi.master.export.agent import agent_connections
 from rhi.master.tasks import exportable as task_named
-from rhi.master.outputs.files import atomic_write, check_output_file, place_file
+from rhi.master.outputs.files import atomic_write
+from rhi.master.outputs.out_file import check_output_file, place_file
 
 NS = {"ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
       "ssc": "http://ssp-standard.org/SSP1/SystemStructureCommon",

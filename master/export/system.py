@@ -21,7 +21,8 @@ from rhi.master.cosim import ConfigError, SimulationError
 from rhi.master.export.ssp_check import Package, read_ssp, trial_parameters
 from rhi.master.export.ssp_package import AGENT, BODY, MASTERS, MAX_STEPS, build_ssp
 from rhi.master.export.ssp_runner import refusal
-from rhi.master.outputs.files import atomic_write, check_output_file, place_file
+from rhi.master.outputs.files import atomic_write
+from rhi.master.outputs.out_file import check_output_file, place_file
 from rhi.master.outputs.scratch import scratch_folder
 
 

@@ -1,4 +1,5 @@
-"""FIT.toml: which parameters to fit, their priors, the simulations and the estimator; the prior sampled.
+"""FIT.toml read and checked: which parameters to fit and their priors, the simulations, the estimator
+(:mod:`rhi.master.fit.estimator_settings`), the design every simulation runs.
 
 A fit file is an ordinary configuration file (any tables of ``master/config/defaults.toml``, fixed for every
 simulation) plus a ``[fit]`` table (docs/fit.md)::
@@ -12,16 +13,12 @@ simulation) plus a ``[fit]`` table (docs/fit.md)::
     low = 5.0
     high = 80.0
 
-The estimator works in an *inference space*: the logarithm of a log-uniform parameter, the parameter
-itself otherwise, where every prior is a uniform or a (truncated) normal.
+The priors and the draws of the simulated participants are :mod:`rhi.master.fit.priors`.
 """
 from __future__ import annotations
 
-import hashlib
 import math
 from dataclasses import dataclass, field
-
-import numpy as np
 
 from rhi.master import models
 from rhi.master.cosim import ConfigError
@@ -31,103 +28,21 @@ from rhi.master.config.sources import TASK_SOURCES, batchable_keys
 from rhi.master.models.base import config_key
 from rhi.master.config.sources import declared_range
 from rhi.master.fit.data import MAX_NOISE_SD, MEASURES, SPREADS, Data, check_against
+from rhi.master.fit.estimator_settings import ESTIMATOR_DEFAULTS, MAX_ESTIMATOR, MAX_LEARNING_RATE, read_estimator
+from rhi.master.fit.priors import (CALIBRATION_DESIGNS, MAX_SIMULATIONS, PRIORS, Parameter, draw_participants,
+                                   draw_prior, simulation_seed)
 
-PRIORS = ("uniform", "log-uniform", "normal")
+# what other modules import from here, the priors and the estimator's limits defined in their own modules
+__all__ = ["FitPlan", "read_plan", "with_design", "parameter_tables", "population_field", "parameter_key",
+           "read_parameter", "FIT_KEYS", "WHOLE", "Parameter", "draw_prior", "draw_participants", "simulation_seed",
+           "PRIORS", "CALIBRATION_DESIGNS", "MAX_SIMULATIONS", "ESTIMATOR_DEFAULTS", "MAX_ESTIMATOR",
+           "MAX_LEARNING_RATE", "MAX_NOISE_SD"]
+
 FIT_KEYS = ("model", "quick", "simulations", "calibration", "calibration_design", "seed", "trials_per_cell",
             "participants_per_batch", "workers", "measures", "posterior_samples", "calibration_samples",
             "predictive_draws", "predictive_participants", "noise", "estimator", "parameters")
-# the flow's size, batch and learning rate are sbi's own defaults (posterior_nn, NPE.train)
-ESTIMATOR_DEFAULTS = {"density": "maf", "hidden_features": 50, "transforms": 5, "batch_size": 200,
-                      "max_epochs": 500, "learning_rate": 5e-4, "threads": 2, "ensemble": 1, "space": "unconstrained",
-                      "statistics": "normal-scores"}
-CHOICES = {"density": ("maf", "nsf", "mdn"), "space": ("bounded", "unconstrained"),
-           "statistics": ("z-score", "normal-scores")}
 WHOLE = {"simulations": 1000, "calibration": 100, "seed": 0, "trials_per_cell": 1, "participants_per_batch": 10,
          "posterior_samples": 1000, "calibration_samples": 99, "predictive_draws": 10, "predictive_participants": 8}
-MAX_SIMULATIONS = 100_000
-# The largest value of each whole-number estimator key (docs/safety.md): a flow twenty times sbi's width (50) and
-# about thirteen times its depth (5) is far beyond what MAX_SIMULATIONS participants can train; an ensemble of 32;
-# a batch of every simulation; 100 000 epochs (early stopping ends sbi's training long before); torch's threads
-# bounded as train.threads is. A learning rate above 1 moves each weight by more than its initial scale per step.
-MAX_ESTIMATOR = {"hidden_features": 1024, "transforms": 64, "batch_size": MAX_SIMULATIONS, "max_epochs": 100_000,
-                 "threads": configuration.MAX_THREADS, "ensemble": 32}
-MAX_LEARNING_RATE = 1.0
-# Weights per transform of sbi's flows, at most this many times hidden x (hidden + parameters + statistics + 1)
-# (measured on maf, nsf and mdn, 1 to 16 parameters and 1 to 24 statistics: at most 6.1); bytes per weight in
-# training: the weight, its gradient and Adam's two moments, float32; bytes of activations kept for the backward
-# pass per batch row, transform and hidden unit (measured in one training step: maf 43, nsf 87, mdn 31).
-FLOW_WEIGHTS_FACTOR = 8
-BYTES_PER_TRAINED_WEIGHT = 16
-ACTIVATION_BYTES = 128
-CALIBRATION_DESIGNS = ("random", "latin-hypercube")  # how the held-out participants are drawn: draw_participants
-
-
-@dataclass(frozen=True)
-class Parameter:
-    """One fitted parameter: its configuration key and its prior."""
-
-    key: str                    # the configuration key, e.g. decoder.visual_variance
-    prior: str                  # one of PRIORS
-    low: float = -math.inf      # bounds, in the parameter's own units
-    high: float = math.inf
-    mean: float = 0.0           # normal only
-    sd: float = 1.0
-
-    @property
-    def log(self) -> bool:
-        """Whether the inference space is the parameter's logarithm."""
-        return self.prior == "log-uniform"
-
-    def to_inference(self, values):
-        """Values of the parameter in the inference space.
-
-        Parameters
-        ----------
-        values : array_like
-            Any shape, in the parameter's own units.
-
-        Returns
-        -------
-        numpy.ndarray
-            The same shape, float: their logarithm for a log-uniform prior, else the values.
-        """
-        return np.log(values) if self.log else np.asarray(values, dtype=float)
-
-    def from_inference(self, values):
-        """Values of the inference space in the parameter's own units, the inverse of :meth:`to_inference`.
-
-        Parameters
-        ----------
-        values : array_like
-            Any shape, in the inference space.
-
-        Returns
-        -------
-        numpy.ndarray
-            The same shape, float: their exponential for a log-uniform prior, else the values.
-        """
-        return np.exp(values) if self.log else np.asarray(values, dtype=float)
-
-    def quantile(self, unit):
-        """The prior's quantile function in the inference space: the values at which its distribution function
-        is ``unit`` (in [0, 1])."""
-        from scipy import stats
-
-        low, high = self.to_inference(self.low), self.to_inference(self.high)
-        if self.prior == "normal":
-            return stats.truncnorm.ppf(unit, (low - self.mean) / self.sd, (high - self.mean) / self.sd,
-                                       loc=self.mean, scale=self.sd)
-        return low + np.asarray(unit, dtype=float) * (high - low)
-
-    def describe(self) -> dict:
-        """The parameter for run.json: its key and prior, a normal's mean and sd, and its finite bounds."""
-        text = {"key": self.key, "prior": self.prior}
-        if self.prior == "normal":
-            text.update(mean=self.mean, sd=self.sd)
-        for bound in ("low", "high"):
-            if math.isfinite(getattr(self, bound)):
-                text[bound] = getattr(self, bound)
-        return text
 
 
 @dataclass(frozen=True)
@@ -313,66 +228,10 @@ def read_plan(path: str, data: Data, model: str | None = None) -> FitPlan:
             raise ConfigError(f"fit.noise.{key} = {value!r} is over the limit of {MAX_NOISE_SD:g} (in the measure's "
                               "unit: 10 m of drift, 1 kN of force, far beyond any drift the arm's reach or force its "
                               "servos allow; a larger sd buries every simulation in noise)")
-    estimator = settings.get("estimator", {})
-    if not isinstance(estimator, dict):
-        raise ConfigError("fit.estimator must be a table")
-    for key, value in estimator.items():
-        if key not in ESTIMATOR_DEFAULTS:
-            raise configuration.unknown_key(f"fit.estimator.{key}", ESTIMATOR_DEFAULTS, "fit")
-        check_estimator_key(key, value)
-    chosen = {**ESTIMATOR_DEFAULTS, **estimator}
-    check_estimator_memory(chosen, len(fitted), len(data.cells) * len(measures))
+    chosen = read_estimator(settings.get("estimator", {}), len(fitted), len(data.cells) * len(measures))
     return FitPlan(fitted, base, {**whole, "model": model, "quick": quick, "workers": workers,
                                      "calibration_design": design}, measures,
                    {m: float(noise.get(m, 0.0)) for m in measures}, chosen)
-
-
-def check_estimator_key(key: str, value) -> None:
-    """One ``fit.estimator`` key: one of its choices, or a number of its type within (0, its maximum]."""
-    default = ESTIMATOR_DEFAULTS[key]
-    if isinstance(default, str):
-        if value not in CHOICES[key]:
-            raise ConfigError(f"fit.estimator.{key} = {str(value)[:60]!r} is not one of {', '.join(CHOICES[key])}")
-        return
-    if (not isinstance(value, (int, float)) or isinstance(value, bool) or not value > 0 or not math.isfinite(value)
-            or (isinstance(default, int) and not isinstance(value, int))):
-        raise ConfigError(f"fit.estimator.{key} = {value!r} must be a positive "
-                          f"{'whole number' if isinstance(default, int) else 'finite number'}")
-    top = MAX_ESTIMATOR.get(key, MAX_LEARNING_RATE)
-    if value > top:
-        raise ConfigError(f"fit.estimator.{key} = {value!r} is over the limit of {top:g} ({ESTIMATOR_LIMITS_WHY[key]})")
-
-
-ESTIMATOR_LIMITS_WHY = {
-    "hidden_features": "about twenty times sbi's 50: wider than the most simulations a fit runs can train",
-    "transforms": "about thirteen times sbi's 5: deeper than the most simulations a fit runs can train",
-    "batch_size": f"fit.simulations is at most {MAX_SIMULATIONS}: one batch of them all",
-    "max_epochs": "sbi's early stopping ends a training long before",
-    "threads": "twice the hardware threads of the largest common server, as train.threads",
-    "ensemble": "each member is one more training of the whole estimator",
-    "learning_rate": "a step that moves each weight by more than its initial scale: the loss diverges"}
-
-
-def estimator_memory(settings: dict, parameters: int, statistics: int) -> int:
-    """About how many bytes training the estimators of ``settings`` needs at its peak: every ensemble member's
-    weights (with their gradients and Adam's moments) and one batch's activations (FLOW_WEIGHTS_FACTOR and the
-    bytes above: upper bounds, to refuse what cannot fit, not to plan)."""
-    hidden, transforms = settings["hidden_features"], settings["transforms"]
-    weights = FLOW_WEIGHTS_FACTOR * transforms * hidden * (hidden + parameters + statistics + 1)
-    activations = settings["batch_size"] * transforms * hidden * ACTIVATION_BYTES
-    return settings["ensemble"] * weights * BYTES_PER_TRAINED_WEIGHT + activations
-
-
-def check_estimator_memory(settings: dict, parameters: int, statistics: int) -> None:
-    """A ConfigError, before any simulation, for an estimator whose training needs more memory than this machine
-    has, saying how much."""
-    needed, available = estimator_memory(settings, parameters, statistics), configuration.physical_memory()
-    if available and needed > available:
-        raise ConfigError(f"training the estimator would need about {configuration.size(needed)} of memory "
-                          f"({settings['ensemble']} x a {settings['density']} of {settings['transforms']} transforms "
-                          f"of {settings['hidden_features']} hidden features, batches of {settings['batch_size']}), "
-                          f"more than this machine's {configuration.size(available)}; lower fit.estimator."
-                          "hidden_features, transforms, ensemble or batch_size")
 
 
 def with_design(config: dict, data: Data, trials: int) -> dict:
@@ -392,50 +251,6 @@ def with_design(config: dict, data: Data, trials: int) -> dict:
         config["experiment"]["steps"] = steps
     configuration.validate(config)
     return config
-
-
-def draw_prior(parameters: list[Parameter], count: int, seed: int) -> np.ndarray:
-    """``count`` draws of the prior, (count, parameters), in the inference space; the same seed, the same draws."""
-    from scipy import stats
-
-    rng = np.random.default_rng([seed, 0])
-    columns = []
-    for parameter in parameters:
-        low, high = parameter.to_inference(parameter.low), parameter.to_inference(parameter.high)
-        if parameter.prior == "normal":
-            a, b = (low - parameter.mean) / parameter.sd, (high - parameter.mean) / parameter.sd
-            columns.append(stats.truncnorm.rvs(a, b, loc=parameter.mean, scale=parameter.sd, size=count,
-                                               random_state=rng))
-        else:
-            columns.append(rng.uniform(low, high, size=count))
-    return np.stack(columns, axis=1)
-
-
-def draw_participants(parameters: list[Parameter], settings: dict) -> np.ndarray:
-    """Every simulated participant's draw, (simulations + calibration, parameters), in the inference space: the
-    training participants first, then the held-out ones.
-
-    ``fit.calibration_design = "random"``: all rows one :func:`draw_prior`. ``"latin-hypercube"``: the same
-    training rows, the held-out rows a Latin hypercube through each prior's quantile function (McKay, Beckman &
-    Conover 1979, Technometrics 21:239; scipy's ``qmc.LatinHypercube``), so that each of the n equal-probability
-    strata of every prior holds exactly one held-out truth. For a parameter the data barely inform, a
-    posterior's rank is about the prior's distribution function at the truth, so with random truths the SBC
-    tests and the coverage test the draws' own uniformity as much as the estimator; stratified truths remove that
-    part. The iid rank tests are then conservative."""
-    from scipy.stats import qmc
-
-    training, held_out = settings["simulations"], settings["calibration"]
-    drawn = draw_prior(parameters, training + held_out, settings["seed"])
-    if settings["calibration_design"] == "latin-hypercube" and held_out:
-        unit = qmc.LatinHypercube(d=len(parameters), rng=np.random.default_rng([settings["seed"], 2])).random(held_out)
-        drawn[training:] = np.stack([p.quantile(unit[:, d]) for d, p in enumerate(parameters)], axis=1)
-    return drawn
-
-
-def simulation_seed(seed: int, number: int, stream: str = "train") -> int:
-    """The master seed (experiment.seed) of simulated participant ``number``: its own tactile delays."""
-    digest = hashlib.sha256(f"rhi fit/{seed}/{stream}/{number}".encode()).digest()
-    return int.from_bytes(digest[:8], "little") >> 1
 
 
 def parameter_tables(table: dict, prefix: str = "") -> list[tuple[str, object]]:

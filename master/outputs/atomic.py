@@ -2,7 +2,10 @@
 from __future__ import annotations
 
 import os
+import signal
 import tempfile
+import threading
+from contextlib import contextmanager
 from pathlib import Path
 from typing import BinaryIO, Callable
 
@@ -28,7 +31,7 @@ def atomic_write(path: str | os.PathLike, data: str | bytes | Callable[[BinaryIO
     data : text (written as UTF-8), bytes, or a function that writes into the binary file it is
         given (``lambda file: numpy.savez(file, ...)``, ``torch.save``).
     place : how the finished temporary file takes its place (default: a rename; a command's --out FILE:
-        rhi.master.outputs.files.place_file, which never writes over a file that appeared meanwhile).
+        rhi.master.outputs.out_file.place_file, which never writes over a file that appeared meanwhile).
     """
     path = Path(path)
     handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
@@ -46,3 +49,17 @@ def atomic_write(path: str | os.PathLike, data: str | bytes | Callable[[BinaryIO
         if isinstance(error, OSError) and error.filename is None and error.errno is not None:
             raise OSError(error.errno, error.strerror, str(path)) from error  # a full disk names the file
         raise
+
+
+@contextmanager
+def signals_held():
+    """SIGINT and SIGTERM wait until the block ends (in the main thread), so a rename pair is never cut."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held = {signal.SIGINT, signal.SIGTERM}
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)

@@ -15,6 +15,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from rhi.components.body.contract import BODY_CONTRACT
+from rhi.master.reference.imports import floor_imports
 
 # What every output column means (the names say their units; none: dimensionless).
 MEANINGS = {
@@ -215,7 +216,7 @@ def body_ports() -> str:
 def c_body_fmi3_ports() -> str:
     """The C body's FMI 3.0 variables (rhi.master.export.c_body.ARRAYS over the Python arm's declarations), each with
     the FMI 2.0 ports it carries."""
-    from rhi.components.model_description3 import TYPES, layout
+    from rhi.components.fmi_export.description_fmi3 import TYPES, layout
     from rhi.master.export.c_body import ARRAYS, declared_body
 
     body = declared_body()
@@ -328,4 +329,5 @@ def fmi_compat() -> str:
 TABLES = {"population-spreads": population_spreads, "model-columns": model_columns, "ownership-constants": ownership_constants, "configuration-keys": configuration_keys, "paper-preset": paper_preset, "summary-columns": summary_columns,
           "trials-columns": trials_columns, "sweep-columns": sweep_columns, "phenomenon-columns": phenomenon_columns,
           "agent-ports": agent_ports, "reach-agent-ports": lambda: agent_ports("reach"), "body-ports": body_ports,
-          "c-body-fmi3-ports": c_body_fmi3_ports, "fmi-compat": fmi_compat, "worker-command": worker_command}
+          "c-body-fmi3-ports": c_body_fmi3_ports, "fmi-compat": fmi_compat, "worker-command": worker_command,
+          "floor-imports": floor_imports}

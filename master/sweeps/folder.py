@@ -19,7 +19,8 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from rhi.master.cosim import ConfigError
-from rhi.master.outputs.files import atomic_write, check_name_length
+from rhi.master.outputs.files import atomic_write
+from rhi.master.outputs.out_file import check_name_length
 from rhi.master.outputs.provenance import package_versions
 from rhi.master.outputs.manifest import NAME as MANIFEST, Manifest
 from rhi.master.outputs.own_paths import LockFile, is_own_mark, make_folder

@@ -156,6 +156,16 @@ class Sweep:
     batched: bool               # True: the experiment's own trial function, run a chunk at a time
 
 
+def identity(config: dict) -> dict:
+    """``config`` as it enters a trial's id and a sweep's fingerprint: without ``experiment.body`` where it is the
+    default pymunk arm, so that the trials planned before the key existed keep their ids and folders."""
+    from rhi.master.config.bodies import DEFAULT
+
+    if config.get("experiment", {}).get("body") != DEFAULT:
+        return config
+    return {**config, "experiment": {k: v for k, v in config["experiment"].items() if k != "body"}}
+
+
 def canonical_hash(value) -> str:
     """sha256 (hex) of ``value`` as canonical JSON: keys sorted, no spaces, NaN and infinities allowed."""
     text = json.dumps(value, sort_keys=True, separators=(",", ":"), allow_nan=True)
@@ -325,13 +335,13 @@ def plan(configs: list[dict], task: str, batch: int | None = None,
     for chunk in chunks:
         members = [[t.condition, t.stimulation, t.index] for _, t in chunk]
         if points_per_batch > 1:
-            members = [[canonical_hash(configs[n])[:20], *member] for member, (n, _) in zip(members, chunk)]
+            members = [[canonical_hash(identity(configs[n]))[:20], *member] for member, (n, _) in zip(members, chunk)]
         positions.append(list(range(len(trials), len(trials) + len(chunk))))
         for number, t in chunk:
-            identity = {"task": task, "config": configs[number], "decoder": t.decoder, "condition": t.condition,
-                        "stimulation": t.stimulation, "index": t.index, "seed": t.seed,
-                        **({"batch": members} if batched else {})}
-            trials.append(TrialSpec(canonical_hash(identity)[:20], number, t.decoder, t.condition,
+            named = {"task": task, "config": identity(configs[number]), "decoder": t.decoder,
+                     "condition": t.condition, "stimulation": t.stimulation, "index": t.index, "seed": t.seed,
+                     **({"batch": members} if batched else {})}
+            trials.append(TrialSpec(canonical_hash(named)[:20], number, t.decoder, t.condition,
                                     t.stimulation, t.index, t.seed))
     return trials, positions
 
@@ -393,7 +403,7 @@ def build(base: dict, points: list[dict], task: str = DEFAULT_TASK, batch: int |
         points_per_batch = 1
     trials, chunks = plan(configs, task, batch, points_per_batch)
     keys = list(dict.fromkeys(key for point in points for key in point))
-    planned = {"task": task, "configs": configs, "points": points}
+    planned = {"task": task, "configs": [identity(c) for c in configs], "points": points}
     if batched:
         planned.update(batching=BATCHING, batch=batch)
         if points_per_batch > 1:

@@ -15,6 +15,16 @@ from rhi.master.sweeps.runner import check_decoders, check_workers, dask_client,
 from rhi.master.sweeps.tables import index_rows, write_tables
 
 INDEX_EVERY_S = 2.0
+# Between two rewrites of the index and the manifest during a run, at least this many times the last rewrite's own
+# time: each rewrites every record so far, so at a fixed interval a large sweep (a fit's tens of thousands of
+# trials) spent a growing share of the main process on them; this keeps that share under 1 / (1 + INDEX_SHARE).
+INDEX_SHARE = 10.0
+
+
+def index_due(now: float, last: float, cost: float) -> bool:
+    """Whether the index and manifest are rewritten at ``now`` (s, monotonic), last rewritten at ``last``, which took
+    ``cost`` seconds: after INDEX_EVERY_S, and after INDEX_SHARE times the last rewrite's own time."""
+    return now - last > max(INDEX_EVERY_S, INDEX_SHARE * cost)
 
 
 def run_into(sweep: Sweep, task, out: Path, context: RunContext | None = None, label: str = "rhi sweep",
@@ -33,7 +43,7 @@ def run_into(sweep: Sweep, task, out: Path, context: RunContext | None = None, l
     with sweep_folder(out, sweep, context.force) as (records, manifest):
         done = {key for key, record in records.items() if record["status"] == "ok"}
         bar = None
-        counts, last_index = {"ok": len(done), "failed": 0}, [time.monotonic()]
+        counts, last_index, index_cost = {"ok": len(done), "failed": 0}, [time.monotonic()], [0.0]
 
         def arrived(record):
             records[record["id"]] = record
@@ -42,11 +52,13 @@ def run_into(sweep: Sweep, task, out: Path, context: RunContext | None = None, l
             bar.set_postfix(completed=counts["ok"], failed=counts["failed"],
                             remaining=len(sweep.trials) - counts["ok"] - counts["failed"], refresh=False)
             bar.update(1)
-            if time.monotonic() - last_index[0] > INDEX_EVERY_S:
+            began = time.monotonic()
+            if index_due(began, last_index[0], index_cost[0]):
                 atomic_write(out / "index.csv", index_rows(sweep, records))
                 manifest.add("index.csv")
                 manifest.save()  # the files written so far, listed as the index is
                 last_index[0] = time.monotonic()
+                index_cost[0] = last_index[0] - began
 
         try:
             if len(done) < len(sweep.trials):

@@ -21,13 +21,15 @@ def index_rows(sweep: Sweep, records: dict[str, dict]) -> str:
     """index.csv's text: a row per trial with a record (its point's values, status, measures, time and error)."""
     header = ["id", "point", *sweep.keys, "decoder", "condition", "stimulation", "trial", "seed", "status",
               *MEASURES, "elapsed_s", "error"]
-    rows = []
+    rows, labels = [], {}  # each point's values as cells, made once per point rather than once per trial
     for trial in sweep.trials:
         record = records.get(trial.id)
         if record is None:
             continue
         outcome = record.get("outcome", {})
-        rows.append([trial.id, trial.point, *(label(sweep.points[trial.point].get(k, "")) for k in sweep.keys),
+        if trial.point not in labels:
+            labels[trial.point] = [label(sweep.points[trial.point].get(k, "")) for k in sweep.keys]
+        rows.append([trial.id, trial.point, *labels[trial.point],
                      trial.decoder, trial.condition, trial.stimulation, trial.index, trial.seed,
                      record["status"], *(repr(outcome[m]) if m in outcome else "" for m in MEASURES),
                      record.get("elapsed_s", ""), record.get("error", "")])

@@ -41,8 +41,9 @@ from rhi.master.outputs.files import atomic_write
 log = logging.getLogger("rhi.fast_check")
 
 DRIFT_BOUND = 0.01  # largest final-drift error of the fast mode, relative to the largest exact drift checked
-NOT_TRIAL_SETTINGS = {"experiment": {"decoders", "trials", "batch_trials"}, "decoder": {"conv_checkpoint", "vae_checkpoint", "fast"},
-                      "train": None, "fmu": None}  # what does not move a checked trial (None: the whole table)
+# what does not move a checked trial (None: the whole table); the check runs the pymunk arm whatever experiment.body
+NOT_TRIAL_SETTINGS = {"experiment": {"decoders", "trials", "batch_trials", "body"},
+                      "decoder": {"conv_checkpoint", "vae_checkpoint", "fast"}, "train": None, "fmu": None}
 # The stimulation schedule (docs/configuration.md, "Stimulation schedules"): a protocol family's members differ
 # only here. A table name stands for the whole table.
 SCHEDULE_KEYS = ("stimulations", "experiment.stimulations", "experiment.probe_times", "stimulus.stop_time",

@@ -164,11 +164,15 @@ def body_factory(path, config: dict | None = None):
 
     ``path``: a registered body variant's name (``rhi.master.config.bodies.VARIANTS``: ``batched``, ``kinematic``, run
     in this process), or an FMU, checked now, before any work: the body contract (every problem listed) and that
-    its binary loads. Its calls are limited to ``[fmu] step_timeout_s`` seconds each (0: no limit).
+    its binary loads. Its calls are limited to ``[fmu] step_timeout_s`` seconds each (0: no limit). None: the body
+    ``config`` chooses (``experiment.body``).
     """
+    from rhi.master.config.bodies import configured, variant_class
+
+    if path is None and config is not None:
+        path = configured(config)
     if path is None:
         return None, None
-    from rhi.master.config.bodies import variant_class
 
     made = variant_class(path)
     if made is not None:
@@ -211,10 +215,13 @@ def batch_outcomes(config: dict, decoder: str, trials: list[Trial], checkpoint: 
 
     from rhi.master.decoders.cache import checkpoint_path, decoder_component
 
+    make_body = body_factory(None, config)[0]  # the configuration's body (experiment.body)
+
     def run_trials(batch: list[Trial]) -> list[dict]:
         path = checkpoint or checkpoint_path(decoder, config, must_exist=True)
         # one torch thread, as in the experiment's batches: the same numbers, and sweep workers are one core each
-        result = run_batch(decoder_component(decoder, path, config, threads=JOB_THREADS), batch, config)
+        result = run_batch(decoder_component(decoder, path, config, threads=JOB_THREADS), batch, config,
+                           make_body() if make_body else None)
         final = end_of_trial(result.times, measures(result, models.of(config)), config["experiment"]["probe_times"])
         renamed = {"drift_cm": "drift_cm", "force_x_n": "force_n", "gamma": "gamma_final"}
         return [{"status": "ok", "outcome": {

@@ -10,6 +10,7 @@ import numpy as np
 
 from rhi.master import config as configuration
 from rhi.master import models
+from rhi.master.config import bodies
 from rhi.master.config.protocol import Trial, make_trial, plan
 from rhi.master.config.sources import parameters
 from rhi.master.cosim import ConfigError
@@ -61,12 +62,14 @@ class Illusion(Task):
 
     def scenario(self, config: dict, kind: str, trials=(), checkpoint: str | None = None):
         """The rubber-hand system of decoder ``kind`` (:func:`rhi.master.tasks.illusion.wiring.scenario`), the
-        native body."""
+        configuration's body (``experiment.body``)."""
         from rhi.master.decoders.cache import checkpoint_path, decoder_component
         from rhi.master.runtime.pool import JOB_THREADS
+        from rhi.master.tasks.illusion.runner import body_factory
 
-        path = checkpoint or checkpoint_path(kind, config, must_exist=True)
-        return wiring.scenario(decoder_component(kind, path, config, threads=JOB_THREADS), config, trials=trials)
+        path, make_body = checkpoint or checkpoint_path(kind, config, must_exist=True), body_factory(None, config)[0]
+        return wiring.scenario(decoder_component(kind, path, config, threads=JOB_THREADS), config,
+                               make_body() if make_body else None, trials)
 
     def parameters(self, trials: list, config: dict, system) -> dict:
         """The trials' parameters that the system declares
@@ -102,11 +105,12 @@ class Illusion(Task):
         from rhi.master.tasks.illusion.publish import simulate_protocol
         from rhi.master.tasks.illusion.runner import body_factory
 
-        declared = body_factory(self.body, config)[1]  # checked already (check_before_work)
+        body = self.body if self.body is not None else bodies.configured(config)  # --body, else experiment.body
+        declared = body_factory(body, config)[1]  # checked already (check_before_work)
         if workers is None:
             with Workers(1 if context.device != "cpu" else context.processes) as own:
-                return simulate_protocol(config, self.body, context, own, declared, self)
-        return simulate_protocol(config, self.body, context, workers, declared, self)
+                return simulate_protocol(config, body, context, own, declared, self)
+        return simulate_protocol(config, body, context, workers, declared, self)
 
     def tables(self, result) -> dict:
         """summary.csv, trials.csv (and participants.csv for a population that varies)."""

@@ -1,6 +1,6 @@
 """The FMI co-simulation calls both slave bases make on a component, with a failure logged as one line.
 
-:mod:`rhi.components.fmu_slave_base` (pythonfmu, FMI 2.0) and :mod:`rhi.components.fmu_slave3_base` (pythonfmu3, FMI 3.0)
+:mod:`rhi.components.fmi_export.slave_fmi2` (pythonfmu, FMI 2.0) and :mod:`rhi.components.fmi_export.slave_fmi3` (pythonfmu3, FMI 3.0)
 differ in their status enums and packages, not in what a call does to the component (one trial of
 :mod:`rhi.components.component`): each passes its ``log`` and its error status. Imports no pythonfmu package, so
 either base can use it (the body FMUs carry it in their copy of ``components``).

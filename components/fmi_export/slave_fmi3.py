@@ -1,10 +1,10 @@
 """The pythonfmu3 slave base: one trial of a component (the fixed-step protocol of :mod:`rhi.components.component`)
 behind the FMI 3.0 co-simulation API, its ports grouped into Float64 arrays as its FMI 3.0 description says.
 
-The FMI 3.0 twin of :mod:`rhi.components.fmu_slave_base`: the body FMU's FMI 3.0 slave
+The FMI 3.0 twin of :mod:`rhi.components.fmi_export.slave_fmi2`: the body FMU's FMI 3.0 slave
 (``components/body/fmu_slave3.py``) makes its component and hands it to :meth:`ComponentSlave3Base.serve` with
 the arrays (:data:`rhi.components.body.contract.FMI3_ARRAYS`). The model description is
-:func:`rhi.components.model_description3.to_xml3`'s, the one the C body's FMI 3.0 build carries, so the value
+:func:`rhi.components.fmi_export.description_fmi3.to_xml3`'s, the one the C body's FMI 3.0 build carries, so the value
 references are the FMI 2.0 ones (an array's is its first element's; ``time`` follows the last) and pythonfmu3's
 own numbering (registration order) is replaced by them. The body FMU carries a copy of this module in its copy of
 ``components``.
@@ -17,8 +17,8 @@ import numpy as np
 from pythonfmu3 import Boolean, Dimension, Fmi3Causality, Fmi3Slave, Fmi3Variability, Float64, Int32
 from pythonfmu3.enums import Fmi3Status
 
-from .fmu_calls import exit_initialization, step
-from .model_description3 import layout, to_xml3
+from .calls import exit_initialization, step
+from .description_fmi3 import layout, to_xml3
 
 FMI_TYPES = {"Real": Float64, "Integer": Int32, "Boolean": Boolean}
 PYTHON_TYPES = {"Real": float, "Integer": int, "Boolean": bool}
@@ -60,7 +60,7 @@ class ComponentSlave3Base(Fmi3Lifecycle, Fmi3Slave):
 
     def serve(self, component, arrays: dict) -> None:
         """Instantiate ``component`` for one trial and register its FMI 3.0 variables (``arrays`` as in
-        :func:`rhi.components.model_description3.layout`) at their value references, then ``time``."""
+        :func:`rhi.components.fmi_export.description_fmi3.layout`) at their value references, then ``time``."""
         self.component, self.arrays = component, arrays
         component.instantiate(1)
         for name, reference, group, description in layout(component, arrays):
@@ -109,7 +109,7 @@ class ComponentSlave3Base(Fmi3Lifecycle, Fmi3Slave):
 
     # -- model description ----------------------------------------------------------------
     def to_xml(self, model_options=None):
-        """The component's FMI 3.0 description (:func:`~rhi.components.model_description3.to_xml3`, the C body's
+        """The component's FMI 3.0 description (:func:`~rhi.components.fmi_export.description_fmi3.to_xml3`, the C body's
         writer) with pythonfmu3's ``CoSimulation`` (its model identifier, the library's name, and
         ``needsExecutionTool``: a Python) and log categories, the model name pythonfmu3 names the FMU by and its
         generation tool."""

@@ -1,13 +1,20 @@
 """Importing from an FMU's own copy of its packages: :func:`bundled`, for the body FMUs' slave scripts
 (``components/body/fmu_slave.py``, FMI 2.0; ``components/body/fmu_slave3.py``, FMI 3.0).
 
-A script loads this file by its path from the copy of ``components`` beside it (``own_bundle``, in each script:
-the copy cannot be imported by name before this file is there to do it). It imports nothing of the
-project, so the FMU's copy and the host's are the same file.
+A script runs this file by its path from the copy of ``components`` beside it (the copy cannot be imported by
+name before this file is there to do it) and calls :func:`for_script`, the bootstrap both scripts share. It
+imports nothing of the project, so the FMU's copy and the host's are the same file.
+
+Example (a slave script's first lines)::
+
+    BUNDLE = globals().get("BUNDLE") or runpy.run_path(
+        os.path.join(HERE, "components", "fmi_export", "bundle.py"))["for_script"](__name__)
+    Base = BUNDLE.bundled(HERE, "components.fmi_export.slave_fmi2:ComponentSlaveBase", __name__)
 """
 from __future__ import annotations
 
 import importlib
+import importlib.util
 import os
 import sys
 
@@ -15,6 +22,19 @@ import sys
 RUNTIMES = {"pythonfmu", "pythonfmu3"}
 
 _BUNDLES: dict[str, tuple[set, dict]] = {}  # resources folder -> (its packages, the modules imported from them)
+
+
+def for_script(script: str):
+    """This file as a module of the slave script ``script`` (its module name), loaded by its path once per process
+    under a name of that script's, ``<script>_bundle``: pythonfmu's builder reloads the script, and its library runs
+    it again from the module a process imported first, whose folder (a builder's staging folder) may be gone by
+    then; the module loaded first, with its record of what it imported (:func:`bundled`), is the one they get."""
+    name = f"{script}_bundle"
+    if name not in sys.modules:
+        spec = importlib.util.spec_from_file_location(name, __file__)
+        sys.modules[name] = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(sys.modules[name])
+    return sys.modules[name]
 
 
 def bundled(resources: str, spec: str, script: str):

@@ -16,7 +16,7 @@ from __future__ import annotations
 import uuid
 from xml.etree import ElementTree as ET
 
-from .model_description import VARIABILITY, unit_definitions, xml_value
+from ..model_description import VARIABILITY, unit_definitions, xml_value
 
 TYPES = {"Real": "Float64", "Integer": "Int32", "Boolean": "Boolean"}  # FMI 2.0 type -> FMI 3.0 element
 

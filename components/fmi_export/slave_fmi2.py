@@ -16,8 +16,8 @@ import numpy as np
 from pythonfmu import Boolean, Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real
 from pythonfmu.enums import Fmi2Status
 
-from .fmu_calls import exit_initialization, step
-from .model_description import model_structure, typed_attributes, unit_definitions
+from .calls import exit_initialization, step
+from ..model_description import model_structure, typed_attributes, unit_definitions
 
 FMI_TYPES = {"Real": Real, "Integer": Integer, "Boolean": Boolean}
 PYTHON_TYPES = {"Real": float, "Integer": int, "Boolean": bool}
