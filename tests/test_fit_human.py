@@ -5,6 +5,7 @@ sources and run end to end at a tiny size.
 Truth: numpy's normal draws from the fit's documented seed, the chi-square distribution of a normal sample's
 variance, FREE_PARAMETERS (master/models/ownership.py), and the protocol file docs/fit/human/rohde2011.toml.
 """
+import csv
 import json
 import re
 import tomllib
@@ -144,6 +145,12 @@ def test_a_tiny_ownership_fit_runs_and_adds_each_cell_s_sem(quick_cache, tmp_pat
     assert run["cell_noise"] == {f"drift_cm[rohde/{s}]": sd for s, sd in SEM.items()}
     values = np.loadtxt(out / "posterior.csv", delimiter=",", skiprows=1, usecols=(2, 3))
     assert values.shape == (20, 2) and np.all((values >= 1 / 600) & (values <= 1.0))
+    # the adopted point is one joint posterior sample: the row of posterior.csv it names (6 significant digits)
+    point = list(csv.DictReader((out / "point.csv").open()))
+    samples = list(csv.DictReader((out / "posterior.csv").open()))
+    assert [r["parameter"] for r in point] == list(FREE_PARAMETERS) and len({r["sample"] for r in point}) == 1
+    row = samples[int(point[0]["sample"])]
+    assert [float(row[r["parameter"]]) for r in point] == pytest.approx([float(r["value"]) for r in point], rel=1e-5)
     data = read_data(data_path)
     plan = read_plan(str(fit), data)
     sweep = participants_sweep(plan, draw_participants(plan.parameters, plan.settings), "prior")
@@ -153,3 +160,22 @@ def test_a_tiny_ownership_fit_runs_and_adds_each_cell_s_sem(quick_cache, tmp_pat
     held = np.genfromtxt(out / "held_out.csv", delimiter=",", names=True, dtype=None, encoding="utf-8")
     assert held["drift_cm_sem"].tolist() == [SEM[s] for s in held["stimulation"]]
     assert np.allclose(held["drift_cm"].reshape(3, 3), (clean + draw)[10:], rtol=1e-5, atol=1e-12)
+
+
+def test_the_group_fit_file_fits_a_population_over_rohde_s_protocol_on_means_and_sds():
+    """docs/fit/human/ownership_group.toml: Rohde's protocol (the batched arm), studies of n = 10, the medians on
+    FREE_PARAMETERS' priors; rohde2011_group.csv: rohde2011.csv's means with sd = SEM sqrt(10), to the 1 um written."""
+    group, individual = protocol(HUMAN / "ownership_group.toml"), protocol(HUMAN / "rohde2011.toml")
+    assert group.pop("experiment") == {**individual.pop("experiment"), "body": "batched"}
+    assert group.pop("population").keys() == {"ownership.coupling_prior", "ownership.realignment_rate"}
+    assert group == individual
+    data = read_data(HUMAN / "rohde2011_group.csv")
+    assert data.measures == ["drift_cm", "drift_cm_sd"] and data.cells == read_data(HUMAN / "rohde2011.csv").cells
+    means, sds = data.observed[0, 0::2], data.observed[0, 1::2]
+    assert means.tolist() == [-0.98, -5.90, -6.47]  # async, sync, vision, as rohde2011.csv
+    assert sds.tolist() == pytest.approx([SEM[s] * 10 ** 0.5 for _, s in data.cells], abs=5e-4)
+    plan = read_plan(str(HUMAN / "ownership_group.toml"), data)
+    assert plan.settings["model"] == "ownership" and plan.settings["trials_per_cell"] == 10
+    priors = {p.key.removeprefix("population.").removesuffix(".median"): (p.prior, p.low, p.high)
+              for p in plan.parameters if not p.key.endswith((".logit_sd", ".log_sd"))}
+    assert priors == {k: v for k, v in FREE_PARAMETERS.items() if k != "ownership.switching_rate"}

@@ -3,7 +3,7 @@ trained, every participant's posterior, the calibration on held-out simulations,
 check, and run.json.
 
 DIR holds (docs/fit.md): fit.json (what the fit is: its fingerprint), simulations/ (a sweep folder: the prior's
-simulated participants, a record per trial), estimator.pt, posterior.csv, estimates.csv, calibration.csv,
+simulated participants, a record per trial), estimator.pt, posterior.csv, estimates.csv, point.csv, calibration.csv,
 recovery.csv, held_out.csv, predictive/ (a sweep folder) and predictive.csv, figures/, run.json. A killed fit
 run again reruns only the missing trials and gives the same bytes (same seed, same CPU). The data may change
 between runs of the same fit (same design): the simulations and the estimator are reused, the posteriors
@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from rhi.master.cosim import ConfigError
-from rhi.master.fit import report
+from rhi.master.fit import point, report
 from rhi.master.fit.calibration import calibrate
 from rhi.master.fit.data import Data, read_data
 from rhi.master.fit.plan import FitPlan, draw_participants, read_plan, simulation_seed
@@ -40,11 +40,11 @@ AFTER_TRAINING = ("workers", "posterior_samples", "calibration_samples", "predic
 # settings that were a fit's only behaviour before their key existed (a single estimator in the bounded space on
 # z-scored statistics, random held-out draws): left out of the fingerprint, so that fits made then keep theirs
 BEFORE_THEIR_KEYS = (("ensemble", 1), ("space", "bounded"), ("statistics", "z-score"), ("calibration_design", "random"))
-OUTPUTS = ("fit.json", "simulations", "estimator.pt", "posterior.csv", "estimates.csv", "calibration.csv",
+OUTPUTS = ("fit.json", "simulations", "estimator.pt", "posterior.csv", "estimates.csv", "point.csv", "calibration.csv",
            "recovery.csv", "held_out.csv", "predictive", "predictive.csv", "figures", "run.json", ".lock",
            ".rhi-manifest.json")
 # the reports a run writes over (its manifest lists each; a resumed fit refuses one edited since)
-REPORTS = ("posterior.csv", "estimates.csv", "calibration.csv", "recovery.csv", "held_out.csv", "predictive.csv",
+REPORTS = ("posterior.csv", "estimates.csv", "point.csv", "calibration.csv", "recovery.csv", "held_out.csv", "predictive.csv",
            "run.json", "figures/calibration.png", "figures/posterior_predictive.png")
 
 
@@ -206,10 +206,12 @@ def _fit(data: Data, plan: FitPlan, drawn: np.ndarray, sweep, out: Path, pool, l
         samples.append(inference.sample(posterior, observed, settings["posterior_samples"],
                                         simulation_seed(settings["seed"], number, "posterior") % 2**62))
         timing.append(time.perf_counter() - tick)
+    atomic_write(out / "point.csv", point.point_csv(plan.parameters, data.participants, posterior, select(data, plan),
+                                                    np.stack(samples)))  # the adopted joint point (point.py)
     samples = report.natural(plan.parameters, np.stack(samples))
     atomic_write(out / "posterior.csv", report.posterior_csv(plan.parameters, data.participants, samples))
     atomic_write(out / "estimates.csv", report.estimates_csv(plan.parameters, data.participants, samples))
-    written(own, "posterior.csv", "estimates.csv")
+    written(own, "posterior.csv", "estimates.csv", "point.csv")
 
     calibration = None
     if len(held_rows):

@@ -46,14 +46,43 @@ SHARED_KEYS = {"brain.gamma0": "the paper's initial gamma (Rood et al. 2020: \"T
 DERIVED_FROM = {"brain.peripersonal_sd": "ownership.peripersonal_boundary"}
 # The free parameters, fitted on the training set: (prior, low, high) each, stated before the fit that uses it
 # (docs/model.md, "The ownership model": why these ranges, and why the coupling prior joined the rates). Their
-# values in ownership.toml are the posterior medians of the fit shipped in FIT_FOLDER (relative to the project).
+# values in ownership.toml are the adopted joint point (point.csv) of the population fit shipped in FIT_FOLDER
+# (relative to the project), its population medians where it fits a [population]; a parameter that fit leaves out
+# keeps the posterior median of the individual fit in MEDIAN_FIT_FOLDER (fitted_values).
 FREE_PARAMETERS = {"ownership.switching_rate": ("log-uniform", 1.0 / 600.0, 1.0),
                    "ownership.realignment_rate": ("log-uniform", 1.0 / 600.0, 1.0),
                    "ownership.coupling_prior": ("uniform", 0.01, 0.99),
                    "ownership.coupling_window_sd": ("log-uniform", 0.1, 10.0),
                    "ownership.counter_evidence_leak": ("log-uniform", 1.0 / 600.0, 1.0),
                    "ownership.proprioceptive_fading_rate": ("log-uniform", 1.0 / 600.0, 1.0)}
-FIT_FOLDER = "docs/fit/human/ownership_rohde2011"
+FIT_FOLDER = "docs/fit/human/ownership_group"
+MEDIAN_FIT_FOLDER = "docs/fit/human/ownership_rohde2011"
+
+
+def fitted_values(root) -> dict[str, dict]:
+    """Each free parameter's fitted value as shipped: {key: {"value", "q05", "q95", "rule", "folder"}}, from
+    FIT_FOLDER's point.csv and estimates.csv (the key itself, or its population median ``population.KEY.median``),
+    else MEDIAN_FIT_FOLDER's estimates.csv (the posterior median); ``root`` the project's folder."""
+    import csv
+    from pathlib import Path
+
+    def rows(folder, name):
+        with open(Path(root) / folder / name, encoding="utf-8") as file:
+            return {row["parameter"]: row for row in csv.DictReader(file)}
+
+    point, estimates, medians = (rows(FIT_FOLDER, "point.csv"), rows(FIT_FOLDER, "estimates.csv"),
+                                 rows(MEDIAN_FIT_FOLDER, "estimates.csv"))
+    result = {}
+    for key in FREE_PARAMETERS:
+        fitted = next((name for name in (key, f"population.{key}.median") if name in point), None)
+        if fitted:
+            result[key] = {"value": float(point[fitted]["value"]), "q05": float(estimates[fitted]["q05"]),
+                           "q95": float(estimates[fitted]["q95"]), "rule": "the joint posterior mode",
+                           "folder": FIT_FOLDER}
+        elif key in medians:
+            result[key] = {"value": float(medians[key]["median"]), "q05": float(medians[key]["q05"]),
+                           "q95": float(medians[key]["q95"]), "rule": "the posterior median", "folder": MEDIAN_FIT_FOLDER}
+    return result
 
 
 def positive(trials: TrialValues, key: str, unit: str) -> np.ndarray:

@@ -5,7 +5,6 @@ without reaching docs/configuration.md too.
 """
 from __future__ import annotations
 
-import csv
 import math
 import re
 from importlib import resources
@@ -259,12 +258,11 @@ def ownership_constants() -> str:
     from rhi.components.body.kinematics import FOREARM, UPPER_ARM
     from rhi.components.brain.ownership_inference import peripersonal_sd_from_boundary
     from rhi.master import config as configuration
-    from rhi.master.models.ownership import DERIVED_FROM, FIT_FOLDER, FREE_PARAMETERS, OWN_SOURCES, SHARED_KEYS
+    from rhi.master.models.ownership import DERIVED_FROM, FREE_PARAMETERS, OWN_SOURCES, SHARED_KEYS, fitted_values
 
     config = configuration.load(model_name="ownership")
     comments = {key: comment for key, _, comment in commented_keys("models/ownership.toml")}
-    with open(Path(__file__).resolve().parents[2] / FIT_FOLDER / "estimates.csv") as file:
-        estimates = {row["parameter"]: {q: float(row[q]) for q in ("q05", "q95")} for row in csv.DictReader(file)}
+    estimates = fitted_values(Path(__file__).resolve().parents[2])
 
     def value(key):
         table, _, name = key.partition(".")
@@ -290,7 +288,8 @@ def ownership_constants() -> str:
             prior, low, high = FREE_PARAMETERS[source]
             shown_low = f"1/{1 / low:g}" if prior == "log-uniform" else f"{low:g}"
             fitted = estimates.get(source)
-            how = (f"fitted: the posterior median ({fitted['q05']:.2g}-{fitted['q95']:.2g}, 90 %) of `{FIT_FOLDER}/`"
+            how = (f"fitted: {fitted['rule']} (marginal 90 %: {fitted['q05']:.2g}-{fitted['q95']:.2g}) of "
+                   f"`{fitted['folder']}/`"
                    if fitted else "free, **not fitted yet**: the value is a start, not a result")
             rows.append([name, f"`{source}`", f"{value(source):g}", f"{how}, prior {prior} on [{shown_low}, {high:g}]"])
         else:
