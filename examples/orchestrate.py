@@ -99,7 +99,7 @@ def main():
                                                      "(default: a temporary folder, removed at the end)")
     parser.add_argument("--steps", type=int, help="steps of 0.02 s (default 1500: 30 s)")
     parser.add_argument("--resolution", type=int, help="camera and decoder image side, px (default 64)")
-    # 20.0 is the calibrated value; master/defaults.toml ([decoder] visual_variance) holds the default.
+    # 20.0 is the calibrated value; master/config/defaults.toml ([decoder] visual_variance) holds the default.
     parser.add_argument("--visual-variance", type=float, default=20.0)
     parser.add_argument("--seed", type=int, default=1, help="seeds the stimulus's visuo-tactile delays")
     args = parser.parse_args()

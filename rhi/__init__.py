@@ -9,6 +9,8 @@ The public API, one call per job. Importing ``rhi`` is light: each name loads it
                           Dataset, ``write(DIR)`` for the files ``rhi experiment`` writes
 ``load_config``           a configuration: the defaults, a preset, a model, a file, overrides
 ``models``                the registered models' names (built in, entry points ``rhi.models``)
+``tasks``                 the registered tasks by name (built in, entry points ``rhi.tasks``): ``rhi.tasks["reach"]``
+``run``                   any task (a registered one or ``FILE.py:Class``) in memory: a result with ``tables()``
 ``load_sweep``            a sweep file as a plan of trials; ``run_sweep`` runs it in memory
 ``power``                 the power of a paired contrast over study sizes, by simulated studies of a population
 ``fit``                   ``rhi fit`` in memory over arrays: ``read_data``, ``read_plan``, ``draw``, ``simulate``,
@@ -22,6 +24,8 @@ Examples
 ('paper', 'causal', 'ownership')
 >>> rhi.load_config(quick=True)["experiment"]["resolution"]
 32
+>>> list(rhi.tasks)
+['illusion', 'reach', 'moving-hand', 'reach-after']
 """
 from __future__ import annotations
 
@@ -46,6 +50,8 @@ _EXPORTS = {
     "Experiment": "rhi.api:Experiment",
     "load_config": "rhi.api:load_config",
     "models": "rhi.api:models",
+    "tasks": "rhi.master.tasks:TASKS",
+    "run": "rhi.api:run",
     "load_sweep": "rhi.api:load_sweep",
     "run_sweep": "rhi.api:run_sweep",
     "fit": "rhi.fit:",

@@ -61,6 +61,51 @@ def models() -> tuple[str, ...]:
     return registry.names()
 
 
+def run(task, config: dict | None = None, *, model: str = "paper", quick: bool = False, **overrides):
+    """Run a task in memory: a registered one (:data:`rhi.tasks`) or one of one's own (``"FILE.py:Class"``).
+
+    Parameters
+    ----------
+    task : str or rhi.master.tasks.Task
+        ``"illusion"``, ``"reach"``, ``"moving-hand"``, ``"reach-after"``, an entry point's name, or
+        ``"path/to/file.py:Class"`` (``examples/my_task.py``).
+    config : dict, optional
+        A configuration of the task (default: the task's own, ``task.load``, with ``model`` and ``quick``).
+    model : str
+        A registered model's name or ``FILE.py:Class`` (when ``config`` is not given).
+    quick : bool
+        The small fast settings, where the task has them (when ``config`` is not given).
+    **overrides
+        ``table__key=value`` pairs over the configuration, e.g. ``experiment__steps=12``.
+
+    Returns
+    -------
+    rhi.master.tasks.TaskResult
+        ``.trials``, ``.times`` (s), ``.per_step`` (each measure per step and trial), ``.tables()`` (``{file name:
+        text or DataFrame}``, what the command line writes), ``.provenance``, ``.write(DIR)``.
+
+    Examples
+    --------
+    >>> result = run("moving-hand", experiment__steps=12, experiment__decoders=["conv"],
+    ...              moving_hand__delays=[0.0, 0.1], moving_hand__period=0.2)
+    >>> list(result.tables())
+    ['moving_hand.csv']
+    >>> result.tables()["moving_hand.csv"].splitlines()[0]
+    'decoder,delay_s,drift_cm,drift_relative,gamma,gamma_relative'
+    """
+    from rhi.master import config as configuration
+    from rhi.master import tasks as registry
+
+    chosen = registry.get(task) if isinstance(task, str) else task
+    dotted = {key.replace("__", "."): value for key, value in overrides.items()}
+    if config is None:
+        config = chosen.load(None, dotted, quick, model)
+    elif dotted:
+        config = configuration.merge(config, configuration.nest(dotted))
+        configuration.validate(config)
+    return registry.run(chosen, config)
+
+
 @dataclass
 class Experiment:
     """An experiment's run, in memory, as data.

@@ -405,7 +405,7 @@ def test_a_precision_ratio_too_large_for_the_decoder_is_refused_in_words_before_
     (work / "c.toml").write_text(f"[{table}]\nprecision_ratio = 1e300\n")
     arguments = (["reach", "--quick"] if command == "reach" else ["phenomenon", "reach-after", "--model", "paper"])
     before = tree(tmp_path)
-    # decoder.visual_variance = 20 (master/defaults.toml); the decoder's visual_variance is at least 1e-12
+    # decoder.visual_variance = 20 (master/config/defaults.toml); the decoder's visual_variance is at least 1e-12
     refused(rhi(tmp_path, *arguments, "--config", "c.toml", "--out", "out", timeout=30),
             f"{table}.precision_ratio = 1e+300 is too large: the goal image's visual variance, decoder.visual_variance "
             f"/ {table}.precision_ratio = 20 / 1e+300 = 2e-299, would be below the decoder's smallest, 1e-12; use at "

@@ -154,7 +154,7 @@ def test_a_resumed_fit_refuses_a_report_edited_since_rhi_wrote_it(tmp_path):
 # -- a delay no trial can show ---------------------------------------------------------------------------
 @pytest.mark.parametrize("delay", ["1e300", "3600.0"])
 def test_a_moving_hand_delay_longer_than_the_trial_is_refused(tmp_path, delay):
-    from rhi.master.phenomena.moving_hand import shipped_file
+    from rhi.master.tasks.moving_hand import shipped_file
 
     text = shipped_file().read_text()
     (tmp_path / "work").mkdir()

@@ -1,11 +1,11 @@
-"""Models as registered objects: the registry, a user's model in one file, and every task x every model run
-end to end from the command line at tiny size (the shipped 64 px decoders and pose encoders: nothing trained).
+"""Models and tasks as registered objects: the registries, a user's model and task in one file each, and every task x
+every model run end to end at tiny size, in memory and from the command line, the same tables both ways (the
+shipped 64 px decoders and pose encoders: nothing trained).
 
 Truth: the fixed-gamma example's gamma is the configuration's value at every step (its brain never updates it),
 so its synchronous and asynchronous trials, which differ only in their delays, give the same numbers to the
 last bit; the registry's refusals are read off the files written here."""
 import csv
-import importlib
 import inspect
 import re
 from pathlib import Path
@@ -17,11 +17,15 @@ from rhi.master import models
 from rhi.master.commands.cli import main
 from rhi.master.cosim import ConfigError
 from rhi.master.models.paper import PaperModel
-from rhi.master.tasks import TASKS
+from rhi.master import tasks
+from rhi.master.tasks import TASKS, Task
+from rhi.master.tasks.base import table_text
 from rhi.master import config as configuration
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = f"{ROOT / 'examples' / 'my_model.py'}:FixedGamma"
+EXAMPLE_TASK = f"{ROOT / 'examples' / 'my_task.py'}:MovedArm"
+EXAMPLE_TINY = "[moved_arm]\nmove_time_s = 0.12\n"  # the move at the middle of the tiny trial
 MODELS = ("paper", "causal", "ownership", EXAMPLE)
 TINY = {  # each registered task at tiny size: one decoder, one condition, a few steps of 0.02 s
     "illusion": "[experiment]\nsteps = 12\ntrials = 1\ndecoders = [\"conv\"]\nconditions = [\"left\"]\n",
@@ -34,17 +38,22 @@ TINY = {  # each registered task at tiny size: one decoder, one condition, a few
 
 
 def test_every_registered_task_has_a_tiny_size_here():
-    assert set(TINY) == set(TASKS)
+    assert set(TINY) == set(TASKS) and EXAMPLE_TASK not in TASKS  # a file's task resolves, never registers
 
 
-def test_every_registered_task_names_the_function_describing_its_scenario():
-    from rhi.master.tasks.scene import Scenario
+def test_every_task_declares_the_contract_with_one_signature():
+    """Every task's contract methods take the base's arguments, by name and in order (one signature for all)."""
+    contract = ("load", "plan", "scenario", "parameters", "measures", "tables", "figures", "simulate")
+    for name in (*TASKS, EXAMPLE_TASK):
+        task = tasks.get(name)
+        for method in contract:
+            assert list(inspect.signature(getattr(task, method)).parameters) == \
+                list(inspect.signature(getattr(Task(), method)).parameters), (name, method)
 
-    for task in TASKS.values():
-        module, _, function = task.scenario.partition(":")
-        describe = getattr(importlib.import_module(module), function)
-        assert inspect.signature(describe).return_annotation in (Scenario, "Scenario"), task.name
 
+def command_of(task: str) -> list[str]:
+    """The command that runs ``task``: a built-in's own (rhi experiment, rhi phenomenon moving-hand), else rhi run."""
+    return tasks.get(task).command.split()[1:] if task in TASKS else ["run", task]
 
 
 class EntryPointModel(PaperModel):
@@ -54,17 +63,86 @@ class EntryPointModel(PaperModel):
     settings_file = ""
 
 @pytest.mark.parametrize("model", MODELS, ids=("paper", "causal", "ownership", "example"))
-@pytest.mark.parametrize("task", TASKS)
-def test_every_task_runs_every_model_from_the_command_line(task, model, tmp_path, capsys):
-    (tmp_path / "tiny.toml").write_text(TINY[task])
-    command = [*TASKS[task].command, "--model", model, "--config", str(tmp_path / "tiny.toml"), "--out",
+@pytest.mark.parametrize("task", (*TASKS, EXAMPLE_TASK), ids=(*TASKS, "example"))
+def test_every_task_runs_every_model_in_memory_and_from_the_command_line(task, model, tmp_path, capsys):
+    """Each task x model end to end at tiny size: from its command, and in memory (rhi.master.tasks.run), the same
+    tables to the byte (one writer: the command writes what the in-memory result holds)."""
+    (tmp_path / "tiny.toml").write_text(TINY.get(task, TINY["illusion"] + EXAMPLE_TINY))
+    command = [*command_of(task), "--model", model, "--config", str(tmp_path / "tiny.toml"), "--out",
                str(tmp_path / "out")]
     assert main(command) == 0, capsys.readouterr().err[-2000:]
-    tables = sorted((tmp_path / "out").glob("*.csv"))
-    assert tables, "no table written"
-    assert all(list(csv.DictReader(table.open())) for table in tables)  # each table has rows
+    written = sorted((tmp_path / "out").glob("*.csv"))
+    assert written, "no table written"
+    assert all(list(csv.DictReader(table.open())) for table in written)  # each table has rows
     run = (tmp_path / "out" / "run.json").read_text()
     assert f'"model": "{models.get(model).name}"' in run
+    chosen = tasks.get(task)
+    in_memory = tasks.run(chosen, chosen.load(tmp_path / "tiny.toml", model_name=model)).tables()
+    assert sorted(in_memory) == [path.name for path in written]
+    for name, table in in_memory.items():
+        assert table_text(table) == (tmp_path / "out" / name).read_text(), name
+
+
+def test_the_example_task_moves_the_arm_at_its_time_and_not_before():
+    """examples/my_task.py: until the move the trial is the one without a move, to the last bit (the arm has not
+    moved); at the end the drift differs (the decoder now sees the arm 10 cm further away)."""
+    task = tasks.get(EXAMPLE_TASK)
+    config = task.load(overrides={"experiment.steps": 12, "experiment.decoders": ["conv"],
+                                  "experiment.conditions": ["left"], "experiment.stimulations": ["sync"],
+                                  "experiment.trials": 1, "moved_arm.move_time_s": 0.12})
+    moved, still = (tasks.run(task, configuration.merge(config, {"moved_arm": {"shift_cm": shift}}))
+                    for shift in (10.0, 0.0))
+    before = task.before(moved.times, config)
+    assert moved.times[before] < 0.12 <= moved.times[before + 1]
+    assert np.array_equal(moved.per_step["drift_cm"][:before + 1], still.per_step["drift_cm"][:before + 1])
+    assert moved.per_step["drift_cm"][-1, 0] != still.per_step["drift_cm"][-1, 0]
+    frame = moved.tables()["drift.csv"]
+    assert frame["drift_before_cm"][0] == moved.per_step["drift_cm"][before, 0]
+
+
+def test_the_example_task_runs_as_a_sweep(tmp_path, capsys):
+    """[sweep] task = "examples/my_task.py:MovedArm": each trial through the task's outcome; with no shift it is the
+    illusion's own trial (the same batch of one, the same bits), with 10 cm it is not."""
+    (tmp_path / "sweep.toml").write_text(
+        '[experiment]\nsteps = 12\ndecoders = ["conv"]\nconditions = ["left"]\nstimulations = ["sync"]\n'
+        f'[moved_arm]\nmove_time_s = 0.12\n[sweep]\ntask = "{EXAMPLE_TASK}"\ntrials = 1\nworkers = 1\n'
+        '[sweep.grid]\n"moved_arm.shift_cm" = [0.0, 10.0]\n')
+    assert main(["sweep", "--config", str(tmp_path / "sweep.toml"), "--out", str(tmp_path / "sweep")]) == 0, \
+        capsys.readouterr().err[-2000:]
+    rows = {float(row["moved_arm.shift_cm"]): float(row["drift_cm"])
+            for row in csv.DictReader((tmp_path / "sweep" / "index.csv").open())}
+    illusion = tasks.get("illusion")
+    config = illusion.load(overrides={"experiment.steps": 12, "experiment.decoders": ["conv"],
+                                      "experiment.conditions": ["left"], "experiment.stimulations": ["sync"],
+                                      "experiment.trials": 1})
+    alone = illusion.outcome(config, illusion.plan(config)[0])["drift_cm"]
+    assert rows[0.0] == alone and rows[10.0] != alone
+
+
+@pytest.mark.parametrize("body, message", [
+    ("", "has no Mine"),
+    ("Mine = 3\n", "Mine is not a rhi.master.tasks.Task"),
+    ("from rhi.master.tasks import Task\nclass Mine(Task):\n    name = 'Bad Name'\n", "name must be lower-case"),
+    ("from rhi.master.tasks import Task\nclass Mine(Task):\n    name = 'mine'\n    summary = 'x'\n",
+     "plan() is not defined"),
+    ("raise RuntimeError('boom')\n", "RuntimeError: boom"),
+])
+def test_a_bad_task_file_is_one_line(tmp_path, body, message):
+    (tmp_path / "mine.py").write_text(body)
+    with pytest.raises(ConfigError, match=re.escape(message)) as caught:
+        tasks.get(f"{tmp_path / 'mine.py'}:Mine")
+    assert "\n" not in str(caught.value)
+
+
+def test_a_task_refused_on_the_command_line_is_exit_2_and_one_line(tmp_path, capsys):
+    """An unknown task (rhi run), and one without export hooks (export-agent --task): one line, exit 2, no file."""
+    for command, message in ((["run", "nope", "--out", str(tmp_path / "out")], "task 'nope' is unknown"),
+                             (["export-agent", "--quick", "--task", "moving-hand", "--out", str(tmp_path / "A.fmu")],
+                              "--task 'moving-hand' is not one of illusion, reach")):
+        assert main(command) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and message in err[0], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
 
 
 def test_the_example_model_holds_gamma_and_so_ignores_the_timing(tmp_path, capsys):

@@ -6,7 +6,7 @@ from rhi.components.body import kinematics
 from rhi.components.body.movement import MirroredArm, Movement, periodic_step_velocity
 from rhi.components.brain.turning_points import TurningPoints, turned
 from rhi.master.cosim import ConfigError, System, simulate
-from rhi.master.phenomena import moving_hand
+from rhi.master.tasks import moving_hand
 
 
 def test_the_step_velocity_lands_on_the_sine_at_every_step():

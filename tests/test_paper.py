@@ -57,7 +57,7 @@ def flatten(table, prefix=""):
 
 # -- the preset ---------------------------------------------------------------------------------------
 def test_the_paper_preset_is_the_paper_s_scale_merged_over_the_defaults():
-    with open(ROOT / "master" / "paper.toml", "rb") as file:
+    with open(ROOT / "master" / "config" / "presets" / "paper_256.toml", "rb") as file:
         shipped = dict(flatten(tomllib.load(file)))
     paper, default = (dict(flatten(configuration.load(preset_name=name))) for name in ("paper", None))
     # What the preset must be, written here: 256 px, the paper's networks, the fast mode, the CPU speed-ups.
@@ -355,12 +355,12 @@ def test_the_trial_gif_is_enlarged_only_up_to_64_px():
 
 
 def test_the_documented_table_of_the_preset_is_the_shipped_file_and_the_defaults():
-    """docs/configuration.md's generated table (key | paper | default | why) against master/paper.toml."""
+    """docs/configuration.md's generated table (key | paper | default | why) against master/config/presets/paper_256.toml."""
     from docs_tables import rows
 
     from rhi.master.decoders.training import STOP_POSES
     shown = {row[0].strip("`"): [cell.strip("`") for cell in row[1:3]] for row in rows("configuration.md", "paper-preset")}
-    with open(ROOT / "master" / "paper.toml", "rb") as file:
+    with open(ROOT / "master" / "config" / "presets" / "paper_256.toml", "rb") as file:
         shipped = dict(flatten(tomllib.load(file)))
     default = dict(flatten(configuration.load()))
     assert set(shown) == set(shipped)

@@ -343,7 +343,7 @@ def test_a_sweep_varies_a_populations_spread_and_batches_its_points_together():
 
 
 def test_the_tasks_whose_trials_are_not_participants_refuse_a_population(tmp_path):
-    from rhi.master.phenomena import moving_hand
+    from rhi.master.tasks import moving_hand
     from rhi.master.tasks.reach import task as reach
 
     path = tmp_path / "pop.toml"

@@ -22,7 +22,7 @@ from rhi.master.export.body import build_fmu
 from rhi.master.export.ssp_check import read_ssp, trial_parameters
 from rhi.master.export.ssp_package import BODY_PARAMETERS, SSD, TRIALS, build_ssp
 from rhi.master.export.system import final_drift_cm, run_ssp
-from rhi.master.export.tasks import TASKS
+from rhi.master.tasks import TASKS
 from tests.in_process import rhi_in_process
 from tests.test_agent import agent_fmu, quick  # noqa: F401 (fixtures)
 

@@ -33,7 +33,7 @@ from .networks import normalise
 
 REFERENCE_PIXELS = 256 * 256
 # Calibrated at the 256x256 reference with this project's camera and decoders (docs/results.md, "Calibrating
-# the visual variance"), the value master/defaults.toml uses; the released agent's 3000 was for its own images.
+# the visual variance"), the value master/config/defaults.toml uses; the released agent's 3000 was for its own images.
 DEFAULT_VISUAL_VARIANCE = 20.0
 from .limits import MIN_VISUAL_VARIANCE  # noqa: E402: the decoder's visual_variance range
 

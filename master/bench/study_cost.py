@@ -23,7 +23,6 @@ from rhi.master import models
 from rhi.master.config.protocol import plan
 
 STUDY_SIZES, QUICK_STUDY_SIZES = (10, 20, 40), (2, 3)
-STUDY_MODELS = ("paper", "ownership")
 REPEATS = 3  # each batch measured this many times, alternating, its least CPU kept
 BOUND = 1.2  # a study of n within 1.2 x its n participants' trials as clones (docs/performance.md)
 
@@ -34,13 +33,10 @@ PAPER_POPULATION = {"brain.gamma0": {"distribution": "logit-normal", "logit_sd":
 SPREAD = {"log-uniform": ("log-normal", "log_sd", 0.5), "uniform": ("logit-normal", "logit_sd", 1.0)}
 
 
-def population_of(model: str) -> dict:
-    """The bench's population of ``model`` (one of :data:`STUDY_MODELS`): the paper's docs/population/paper.toml;
-    the ownership model's a log-normal (log-sd 0.5) over each log-uniform free parameter (``FREE_PARAMETERS``) and a
-    logit-normal (logit-sd 1) over each uniform one, centred on the configured value and bounded by the prior's
-    range (free, illustrative spreads: the cost, not the cohort, is measured)."""
-    if model == "paper":
-        return PAPER_POPULATION
+def free_parameter_population() -> dict:
+    """The ownership model's bench population: a log-normal (log-sd 0.5) over each log-uniform free parameter
+    (``FREE_PARAMETERS``) and a logit-normal (logit-sd 1) over each uniform one, centred on the configured value
+    and bounded by the prior's range (free, illustrative spreads: the cost, not the cohort, is measured)."""
     from rhi.master.models.ownership import FREE_PARAMETERS
 
     table = {}
@@ -48,6 +44,15 @@ def population_of(model: str) -> dict:
         distribution, field, spread = SPREAD[prior]
         table[key] = {"distribution": distribution, field: spread, "low": low, "high": high}
     return table
+
+
+# The models whose studies the bench times, each with the population its participants are drawn from
+STUDY_POPULATIONS = {"paper": lambda: PAPER_POPULATION, "ownership": free_parameter_population}
+
+
+def population_of(model: str) -> dict:
+    """The bench's population of ``model`` (one of :data:`STUDY_POPULATIONS`)."""
+    return STUDY_POPULATIONS[model]()
 
 
 def batch_cpu(config: dict, checkpoint: str, with_population: bool) -> tuple[float, int, int | None]:
@@ -103,9 +108,9 @@ def study_cost(model: str, n: int, steps: int) -> dict:
 
 
 def study_rows(steps: int, quick: bool = False) -> list[dict]:
-    """:func:`study_cost` of ``steps`` steps for each of :data:`STUDY_MODELS` and study size."""
+    """:func:`study_cost` of ``steps`` steps for each model of :data:`STUDY_POPULATIONS` and study size."""
     sizes = QUICK_STUDY_SIZES if quick else STUDY_SIZES
-    return [study_cost(model, n, steps) for model in STUDY_MODELS for n in sizes]
+    return [study_cost(model, n, steps) for model in STUDY_POPULATIONS for n in sizes]
 
 
 def study_table(rows: list[dict]) -> str:

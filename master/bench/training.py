@@ -6,7 +6,7 @@ phase on camera images, for each decoder kind, in two ways:
 
 - ``before``: the plain path as it was before the paper preset's settings existed: contiguous
   layout, Adam's for-loop step, and (VAE) the encoder's ReLU before its max-pool;
-- ``after``: the settings the configuration gives (by default the paper preset's, master/paper.toml):
+- ``after``: the settings the configuration gives (by default the paper preset's, master/config/presets/paper_256.toml):
   its batch size, ``channels_last``, ``fused_adam``.
 
 Both wall time and CPU time (user + system of this process) are reported: on a machine shared with

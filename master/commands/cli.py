@@ -60,7 +60,7 @@ def _version() -> str:
 # (the exit status). A module imports only what parsing needs at its top; what running needs, in run().
 COMMANDS = {"train": "train", "experiment": "experiment", "export-body": "export_body", "export-agent": "export_agent",
             "export-system": "export_system", "run-system": "run_system", "sweep": "sweep",
-            "phenomenon": "phenomenon", "fit": "fit", "power": "power", "reach": "reach", "bench": "bench"}
+            "phenomenon": "phenomenon", "fit": "fit", "power": "power", "reach": "reach", "run": "run", "bench": "bench"}
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -16,7 +16,7 @@ log = logging.getLogger("rhi.experiment")
 
 def add_arguments(parser) -> None:
     """Add `rhi experiment`'s arguments to ``parser``."""
-    parser.add_argument("--config", metavar="FILE", help="TOML file overriding master/defaults.toml")
+    parser.add_argument("--config", metavar="FILE", help="TOML file overriding master/config/defaults.toml")
     parser.add_argument("--body", metavar="FMU|VARIANT", help="the body: an FMI 2.0 co-simulation FMU, or a body "
                         "variant run in this process (batched: the pymunk arm vectorised for cohorts; kinematic; "
                         "native, the default pymunk arm)")
@@ -39,7 +39,7 @@ def add_preset(parser) -> None:
     """Add ``--preset NAME`` (a shipped configuration, one of ``rhi.master.config.PRESETS``) to ``parser``."""
     parser.add_argument("--preset", choices=configuration.PRESETS,
                         help="a shipped configuration merged over the defaults, under --config: paper = 256x256 "
-                             "and the paper's decoders (master/paper.toml)")
+                             "and the paper's decoders (master/config/presets/paper_256.toml)")
 
 
 def add_model(parser) -> None:
@@ -81,10 +81,10 @@ def run(args) -> int:
               f"stimulations x {config['experiment']['trials']} trials x {config['experiment']['steps']} steps")
     from rhi.components.vision.component import resolve_device
     from rhi.master.runtime.context import RunContext
-    from rhi.master.tasks.illusion.publish import run_into
+    from rhi.master.tasks import TASKS, run_into
 
-    failures = run_into(args.out, config, args.body,
-                        RunContext.of(args, progress=True, device=resolve_device(args.device)))
+    failures = run_into(TASKS["illusion"].with_body(args.body), args.out, config,
+                        RunContext.of(args, progress=True, device=resolve_device(args.device))).failures
     for trial, error in failures.items():
         log.error(f"rhi experiment: trial failed and left out: {trial.decoder}/{trial.condition}/{trial.stimulation} "
                   f"trial {trial.index}: {error}")

@@ -26,8 +26,8 @@ def add_common(parser) -> None:
     parser.add_argument("--task", default="illusion",
                         help="illusion (default: the experiment's agent) or reach (the free arm reaching to a seen "
                              "goal, docs/reach.md; its configuration is rhi reach's)")
-    parser.add_argument("--config", metavar="FILE", help="TOML file overriding master/defaults.toml (and, for "
-                                                         "--task reach, master/reach.toml)")
+    parser.add_argument("--config", metavar="FILE", help="TOML file overriding master/config/defaults.toml (and, for "
+                                                         "--task reach, master/tasks/reach/reach.toml)")
     parser.add_argument("--quick", action="store_true", help="the --quick settings (a 32 px tiny decoder)")
     parser.add_argument("--model", default="paper", metavar="NAME",
                         help="the model whose brain the agent carries (default: paper; a name or FILE.py:Class whose "
@@ -50,10 +50,10 @@ def check_out(args, noun: str, suffix: str) -> None:
 
 
 def load(args) -> dict:
-    """The task's configuration: defaults (and master/reach.toml for the reach), --quick, --config, and
+    """The task's configuration: defaults (and master/tasks/reach/reach.toml for the reach), --quick, --config, and
     --checkpoint for the --decoder it belongs to."""
     from rhi.master.cosim import ConfigError
-    from rhi.master.export.tasks import task
+    from rhi.master.tasks import exportable as task
 
     if args.checkpoint and not args.decoder:
         raise ConfigError("--checkpoint needs --decoder (conv or vae): the kind of decoder it holds")

@@ -15,7 +15,7 @@ from rhi.master import models as registry
 from rhi.master.phenomena import NAMES, sweep_file
 
 BOTH = ("paper", "causal")  # --model both: these side by side (a model's own name runs it alone)
-OWN_PROTOCOLS = ("moving-hand", "reach-after")  # not sweeps: master/phenomena/moving_hand.py, reach_after.py
+OWN_PROTOCOLS = ("moving-hand", "reach-after")  # not sweeps: registered tasks (rhi.master.tasks.TASKS)
 
 
 HELP = "a human phenomenon (temporal window, distance, time course, ...): the models beside the human data"
@@ -50,9 +50,14 @@ def run(args) -> int:
 
     started, out, context = time.perf_counter(), Path(args.out), RunContext.of(args)  # its address checked first
     if args.name in OWN_PROTOCOLS:
-        protocol = __import__(f"rhi.master.phenomena.{args.name.replace('-', '_')}", fromlist=["_"])
-        config = protocol.load(args.config, "paper" if args.model == "both" else args.model)
-        written = protocol.run_into(out, config, context)
+        from rhi.master.tasks import TASKS, run_into
+
+        task = TASKS[args.name]
+        config = task.load(args.config, model_name="paper" if args.model == "both" else args.model)
+        run_into(task, out, config, context)
+        written = sorted(path.name for path in out.iterdir())
+        written = [*(name for name in written if name.endswith(".csv")), *(name for name in written
+                                                                          if not name.endswith(".csv"))]
         print(f"rhi phenomenon {args.name}: wrote {', '.join(str(out / name) for name in written)} "
               f"({time.perf_counter() - started:.0f} s)")
         print((out / written[0]).read_text(), end="")

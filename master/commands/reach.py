@@ -15,8 +15,8 @@ log = logging.getLogger("rhi.reach")
 
 def add_arguments(parser) -> None:
     """Add `rhi reach`'s arguments to ``parser``."""
-    parser.add_argument("--config", metavar="FILE", help="TOML file overriding master/defaults.toml and "
-                                                         "master/reach.toml (reach.goals, reach.ranges, ...)")
+    parser.add_argument("--config", metavar="FILE", help="TOML file overriding master/config/defaults.toml and "
+                                                         "master/tasks/reach/reach.toml (reach.goals, reach.ranges, ...)")
     add_model(parser)
     parser.add_argument("--quick", action="store_true", help="a small version, for smoke tests (tiny decoders "
                                                              "at 32 px, 2 near goals, 500 steps)")
@@ -28,17 +28,16 @@ def add_arguments(parser) -> None:
 
 def run(args) -> int:
     """Run `rhi reach` into ``args.out``; returns the exit status (0, or 1 when a reach failed and was left out)."""
-    from rhi.master.tasks.reach import task as reach
+    from rhi.master.tasks import TASKS, run_into
 
-    started = time.perf_counter()
+    started, task = time.perf_counter(), TASKS["reach"]
     overrides = {key: value for key, value in (("reach.goals", args.goals), ("experiment.seed", args.seed))
                  if value is not None}
-    config = reach.load(args.config, quick=args.quick, model_name=args.model, overrides=overrides)
+    config = task.load(args.config, overrides, args.quick, args.model)
     check_output(args.out, args.force)
     from rhi.master.runtime.context import RunContext
-    from rhi.master.tasks.reach.publish import run_into
 
-    failures = run_into(args.out, config, RunContext.of(args, progress=True))
+    failures = run_into(task, args.out, config, RunContext.of(args, progress=True)).failures
     for trial, error in failures.items():
         log.error(f"rhi reach: reach failed and left out: {trial.decoder}/{trial.band} goal {trial.index}: {error}")
     print(f"wrote {args.out}: summary.csv, goals.csv, trials.csv, run.json, figures/ "

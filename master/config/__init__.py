@@ -1,6 +1,6 @@
 """Configuration: shipped TOML defaults, a preset over them, a user's TOML file, command-line overrides last.
 
-A preset (``--preset paper``) is a shipped TOML file beside ``defaults.toml`` (``master/paper.toml``)
+A preset (``--preset paper``) is a shipped TOML file in ``master/config/presets/`` (``paper_256.toml``)
 holding only the keys it changes; it is merged like the ``[quick]`` table, with the same checks.
 
 Every key a user may set exists in ``defaults.toml``; a key that does not is an
@@ -26,20 +26,22 @@ OPEN_TABLES = ("conditions", "stimulations")  # users may add entries here (a ne
 LISTS = ("decoders", "conditions", "stimulations")  # experiment.* lists: non-empty, no entry twice
 SCHEMES = ("gauss-seidel", "jacobi")
 MAX_RESOLUTION = 1024  # px; the paper's decoders work at 256
-PRESETS = ("paper",)  # --preset NAME merges master/NAME.toml over the defaults
+PRESETS = {"paper": "paper_256.toml"}  # --preset NAME merges master/config/presets/FILE over the defaults
 
 
 def defaults() -> dict:
-    """The shipped defaults, ``master/defaults.toml``, read afresh (its ``[quick]`` table included)."""
-    with resources.files("rhi.master").joinpath("defaults.toml").open("rb") as file:
+    """The shipped defaults, ``master/config/defaults.toml`` (every task's), read afresh (its ``[quick]`` table
+    included)."""
+    with resources.files("rhi.master.config").joinpath("defaults.toml").open("rb") as file:
         return tomllib.load(file)
 
 
 def preset(name: str) -> dict:
-    """The shipped preset ``name`` (``master/NAME.toml``): the keys it changes; ConfigError if unknown."""
+    """The shipped preset ``name`` (``master/config/presets/``, :data:`PRESETS`): the keys it changes; ConfigError
+    if unknown."""
     if name not in PRESETS:
         raise ConfigError(f"preset {name!r} is unknown; choose one of {', '.join(PRESETS)}")
-    with resources.files("rhi.master").joinpath(f"{name}.toml").open("rb") as file:
+    with resources.files("rhi.master.config").joinpath("presets", PRESETS[name]).open("rb") as file:
         return tomllib.load(file)
 
 

@@ -31,21 +31,14 @@ import numpy as np
 from rhi.components.body import kinematics
 from rhi.components.component import Component, ComponentError, StepFailure
 from rhi.components.variables import Variable
-from rhi.master.cosim import Connection, SimulationError, Session, System
+from rhi.master.cosim import SimulationError, Session, System
 from rhi.master.tasks.illusion import wiring
 from rhi.master.config.protocol import make_trial
 from rhi.master.config import sources as parameter_sources
 from rhi.master.config.sources import sources
+from rhi.master.tasks.agent_ports import (BODY, FIXED_AT_BUILD, SEED, SEED_HIGH, SEED_LOW, body_links,  # noqa: F401
+                                          exposed, split_seed, touches_body)
 
-BODY = "body"  # the experiment's name for the body component
-SEED = "stimulus.seed"
-SEED_LOW, SEED_HIGH = "seed", "seed_high"  # its two FMI Integers: the low 32 bits (signed), the high 31
-# Structural, or fixed by the decoder bundled with the agent: given when the agent is built, not ports.
-FIXED_AT_BUILD = ("camera.blur",  # the decoder was trained on images of this blur (its checkpoint is checked)
-                  # the schedule (docs/configuration.md, "Stimulation schedules"): the configuration's, its first
-                  # condition's and stimulation's, so that the agent's ports stay those of earlier builds
-                  "stimulus.stroke_duration", "stimulus.touch", "stimulus.blocks", "stimulus.hidden",
-                  "stimulus.arm_in_view", "camera.arm_visible")
 # FMI name, inner path, element of an Array (None: a scalar): outputs beyond the action.
 OBSERVED = (
     ("mu_shoulder", "brain.mu", 0),
@@ -65,26 +58,6 @@ AXES = ("x", "y")
 PERCEIVED = ("perceived_hand_x", "perceived_hand_y")
 
 
-def split_seed(seed: int) -> tuple[int, int]:
-    """A seed in [0, 2^63) as two FMI 2.0 Integers (32-bit, signed).
-
-    Parameters
-    ----------
-    seed : int
-        The stimulus's seed (the protocol's per-trial seeds use 63 bits).
-
-    Returns
-    -------
-    (low, high) : tuple of int
-        ``low``: the low 32 bits, read as a signed 32-bit integer; ``high``: the bits above, in [0, 2^31).
-    """
-    seed = int(seed)
-    if not 0 <= seed < 2 ** 63:
-        raise ComponentError(f"seed {seed} is outside [0, 2^63)")
-    low = seed & 0xFFFFFFFF
-    return (low - 2 ** 32 if low >= 2 ** 31 else low), seed >> 32
-
-
 def join_seed(low, high) -> np.ndarray:
     """The seed of :func:`split_seed`'s two Integers: ``high * 2^32 + (low mod 2^32)``, per trial (int64)."""
     low, high = np.asarray(low, dtype=np.int64), np.asarray(high, dtype=np.int64)
@@ -95,25 +68,6 @@ def without_body(whole: System) -> System:
     """``whole`` less its body: the other components in order, the connections among them."""
     return System([c for name, c in whole.components.items() if name != BODY],
                   [c for c in whole.connections if not touches_body(c)])
-
-
-def touches_body(connection) -> bool:
-    """Whether a :class:`~rhi.master.cosim.Connection` has the body at either end."""
-    return BODY in (connection.source.partition(".")[0], connection.target.partition(".")[0])
-
-
-def body_links(connections=None) -> list[tuple[str, str]]:
-    """The connections between the body and the rest: (source, target) paths, their order kept.
-
-    Parameters
-    ----------
-    connections : iterable, optional
-        ``(source, target)`` pairs or :class:`~rhi.master.cosim.Connection` objects of a whole system
-        (default: the experiment's, ``wiring.CONNECTIONS``).
-    """
-    pairs = [(c.source, c.target) if isinstance(c, Connection) else tuple(c)
-             for c in (wiring.CONNECTIONS if connections is None else connections)]
-    return [(source, target) for source, target in pairs if touches_body(Connection(source, target))]
 
 
 def agent_connections(agent: str = "agent", body: str = BODY, links=None) -> list[tuple[str, str]]:
@@ -139,15 +93,6 @@ def parameter_paths(system: System, config: dict) -> list[str]:
             for variable in component.variables.values()
             if variable.causality == "parameter" and variable.type != "Array"
             and exposed(f"{name}.{variable.name}", config)]
-
-
-def exposed(path: str, config: dict) -> bool:
-    """Whether parameter ``path`` (``component.variable``) is an agent parameter under ``config``: set from the
-    configuration (the task's sources and the model's, :func:`rhi.master.config.sources.sources`), not the body's, not
-    fixed when the agent is built, not derived."""
-    source = sources(config).get(path)
-    return (source is not None and not path.startswith(BODY + ".") and path not in parameter_sources.CONSTRUCTED
-            and path not in FIXED_AT_BUILD and not source.startswith("derived:"))
 
 
 def configured(path: str, variable: Variable, config: dict):

@@ -3,7 +3,7 @@
 The FMU holds the slave script ``master/export/agent_slave.py``, the decoder checkpoint and
 ``rhi_agent.json`` (the task, the decoder's kind, the configuration, the ports) in its resources. It runs
 in a Python that has the rhi package installed (the slave imports it; see agent_slave.py). The tasks
-(``master/export/tasks.py``): ``illusion``, the experiment's agent (master/export/agent.py), and ``reach``, the free
+(the registered tasks with export hooks, :func:`rhi.master.tasks.exportable`): ``illusion``, the experiment's agent (master/export/agent.py), and ``reach``, the free
 arm reaching to a seen goal (master/export/reach_agent.py).
 
 Example::
@@ -35,10 +35,10 @@ def ports(agent) -> list[list[str]]:
 
 
 def make_agent(checkpoint: str, kind: str, config: dict, task: str = "illusion", name: str = "agent"):
-    """The agent component of ``task`` (``rhi.master.export.tasks``): ``Agent`` or ``ReachAgent``, built as they are."""
+    """The agent component of ``task`` (:func:`rhi.master.tasks.exportable`): ``Agent`` or ``ReachAgent``, built as they are."""
     import importlib
 
-    from rhi.master.export.tasks import task as task_named
+    from rhi.master.tasks import exportable as task_named
 
     module, _, class_name = task_named(task).agent.partition(":")
     return getattr(importlib.import_module(module), class_name)(checkpoint, kind, config, name=name)
@@ -62,14 +62,15 @@ def agent_from_resources(resources: str):
     RuntimeError
         This rhi's agent declares other ports than the FMU's (it was built by another version).
     """
-    from rhi.master.export.tasks import TASKS
+    from rhi.master.tasks import TASKS, exportable
 
     with open(os.path.join(resources, MANIFEST), encoding="utf-8") as file:
         manifest = json.load(file)
     task = manifest.get("task", "illusion")  # an FMU of before the tasks: the illusion's
-    if task not in TASKS:
+    if task not in TASKS or not TASKS[task].exportable:
         raise RuntimeError(f"this agent FMU was built by another version of rhi: its task {task!r} is not one of "
-                           f"{', '.join(TASKS)}; export the agent again with this one")
+                           f"{', '.join(name for name in TASKS if TASKS[name].exportable)}; export the agent again "
+                           "with this one")
     agent = make_agent(os.path.join(resources, CHECKPOINT), manifest["decoder"], manifest["config"], task)
     if ports(agent) != manifest["ports"]:
         mine = {tuple(p) for p in ports(agent)}
@@ -78,7 +79,7 @@ def agent_from_resources(resources: str):
         raise RuntimeError(f"this agent FMU was built by another version of rhi: the installed one declares other "
                            f"ports ({', '.join(differ)}); export the agent again with this one")
     description = agent.summary.format(kind=manifest["decoder"], resolution=manifest["config"]["experiment"]["resolution"])
-    return agent, TASKS[task].model_name, f"{description}; rhi {manifest['rhi']}"
+    return agent, exportable(task).model_name, f"{description}; rhi {manifest['rhi']}"
 
 
 def check_fmi(fmi: str, task: str) -> None:
@@ -108,7 +109,7 @@ def build_agent_fmu(out, kind: str, config: dict, checkpoint: str, task: str = "
     checkpoint : str
         The decoder's checkpoint, copied into the FMU's resources.
     task : str
-        ``illusion`` or ``reach`` (``rhi.master.export.tasks``).
+        ``illusion`` or ``reach`` (:func:`rhi.master.tasks.exportable`).
     fmi : str
         ``2.0`` (pythonfmu) or ``3.0`` (pythonfmu3, :mod:`rhi.master.export.agent_fmi3`; the illusion's agent).
 
@@ -166,7 +167,7 @@ def export_agent(out, config: dict, kind: str | None = None, task: str = "illusi
     """
     from rhi.master.decoders.cache import check_decoders, ensure_checkpoints
     from rhi.master.config.sources import check_parameters
-    from rhi.master.export.tasks import task as task_named
+    from rhi.master.tasks import exportable as task_named
 
     kind = kind or config["experiment"]["decoders"][0]
     if kind not in ("conv", "vae"):

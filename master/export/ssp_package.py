@@ -29,7 +29,7 @@ import numpy as np
 from rhi.master.cosim import ConfigError
 from rhi.master.config.sources import shared_parameters
 from rhi.master.export.agent import agent_connections
-from rhi.master.export.tasks import task as task_named
+from rhi.master.tasks import exportable as task_named
 from rhi.master.outputs.files import atomic_write
 from rhi.master.outputs.out_file import check_output_file, place_file
 
@@ -202,7 +202,7 @@ def build_ssp(out, agent_fmu: str, body_fmu: str, config: dict, kind: str, bound
     bound : Trial or ReachTrial, optional
         The trial the SSD binds (default: the task's first of ``kind``).
     task : str
-        ``illusion`` or ``reach`` (``rhi.master.export.tasks``).
+        ``illusion`` or ``reach`` (:func:`rhi.master.tasks.exportable`).
 
     Returns
     -------

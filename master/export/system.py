@@ -170,7 +170,7 @@ def export_system(out, config: dict, kind: str | None = None, variant: str = "na
         ``CONDITION/STIMULATION/INDEX`` (the reach: ``BAND/INDEX``): the trial the SSD binds (default: the
         protocol's first, or the reach plan's).
     task : str
-        ``illusion`` or ``reach`` (``rhi.master.export.tasks``).
+        ``illusion`` or ``reach`` (:func:`rhi.master.tasks.exportable`).
 
     Returns
     -------
@@ -181,7 +181,7 @@ def export_system(out, config: dict, kind: str | None = None, variant: str = "na
     from rhi.components.fmu import check_contract
     from rhi.master.export.agent_fmu import export_agent
     from rhi.master.export.body import VARIANT_NAMES, export_body
-    from rhi.master.export.tasks import task as task_named
+    from rhi.master.tasks import exportable as task_named
 
     out = check_output_file(out, "SSP file", ".ssp")
     kind = kind or config["experiment"]["decoders"][0]

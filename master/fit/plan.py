@@ -1,7 +1,7 @@
 """FIT.toml read and checked: which parameters to fit and their priors, the simulations, the estimator
 (:mod:`rhi.master.fit.estimator_settings`), the design every simulation runs.
 
-A fit file is an ordinary configuration file (any tables of ``master/defaults.toml``, fixed for every
+A fit file is an ordinary configuration file (any tables of ``master/config/defaults.toml``, fixed for every
 simulation) plus a ``[fit]`` table (docs/fit.md)::
 
     [fit]

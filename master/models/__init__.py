@@ -26,15 +26,11 @@ Example::
 """
 from __future__ import annotations
 
-import hashlib
-import importlib
-import importlib.util
-import sys
 from importlib import metadata
-from pathlib import Path
 
 from rhi.master.cosim import ConfigError
 from rhi.master.models.base import Model
+from rhi.master.runtime.plugins import load_object
 
 __all__ = ["Model", "BUILT_IN", "ENTRY_POINT_GROUP", "get", "checked", "of", "names", "described", "spec_of"]
 
@@ -109,38 +105,7 @@ def of(config: dict) -> Model:
 
 
 def _load(spec: str) -> Model:
-    where, _, attribute = spec.rpartition(":")
-    if not where or not attribute.isidentifier():
-        raise ConfigError(f"model {spec!r}: give path/to/file.py:Class or package.module:Class")
-    if where.endswith(".py"):
-        path = Path(where)
-        if not path.is_file():
-            raise ConfigError(f"model {spec!r}: no file {path}")
-        module_name = f"rhi_user_model_{hashlib.sha256(str(path.resolve()).encode()).hexdigest()[:16]}"
-        module = sys.modules.get(module_name)
-        if module is None:
-            loader = importlib.util.spec_from_file_location(module_name, path)
-            module = importlib.util.module_from_spec(loader)
-            sys.modules[module_name] = module  # dataclasses and pickling look the module up by name
-            try:
-                loader.loader.exec_module(module)
-            except (Exception, SystemExit) as error:  # noqa: BLE001: a user's file; say what went wrong in one line
-                del sys.modules[module_name]
-                raise ConfigError(f"model {spec!r}: {type(error).__name__}: {error}") from None
-    else:
-        try:
-            module = importlib.import_module(where)
-        except ImportError as error:
-            raise ConfigError(f"model {spec!r}: cannot import {where}: {error}") from None
-        except (Exception, SystemExit) as error:  # noqa: BLE001: a plug-in's module; it never ends rhi
-            raise ConfigError(f"model {spec!r}: importing {where} raised {type(error).__name__}: {error}") from None
-    found = getattr(module, attribute, None)
-    if found is None:
-        raise ConfigError(f"model {spec!r}: {where} has no {attribute}")
-    try:
-        model = found() if isinstance(found, type) else found
-    except (Exception, SystemExit) as error:  # noqa: BLE001: a user's class; its __init__ never ends rhi
-        raise ConfigError(f"model {spec!r}: {attribute}() raised {type(error).__name__}: {error}") from None
+    model = load_object(spec, "model")
     if not isinstance(model, Model):
-        raise ConfigError(f"model {spec!r}: {attribute} is not a rhi.master.models.Model")
+        raise ConfigError(f"model {spec!r}: {spec.rpartition(':')[2]} is not a rhi.master.models.Model")
     return model

@@ -30,8 +30,10 @@ def config_key(source: str) -> str | None:
 
 
 @dataclass(frozen=True)
-class Scene:
-    """What a task gives a model to build its components.
+class PartsKit:
+    """What a task hands a model to build its components (:meth:`Model.parts`): the configuration, the decoder slot,
+    torch threads and a pose encoder maker (not the task's system: that is a
+    :class:`rhi.master.tasks.scene.Scenario`).
 
     Attributes
     ----------
@@ -155,9 +157,9 @@ class Model:
         return {**given, "model": {**given.get("model", {}), "name": self.name,
                                    **({"source": self.source} if self.source else {})}}
 
-    def parts(self, scene: Scene) -> list[Component]:
+    def parts(self, kit: PartsKit) -> list[Component]:
         """Components the model adds to a task's system (besides its brain), in step order before the brain."""
-        return [scene.pose_encoder("pose_encoder")] if self.sees_pose else []
+        return [kit.pose_encoder("pose_encoder")] if self.sees_pose else []
 
     def parameters(self, trials: TrialValues) -> dict:
         """The brain's parameters for one batch: every plain source's value (per trial where trials differ).

@@ -123,10 +123,11 @@ def phenomenon_columns() -> str:
 
 
 def commented_keys(name: str) -> list[tuple[str, str, str]]:
-    """(dotted key, value as written, comment) for every key of the shipped ``master/NAME.toml``; a key
-    without a comment of its own takes its table's; [quick]'s entries are keys whole."""
+    """(dotted key, value as written, comment) for every key of the shipped ``master/NAME``
+    (``config/defaults.toml``, ``models/ownership.toml``); a key without a comment of its own takes its table's;
+    [quick]'s entries are keys whole."""
     rows, table, table_comment, last = [], "", [""], None
-    text = resources.files("rhi.master").joinpath(f"{name}.toml").read_text()
+    text = resources.files("rhi.master").joinpath(name).read_text()
     for line in text.splitlines():
         header = re.match(r"^\[([\w.]+)\]\s*(?:#\s*(.*))?$", line)
         entry = re.match(r"^([\w\"-]+)\s*=\s*(.*?)\s*(?:#\s*(.*))?$", line)
@@ -150,15 +151,16 @@ def commented_keys(name: str) -> list[tuple[str, str, str]]:
 def configuration_keys() -> str:
     """Every key of the shipped defaults.toml: its default and its comment."""
     return markdown(["key", "default", "meaning"],
-                    [[f"`{key}`", f"`{value}`", comment] for key, value, comment in commented_keys("defaults")])
+                    [[f"`{key}`", f"`{value}`", comment] for key, value, comment in commented_keys("config/defaults.toml")])
 
 
 def paper_preset() -> str:
-    """Every key of the shipped paper.toml: its value there, its default, and why."""
-    defaults = {key: value for key, value, _ in commented_keys("defaults")}
+    """Every key of the shipped paper preset (``master/config/presets/paper_256.toml``): its value there, its
+    default, and why."""
+    defaults = {key: value for key, value, _ in commented_keys("config/defaults.toml")}
     return markdown(["key", "paper", "default", "why"],
                     [[f"`{key}`", f"`{value}`", f"`{defaults[key]}`", why]
-                     for key, value, why in commented_keys("paper")])
+                     for key, value, why in commented_keys("config/presets/paper_256.toml")])
 
 
 def number(value, integer: bool = False) -> str:
@@ -190,10 +192,10 @@ PORTS = ["port", "causality", "type", "unit", "range", "start", "meaning"]
 
 
 def agent_ports(task: str = "illusion") -> str:
-    """The ports of ``task``'s agent (``rhi.master.export.tasks``), under the task's default configuration."""
+    """The ports of ``task``'s agent (:func:`rhi.master.tasks.exportable`), under the task's default configuration."""
     from rhi.master.decoders.cache import checkpoint_path
     from rhi.master.export.agent_fmu import make_agent
-    from rhi.master.export.tasks import TASKS
+    from rhi.master.tasks import TASKS
 
     defaults = TASKS[task].load(None, {}, False)
     agent = make_agent(checkpoint_path("conv", defaults, must_exist=True), "conv", defaults, task)
@@ -259,7 +261,7 @@ def ownership_constants() -> str:
     from rhi.master.models.ownership import DERIVED_FROM, FREE_PARAMETERS, OWN_SOURCES, SHARED_KEYS, fitted_values
 
     config = configuration.load(model_name="ownership")
-    comments = {key: comment for key, _, comment in commented_keys("models/ownership")}
+    comments = {key: comment for key, _, comment in commented_keys("models/ownership.toml")}
     estimates = fitted_values(Path(__file__).resolve().parents[2])
 
     def value(key):

@@ -8,7 +8,8 @@ plus a ``[sweep]`` table saying what varies::
     quick = true                   # start from the [quick] defaults, like `rhi experiment --quick`
     # preset = "paper"             # or from a shipped preset, like `rhi experiment --preset paper`
     model = "causal"               # the model (master/models/NAME.toml), like `rhi experiment --model`; paper by default
-    # task = "package.module:function"       # a trial function of one's own; the experiment's trial by default
+    # task = "examples/my_task.py:MovedArm"  # a task of one's own (FILE.py:Class or a registered name), or a
+                                             # trial function (package.module:function); the illusion by default
     batch = 10                     # at most this many trials per task (default: all of a point's decoder)
     workers = 2                    # processes of the local pool (default: one per core)
     [sweep.grid]                   # every combination, in file order, the last key varying fastest
@@ -48,15 +49,59 @@ from rhi.master.cosim import ConfigError
 from rhi.master.runtime.pool import workers_problem
 from rhi.master.tasks import illusion as experiment
 
-# The default task's name. It is part of every trial's identity (its id, a folder's fingerprint), so it keeps
-# the name it had before the experiment became master/tasks/illusion; MOVED_TASKS says where it lives now.
+# The illusion's identity in every trial's id and a folder's fingerprint (``sweep.task = "illusion"``, the
+# default): the name its trial function had once, kept so that the folders of earlier sweeps resume.
 DEFAULT_TASK = "master.experiment:trial_outcome"
 MOVED_TASKS = {DEFAULT_TASK: "rhi.master.tasks.illusion:trial_outcome"}
 
 
+def canonical_task(name):
+    """``sweep.task`` as the plan records it: ``"illusion"`` (a registered name) is :data:`DEFAULT_TASK`."""
+    return DEFAULT_TASK if name == "illusion" else name
+
+
+def is_task(name: str) -> bool:
+    """Whether ``sweep.task`` names a registered task or a task class of one's own (``FILE.py:Class``), not a
+    trial function (``module:function``)."""
+    from rhi.master import tasks
+
+    return name != DEFAULT_TASK and (name in tasks.names() or name.partition(":")[0].endswith(".py"))
+
+
 def task_location(name: str) -> str:
-    """Where the task ``name`` (``module:function``) is imported from."""
-    return MOVED_TASKS.get(name, name)
+    """Where the trial function of ``sweep.task`` is imported from (a task's: :class:`TaskTrial`'s module)."""
+    return f"{__name__}:TaskTrial" if is_task(name) else MOVED_TASKS.get(name, name)
+
+
+@dataclass(frozen=True)
+class TaskTrial:
+    """A sweep's trial of a task (``sweep.task``, resolved on the worker): :meth:`Task.outcome` of the protocol's
+    trial (decoder, condition, stimulation, index) under the point's configuration."""
+
+    spec: str
+
+    def __call__(self, config: dict, decoder: str, condition: str, stimulation: str, index: int) -> dict:
+        from rhi.master import tasks
+
+        return tasks.get(self.spec).outcome(config, experiment.make_trial(config, decoder, condition, stimulation,
+                                                                          index))
+
+
+def sweep_task(name: str):
+    """The task object of ``sweep.task`` (None for a trial function); ConfigError unless it runs the protocol's
+    trials one by one (``outcome(config, trial)``)."""
+    if not is_task(name):
+        return None
+    from rhi.master import tasks
+
+    try:
+        task = tasks.get(name)
+    except ConfigError as error:
+        raise ConfigError(f"sweep.task: {error}") from None
+    if not callable(getattr(task, "outcome", None)):
+        raise ConfigError(f"sweep.task {name!r}: a sweep runs the illusion protocol's trials, and this task has no "
+                          "outcome(config, trial) (tasks built on rhi.master.tasks.illusion.task.Illusion have)")
+    return task
 SWEEP_KEYS = ("trials", "quick", "preset", "model", "task", "batch", "workers", "grid", "points")
 BATCHING = "lockstep-chunks/1"  # in the fingerprint of a batched sweep: folders of per-trial sweeps differ
 
@@ -164,7 +209,11 @@ def listed_points(points) -> list[dict]:
 
 
 def resolve_task(name: str):
-    """The callable named ``module:function``; a ConfigError naming it when it cannot be imported."""
+    """The trial function of ``sweep.task``: a task's (:class:`TaskTrial`), or the callable named
+    ``module:function``; a ConfigError naming it when it cannot be imported."""
+    name = canonical_task(name)
+    if sweep_task(name) is not None:
+        return TaskTrial(name)
     module_name, _, function_name = task_location(name).partition(":")
     if not module_name or not function_name:
         raise ConfigError(f"sweep.task must be 'module:function', got {name!r}")
@@ -199,7 +248,8 @@ def check_settings(settings: dict) -> None:
     if settings.get("quick") and "preset" in settings:
         raise ConfigError("sweep: give either sweep.quick or sweep.preset, not both")
     if not isinstance(settings.get("task", DEFAULT_TASK), str):
-        raise ConfigError(f"sweep.task must be a string 'module:function', got {settings['task']!r}")
+        raise ConfigError(f"sweep.task must be a string: a task's name, FILE.py:Class or 'module:function', got "
+                          f"{settings['task']!r}")
     if "grid" in settings and "points" in settings:
         raise ConfigError("sweep: give either sweep.grid or sweep.points, not both")
     if "batch" in settings and settings.get("task", DEFAULT_TASK) != DEFAULT_TASK:
@@ -304,11 +354,16 @@ def base_config(path: str | Path, model: str | None = None, trials: int | None =
     if not isinstance(settings, dict):
         raise ConfigError(f"sweep file {path} has no [sweep] table (it says what to vary)")
     settings = {**settings, **({"model": model} if model else {}), **({"trials": trials} if trials else {})}
+    if "task" in settings:
+        settings["task"] = canonical_task(settings["task"])
     check_settings(settings)
     resolve_task(settings.get("task", DEFAULT_TASK))
-    base = configuration.merge(configuration.load(quick=settings.get("quick", False),
-                                                  preset_name=settings.get("preset"),
-                                                  model_name=settings.get("model", "paper")), fixed)
+    own = sweep_task(settings.get("task", DEFAULT_TASK))
+    start = (own.load(None, {}, settings.get("quick", False), settings.get("model", "paper"))
+             if own is not None and "preset" not in settings else
+             configuration.load(quick=settings.get("quick", False), preset_name=settings.get("preset"),
+                                model_name=settings.get("model", "paper")))
+    base = configuration.merge(start, fixed)
     configuration.validate(base)
     return base, settings
 

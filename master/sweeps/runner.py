@@ -26,7 +26,7 @@ from rhi.master.tasks.illusion.runner import failed_record
 from rhi.master.outputs.files import atomic_write
 from rhi.master.sweeps import lifeline
 from rhi.master.sweeps.folder import record_problem
-from rhi.master.sweeps.plan import DEFAULT_TASK, Sweep, TrialSpec, task_location
+from rhi.master.sweeps.plan import DEFAULT_TASK, Sweep, TrialSpec, is_task, task_location
 
 log = logging.getLogger("rhi.sweep")
 
@@ -170,8 +170,8 @@ def check_workers(client, task: str) -> None:
 
 def check_decoders(sweep: Sweep) -> None:
     """Before the sweep starts: every point's decoders (checkpoints named, or training settings and cache),
-    for the experiment's own trial function; a ConfigError naming the point otherwise."""
-    if sweep.task != DEFAULT_TASK:
+    for the experiment's own trial function and a task's; a ConfigError naming the point otherwise."""
+    if sweep.task != DEFAULT_TASK and not is_task(sweep.task):
         return
     from rhi.master.decoders.cache import check_decoders as check
 
@@ -186,7 +186,7 @@ def check_decoders(sweep: Sweep) -> None:
 def prepare_decoders(sweep: Sweep) -> None:
     """The experiment's trials load trained decoders; train any missing default here, once, never on
     the workers (a remote worker must see the same checkpoint paths, see docs/sweeps.md)."""
-    if sweep.task != DEFAULT_TASK:
+    if sweep.task != DEFAULT_TASK and not is_task(sweep.task):
         return
     from rhi.master.decoders.cache import ensure_checkpoints
 

@@ -15,7 +15,7 @@ from rhi.master import config as configuration
 from rhi.master import models
 from rhi.master.cosim import ConfigError, System, simulate
 from rhi.master.decoders.cache import pose_encoder_path
-from rhi.master.models.base import Scene
+from rhi.master.models.base import PartsKit
 
 
 @dataclass(frozen=True)
@@ -151,7 +151,7 @@ def pose_encoders(config: dict, kind: str, threads: int | None):
 def model_parts(config: dict, kind: str, threads: int | None = None) -> list:
     """The model's components for decoder slot ``kind``: its parts (a pose encoder, say), then its brain."""
     model = models.of(config)
-    return [*model.parts(Scene(config, kind, threads, pose_encoders(config, kind, threads))), model.brain()]
+    return [*model.parts(PartsKit(config, kind, threads, pose_encoders(config, kind, threads))), model.brain()]
 
 
 def declared(given: dict, system: System) -> dict:

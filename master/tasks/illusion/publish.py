@@ -1,12 +1,9 @@
 """The experiment in memory (:func:`run_experiment`) and into a folder (:func:`run_into`, ``rhi experiment``):
-train what is missing, run the protocol, write every result file.
-
-DIR is written in a staging folder beside it and renamed into place when complete
-(:mod:`rhi.master.outputs.files`), so it holds either a whole run or nothing from this one.
+train what is missing, run the protocol, measure; its tables and figures (written by
+:meth:`rhi.master.tasks.base.TaskResult.write`, whole or not at all).
 """
 from __future__ import annotations
 
-import json
 import logging
 import time
 from dataclasses import dataclass, field
@@ -21,83 +18,83 @@ from rhi.master.decoders.cache import check_decoders, ensure_checkpoints, jacobi
 from rhi.master.tasks.illusion.fast_check import verdicts
 from rhi.master.runtime.pool import Workers, call
 from rhi.master.tasks.illusion.measures import end_of_trial
-from rhi.master.config import bodies, population
+from rhi.master.config import population
 from rhi.master.config.protocol import plan, rubber_pose
 from rhi.master.outputs import cohort, figures, tables
-from rhi.master.outputs.files import atomic_write, check_output, output_folder
-from rhi.master.outputs.provenance import package_versions
+from rhi.master.outputs.files import atomic_write
+from rhi.master.tasks.base import TaskResult
 from rhi.master.outputs.animation import frames, gif_bytes
 
 log = logging.getLogger("rhi.experiment")
 
 
 @dataclass
-class ExperimentResult:
-    """The protocol's run, in memory: what ``rhi experiment`` writes into DIR, before it is written.
+class ExperimentResult(TaskResult):
+    """The protocol's run, in memory: what ``rhi experiment`` writes into DIR, before it is written
+    (:class:`rhi.master.tasks.base.TaskResult`, and the illusion's own).
 
     Attributes
     ----------
-    config : dict
-        The configuration it ran.
-    trials : list of Trial
-        The trials that ran to the end, in the protocol's order (failed ones left out: ``failures``).
-    times : numpy.ndarray
-        (steps + 1,) s.
     per_step : dict of str to numpy.ndarray
         Each measure per step and trial, (steps + 1, len(trials)) (:func:`rhi.master.tasks.illusion.measures.measures`).
     final : dict of str to numpy.ndarray
         Each measure at the end of the trial, (len(trials),).
     summary : list of list
         The rows of summary.csv (columns ``rhi.master.outputs.tables.summary_columns``).
-    failures : dict
-        Each failed trial and its error.
     provenance : dict
-        What run.json records: the model, the body, checkpoints, fast-mode verdicts, seeds, versions, timings.
-    began : float
-        ``time.perf_counter()`` when the run began (run.json's total time runs from it).
+        What run.json records: the model, the body, checkpoints, fast-mode verdicts, seeds, timings.
     """
 
-    config: dict
-    trials: list
-    times: np.ndarray
-    per_step: dict
-    final: dict
-    summary: list
-    failures: dict
-    provenance: dict = field(default_factory=dict)
-    began: float = 0.0
+    final: dict = field(default_factory=dict)
+    summary: list = field(default_factory=list)
 
-    def write(self, out, force: bool = False) -> None:
-        """Publish DIR = ``out`` as ``rhi experiment`` does: whole or not at all (a staging folder renamed)."""
-        check_output(out, force)
-        with output_folder(out, force) as staging, Workers() as workers:
-            self.write_files(staging, workers)
+    def write_tables(self, staging, workers=None) -> None:
+        """summary.csv (participants.csv), then trials.csv and figures/ side by side on ``workers`` (else here)."""
+        texts = table_texts(self, with_trials=False)
+        for name, text in texts.items():
+            atomic_write(staging / name, text)
+        write_figures(self, staging, workers, with_trials=True)
 
-    def write_files(self, staging, workers: Workers) -> None:
-        """summary.csv, trials.csv, figures/ and run.json into the folder ``staging``, the files on ``workers``."""
-        trials, per_step, config = self.trials, self.per_step, self.config
-        columns = tables.summary_columns(config["experiment"]["probe_times"])
-        measures = cohort_measures(config)
-        header = columns + cohort.columns(measures, columns)
-        atomic_write(staging / "summary.csv", tables.csv_text(header, self.summary))
-        (staging / "figures").mkdir()
-        if measures:
-            write_participants(staging / "participants.csv", config)
-            cohort.write_strip_figure(staging / "figures" / "cohort.png", trials, self.final,
-                                      [*cohort.STRIPS, *models.of(config).measures])
-        shown = next((i for i, t in enumerate(trials) if (t.condition, t.stimulation) == ("left", "sync")), 0)
-        name = f"trial_{trials[shown].decoder}_{trials[shown].condition}_{trials[shown].stimulation}.gif"
-        animated = {key: per_step[key][:, shown] for key in ANIMATED}
-        checkpoints = self.provenance["checkpoints"]
-        workers.map(call, [  # the files, side by side on the workers the run started (else here), the longest first
-            (write_trials, staging / "trials.csv", trials, self.times, per_step),
-            (write_jacobians, staging / "figures" / "h_jacobians.png", checkpoints, config),
-            (write_animation, staging / "figures" / name, trials[shown], animated, config["experiment"]["resolution"]),
-            *figures.panel_jobs(staging / "figures", trials, self.times, per_step, self.final, None)], start=False)
-        provenance = {**self.provenance, "figures": sorted(path.name for path in (staging / "figures").iterdir())}
-        log.debug(f"wrote summary.csv, trials.csv and {len(provenance['figures'])} figures into {staging}")
-        provenance["timings_s"] = {**provenance["timings_s"], "total": time.perf_counter() - self.began}
-        atomic_write(staging / "run.json", json.dumps(provenance, indent=2, default=str) + "\n")
+    def write_figures(self, staging, workers=None) -> list[str]:
+        """None here: the figures are written with trials.csv, side by side (:meth:`write_tables`)."""
+        return []  # written with trials.csv (write_tables)
+
+
+def table_texts(result: ExperimentResult, with_trials: bool = True) -> dict[str, str]:
+    """summary.csv (participants.csv for a population that varies) and trials.csv, as text."""
+    config = result.config
+    columns = tables.summary_columns(config["experiment"]["probe_times"])
+    measures = cohort_measures(config)
+    texts = {"summary.csv": tables.csv_text(columns + cohort.columns(measures, columns), result.summary)}
+    if measures:
+        texts["participants.csv"] = participants_text(config)
+    if with_trials:
+        texts["trials.csv"] = tables.trials_csv(result.trials, result.times, result.per_step)
+    return texts
+
+
+def write_figures(result: ExperimentResult, folder, workers: Workers | None, with_trials: bool = False) -> list[str]:
+    """figures/ in ``folder`` (and trials.csv with ``with_trials``), the files side by side on ``workers`` (None:
+    here), the longest first; the figures' names."""
+    trials, per_step, config = result.trials, result.per_step, result.config
+    (folder / "figures").mkdir()
+    if cohort_measures(config):
+        cohort.write_strip_figure(folder / "figures" / "cohort.png", trials, result.final,
+                                  [*cohort.STRIPS, *models.of(config).measures])
+    shown = next((i for i, t in enumerate(trials) if (t.condition, t.stimulation) == ("left", "sync")), 0)
+    name = f"trial_{trials[shown].decoder}_{trials[shown].condition}_{trials[shown].stimulation}.gif"
+    animated = {key: per_step[key][:, shown] for key in ANIMATED}
+    jobs = [(write_trials, folder / "trials.csv", trials, result.times, per_step)] if with_trials else []
+    jobs += [(write_jacobians, folder / "figures" / "h_jacobians.png", result.provenance["checkpoints"], config),
+             (write_animation, folder / "figures" / name, trials[shown], animated, config["experiment"]["resolution"]),
+             *figures.panel_jobs(folder / "figures", trials, result.times, per_step, result.final, None)]
+    if workers is None:
+        for job in jobs:
+            call(*job)
+    else:
+        workers.map(call, jobs, start=False)
+    log.debug(f"wrote the tables and figures into {folder}")
+    return sorted(path.name for path in (folder / "figures").iterdir())
 
 
 def run_experiment(config: dict | None = None, body: str | None = None, context: RunContext | None = None,
@@ -130,20 +127,9 @@ def run_experiment(config: dict | None = None, body: str | None = None, context:
         result = run_experiment(config.load(quick=True, model_name="causal"))
         result.final["drift_cm"]         # (trials,) cm
     """
-    from rhi.master import config as configuration
+    from rhi.master.tasks import TASKS, run
 
-    began = time.perf_counter()
-    config = configuration.load() if config is None else config
-    context = context or RunContext()
-    body = body if body is not None else bodies.configured(config)  # --body, else experiment.body
-    declared = checked_before_work(config, body, context.device)
-    if workers is None:
-        with Workers(1 if context.device != "cpu" else context.processes) as own:
-            result = simulate_protocol(config, body, context, own, declared)
-    else:
-        result = simulate_protocol(config, body, context, workers, declared)
-    result.began = began
-    return result
+    return run(TASKS["illusion"].with_body(body), config, context, workers)
 
 
 def checked_before_work(config: dict, body: str | None, device: str):
@@ -153,7 +139,7 @@ def checked_before_work(config: dict, body: str | None, device: str):
     return body_factory(body, config)[1]
 
 
-def simulate_protocol(config: dict, body: str | None, context: RunContext, workers: Workers, declared):
+def simulate_protocol(config: dict, body: str | None, context: RunContext, workers: Workers, declared, task=None):
     """:func:`run_experiment` on ``workers`` once checked (``declared``: :func:`checked_before_work`'s); the
     caller sets the result's ``began``."""
     checkpoints, training_seconds = ensure_checkpoints(config, progress=context.progress, device=context.device,
@@ -176,36 +162,33 @@ def simulate_protocol(config: dict, body: str | None, context: RunContext, worke
                    zip(summary, cohort.summary_cells(trials, final, planned, measures, present))]
     log.debug(f"measured {len(trials)} trials into {len(summary)} cells ({len(failures)} failed)")
     provenance = {
-        "schema_version": tables.SCHEMA_VERSION,
-        "command": "rhi experiment", "model": models.of(config).name,
+        "command": "rhi experiment", "task": "illusion", "model": models.of(config).name,
         "configuration": config, "body": body or "native pymunk plant",
         "body_keys_not_declared": sorted(f"body.{key}" for key in config["body"]
                                          if declared is not None and key not in declared),
         "checkpoints": checkpoints, "fast_mode": modes, "device": context.device,
         "seeds": {"master": config["experiment"]["seed"], "trials": [t.__dict__ for t in trials]},
-        "versions": package_versions(),
         "timings_s": {"training": training_seconds, "fast_check": check_seconds, "trials": run_seconds},
         "failed_trials": [{**trial.__dict__, "error": error} for trial, error in failures.items()],
     }
-    return ExperimentResult(config, trials, times, per_step, final, summary, failures, provenance)
+    if task is None:
+        from rhi.master.tasks import TASKS
+        task = TASKS["illusion"].with_body(body)
+    return ExperimentResult(task, config, trials, times, per_step, provenance, failures, final=final, summary=summary)
 
 
 def run_into(out, config: dict, body: str | None = None, context: RunContext | None = None) -> dict:
-    """Run the protocol of ``config`` and write DIR = ``out``; returns {failed trial: error}.
+    """Run the protocol of ``config`` and write DIR = ``out`` (:func:`rhi.master.tasks.base.run_into`); returns
+    {failed trial: error}.
 
     body: an FMU to use as the body (None: the native pymunk plant). context: force (replace DIR of rhi's),
     progress, device (where the decoders train and run: cpu, cuda; resolved). Everything that can be checked is
-    checked before the staging folder exists and before any training: the output folder, the decoders'
-    checkpoints (kind, resolution, camera) or training settings, the body FMU.
+    checked before any training: the output folder, the decoders' checkpoints (kind, resolution, camera) or
+    training settings, the body FMU.
     """
-    began, context = time.perf_counter(), context or RunContext()
-    check_output(out, context.force)
-    declared = checked_before_work(config, body, context.device)
-    with output_folder(out, context.force) as staging, Workers(1 if context.device != "cpu" else None) as workers:
-        result = simulate_protocol(config, body, context, workers, declared)
-        result.began = began
-        result.write_files(staging, workers)
-    return result.failures
+    from rhi.master.tasks import TASKS, run_into as run_task_into
+
+    return run_task_into(TASKS["illusion"].with_body(body), out, config, context).failures
 
 
 def cohort_measures(config: dict) -> dict[str, str]:
@@ -217,11 +200,11 @@ def cohort_measures(config: dict) -> dict[str, str]:
                               tuple(tables.probe_measures(config["experiment"]["probe_times"])))
 
 
-def write_participants(path, config: dict) -> None:
+def participants_text(config: dict) -> str:
     """participants.csv: every participant the protocol plans (``experiment.trials``), with its drawn values."""
     indices = range(config["experiment"]["trials"])
     seeds = [population.participant_seed(config["experiment"]["seed"], index) for index in indices]
-    atomic_write(path, cohort.participants_csv(indices, seeds, population.cohort(config, indices)))
+    return cohort.participants_csv(indices, seeds, population.cohort(config, indices))
 
 
 ANIMATED = ("ball_x_m", "ball_y_m", "mu_shoulder_deg", "mu_elbow_deg")  # the measures the animation shows

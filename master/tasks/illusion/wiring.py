@@ -4,8 +4,6 @@ Its parameters come from :mod:`rhi.master.config.sources` (their table and value
 """
 from __future__ import annotations
 
-import numpy as np
-
 from rhi.components.body.camera import Camera
 from rhi.components.body.plant import ArmPlant
 from rhi.components.body.rubber_arm import RubberArm
@@ -96,11 +94,16 @@ def build_system(decoder, config: dict, body=None, trials=()) -> System:
     return build(scenario(decoder, config, body, trials), config, trials)
 
 
+def system_parameters(trials: list[Trial], config: dict, system: System, given: dict | None = None) -> dict:
+    """The parameters of ``trials`` (``given``: :func:`rhi.master.config.sources.parameters` of them, computed when
+    None) that ``system`` declares, with the ball camera's (:func:`screen_parameters`)."""
+    given = parameters(trials, config) if given is None else given
+    dropped = set(undeclared(given, system))
+    return screen_parameters({path: value for path, value in given.items() if path not in dropped}, system)
+
+
 def run_batch(decoder, trials: list[Trial], config: dict, body=None, progress=None):
     """Run ``trials`` (all with this decoder component) in lockstep; returns the master's Result."""
     given = parameters(trials, config)
-
-    def declared_by(system: System) -> dict:
-        dropped = set(undeclared(given, system))
-        return screen_parameters({path: value for path, value in given.items() if path not in dropped}, system)
-    return run(scenario(decoder, config, body, trials), config, declared_by, len(trials), progress, trials)
+    return run(scenario(decoder, config, body, trials), config,
+               lambda system: system_parameters(trials, config, system, given), len(trials), progress, trials)

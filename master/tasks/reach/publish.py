@@ -1,23 +1,22 @@
-"""`rhi reach` into a folder: every decoder's reaches in lockstep, then summary.csv, goals.csv, trials.csv,
-figures/ and run.json, whole or not at all (docs/reach.md)."""
+"""The reach as a registered task (:class:`Reach`): every decoder's reaches in lockstep, then summary.csv, goals.csv,
+trials.csv and figures/ (docs/reach.md); the hooks an agent FMU and an SSP package of it need (a parameter file
+per goal, ``conv_near_0``)."""
 from __future__ import annotations
 
-import json
 import time
 
 import numpy as np
 
 from rhi.master import models
-from rhi.master.cosim import SimulationError
+from rhi.master.cosim import ConfigError, SimulationError
 from rhi.master.tasks.reach import task as reach
 from rhi.master.decoders.cache import check_decoders, ensure_checkpoints
 from rhi.master.decoders.cache import pose_encoder_path
-from rhi.master.runtime.context import RunContext
 from rhi.master.runtime.pool import JOB_THREADS, Workers, run_jobs
 from rhi.master.tasks.illusion.runner import bar_positions, step_bar, without_failures
 from rhi.master.outputs import tables
-from rhi.master.outputs.files import atomic_write, check_output, output_folder
-from rhi.master.outputs.provenance import package_versions
+from rhi.master.tasks.agent_ports import body_links
+from rhi.master.tasks.base import Task, TaskResult
 
 # The released agent's reaching logs (thomasroodnl/active-inference-rhi, active-inference-agent/model_operation/
 # operation_logs/reach_results, 40 runs per file set): the runs whose last logged cartesian_distance is under
@@ -89,24 +88,56 @@ def trials_text(trials, times, per_step: dict[str, np.ndarray], every: int) -> s
     return tables.csv_text(["decoder", "band", "goal", "time_s", *STEP_KEYS], rows)
 
 
-def run_into(out, config: dict, context: RunContext | None = None) -> dict:
-    """Run every reach of ``config`` and write DIR = ``out`` (context: force, progress); returns {failed trial:
-    error}."""
-    from rhi.master.tasks.reach.figures import write_figures
+class Reach(Task):
+    """The free arm reaching to a seen goal, near and far (docs/reach.md)."""
 
-    started, context = time.perf_counter(), context or RunContext()
-    force, progress = context.force, context.progress
-    check_output(out, force)
-    check_decoders(config)
-    trials = reach.plan(config)
-    for kind in config["experiment"]["decoders"]:  # the encoders and the wiring, before any work
-        if reach.attractor(config) == "body" or models.of(config).sees_pose:
-            pose_encoder_path(kind, config)
-    with output_folder(out, force) as staging, Workers() as workers:
-        checkpoints, training_seconds = ensure_checkpoints(config, progress=progress, workers=workers)
+    name = "reach"
+    summary = "the free arm reaching to a seen goal, near and far"
+    settings = "reach.toml"
+    command = "rhi reach"
+    # the FMI export hooks
+    agent, model_name = "rhi.master.export.reach_agent:ReachAgent", "ReachAgent"
+    system_name, system_description = "RubberHandReach", "the reach agent and a free body"
+    trial_form = "BAND/INDEX, e.g. near/0"
+
+    def load(self, path=None, overrides: dict | None = None, quick: bool = False, model_name: str = "paper") -> dict:
+        """The reach's configuration (:func:`rhi.master.tasks.reach.task.load`)."""
+        return reach.load(path, quick=quick, model_name=model_name, overrides=overrides)
+
+    def plan(self, config: dict) -> list:
+        """Every reach (:func:`rhi.master.tasks.reach.task.plan`)."""
+        return reach.plan(config)
+
+    def scenario(self, config: dict, kind: str, trials=(), checkpoint: str | None = None):
+        """The reach system of decoder ``kind`` (:func:`rhi.master.tasks.reach.task.scenario`)."""
+        from rhi.master.decoders.cache import checkpoint_path
+        return reach.scenario(kind, checkpoint or checkpoint_path(kind, config, must_exist=True), config, JOB_THREADS)
+
+    def parameters(self, trials: list, config: dict, system) -> dict:
+        """The reaches' parameters (:func:`rhi.master.tasks.reach.task.parameters`)."""
+        return reach.parameters(trials, config, system)
+
+    def measures(self, result, config: dict, trials: list) -> dict:
+        """The hand, its distance to the goal and more per step (:func:`rhi.master.tasks.reach.task.measures`)."""
+        return reach.measures(result)
+
+    def check_before_work(self, config: dict, context) -> None:
+        """The decoders' checkpoints or training settings, and the pose encoders the wiring reads."""
+        check_decoders(config)
+        for kind in config["experiment"]["decoders"]:  # the encoders and the wiring, before any work
+            if reach.attractor(config) == "body" or models.of(config).sees_pose:
+                pose_encoder_path(kind, config)
+
+    def simulate(self, config: dict, context, workers=None) -> TaskResult:
+        """Each decoder's reaches in one lockstep batch, side by side on ``workers``, failures isolated."""
+        if workers is None:
+            with Workers() as own:
+                return self.simulate(config, context, own)
+        began, trials = time.perf_counter(), reach.plan(config)
+        checkpoints, training_seconds = ensure_checkpoints(config, progress=context.progress, workers=workers)
         kinds = config["experiment"]["decoders"]
         jobs = [(config, kind, checkpoints[kind], [t for t in trials if t.decoder == kind], position)
-                for kind, position in zip(kinds, bar_positions(len(kinds), progress, None, workers))]
+                for kind, position in zip(kinds, bar_positions(len(kinds), context.progress, None, workers))]
         kept, blocks, seconds, failures, times = [], [], {}, {}, None
         for kind, (batch, batch_times, per_step, spent, failed) in zip(kinds, run_jobs(decoder_reaches, jobs,
                                                                                         workers=workers)):
@@ -119,24 +150,67 @@ def run_into(out, config: dict, context: RunContext | None = None) -> dict:
         if not blocks:
             raise SimulationError("reach", 0.0, "every reach failed: " + "; ".join(sorted(set(failures.values()))))
         per_step = {key: np.concatenate([block[key] for block in blocks], axis=1) for key in blocks[0]}
-        radius = config["reach"]["radius_cm"]
-        final = reach.outcomes(times, per_step, radius)
-        atomic_write(staging / "summary.csv", tables.csv_text(SUMMARY_COLUMNS, summary_rows(kept, final, radius)))
-        atomic_write(staging / "goals.csv", tables.csv_text(GOAL_COLUMNS, goal_rows(kept, final)))
-        atomic_write(staging / "trials.csv", trials_text(kept, times, per_step, config["reach"]["record_every"]))
-        (staging / "figures").mkdir()
-        write_figures(staging / "figures", kept, times, per_step, final, radius)
         provenance = {
-            "schema_version": tables.SCHEMA_VERSION, "command": "rhi reach",
+            "command": "rhi reach", "task": self.name,
             "model": models.of(config).name, "attractor": reach.attractor(config),
             "configuration": config, "checkpoints": checkpoints,
             "seeds": {"master": config["experiment"]["seed"], "goals": [t.__dict__ for t in kept]},
             "released_agent": {f"{d}/{b}": {"reached": r, "farther_than_start": f, "goals": RELEASED_AGENT_GOALS}
                                for (d, b), (r, f) in RELEASED_AGENT.items()},
-            "versions": package_versions(),
-            "timings_s": {"training": training_seconds, "reaches": seconds, "total": time.perf_counter() - started},
-            "figures": sorted(path.name for path in (staging / "figures").iterdir()),
+            "timings_s": {"training": training_seconds, "reaches": seconds},
             "failed_trials": [{**trial.__dict__, "error": error} for trial, error in failures.items()],
         }
-        atomic_write(staging / "run.json", json.dumps(provenance, indent=2, default=str) + "\n")
-    return failures
+        return TaskResult(self, config, kept, times, per_step, provenance, failures, began)
+
+    def outcomes(self, result: TaskResult) -> dict:
+        """Per reach: :func:`rhi.master.tasks.reach.task.outcomes`."""
+        return reach.outcomes(result.times, result.per_step, result.config["reach"]["radius_cm"])
+
+    def tables(self, result: TaskResult) -> dict:
+        """summary.csv (per decoder x band), goals.csv (per reach), trials.csv (per reach x recorded step)."""
+        radius, final = result.config["reach"]["radius_cm"], self.outcomes(result)
+        return {"summary.csv": tables.csv_text(SUMMARY_COLUMNS, summary_rows(result.trials, final, radius)),
+                "goals.csv": tables.csv_text(GOAL_COLUMNS, goal_rows(result.trials, final)),
+                "trials.csv": trials_text(result.trials, result.times, result.per_step,
+                                          result.config["reach"]["record_every"])}
+
+    def figures(self, result: TaskResult, folder) -> list[str]:
+        """figures/: the reaches' paths and distances (:func:`rhi.master.tasks.reach.figures.write_figures`)."""
+        from rhi.master.tasks.reach.figures import write_figures
+
+        (folder / "figures").mkdir()
+        write_figures(folder / "figures", result.trials, result.times, result.per_step, self.outcomes(result),
+                      result.config["reach"]["radius_cm"])
+        return sorted(path.name for path in (folder / "figures").iterdir())
+
+    # -- the FMI export hooks ---------------------------------------------------------------------------------
+    def trials(self, config: dict, kind: str) -> list:
+        """The reach plan's goals for decoder ``kind`` (the same goals for each decoder)."""
+        return reach.plan({**config, "experiment": {**config["experiment"], "decoders": [kind]}})
+
+    def trial_name(self, trial) -> str:
+        """``conv_near_0``: a goal's parameter file, without folder and suffix."""
+        return f"{trial.decoder}_{trial.band}_{trial.index}"
+
+    def parse_trial(self, text: str, config: dict, kind: str):
+        """``near/0`` -> the reach plan's goal of decoder ``kind`` (ConfigError naming what is unknown)."""
+        parts = text.split("/")
+        if len(parts) != 2 or not parts[1].isdigit():
+            raise ConfigError(f"--trial {text!r} must be {self.trial_form}")
+        band, index = parts[0], int(parts[1])
+        if band not in config["reach"]["bands"]:
+            raise ConfigError(f"--trial {text!r}: no band {band!r} (have: {', '.join(config['reach']['bands'])})")
+        if index >= config["reach"]["goals"]:
+            raise ConfigError(f"--trial {text!r}: no goal {index} (reach.goals = {config['reach']['goals']})")
+        return next(t for t in self.trials(config, kind) if (t.band, t.index) == (band, index))
+
+    def links(self, config: dict) -> list[tuple[str, str]]:
+        """The body's links in the reach system (the sensed joints in, the action out)."""
+        return body_links(reach.connections(config))
+
+    def agent_values(self, trial, config: dict, declared: dict, starts: dict) -> dict:
+        """Every parameter of the reach agent FMU at its start (the configuration's, which built it), the goal
+        pose the trial's: ``{name: (type, value)}``."""
+        values = {name: (kind, starts[name]) for name, (causality, kind) in declared.items() if causality == "parameter"}
+        values["goal_shoulder"], values["goal_elbow"] = ("Real", trial.goal_pose[0]), ("Real", trial.goal_pose[1])
+        return values

@@ -53,14 +53,19 @@ class ReachTrial:
 
 
 # -- configuration -----------------------------------------------------------------------------------------
+def settings_path():
+    """The reach's settings file, master/tasks/reach/reach.toml."""
+    return resources.files("rhi.master.tasks.reach").joinpath("reach.toml")
+
+
 def task() -> dict:
-    """master/reach.toml: the task's own table [reach] (and its [quick]), and the keys it changes elsewhere."""
-    with resources.files("rhi.master").joinpath("reach.toml").open("rb") as file:
+    """master/tasks/reach/reach.toml: the task's own table [reach] (and its [quick]), and the keys it changes elsewhere."""
+    with settings_path().open("rb") as file:
         return tomllib.load(file)
 
 
 def load(path=None, quick: bool = False, model_name: str = "paper", overrides: dict | None = None) -> dict:
-    """The reach's configuration: the defaults (and their [quick]), the model, master/reach.toml (and its
+    """The reach's configuration: the defaults (and their [quick]), the model, master/tasks/reach/reach.toml (and its
     [quick]), the file, the overrides (``{"reach.goals": 2}``); checked, ConfigError naming the key."""
     config = configuration.defaults()
     quick_values = config.pop("quick")
