@@ -14,7 +14,7 @@ $(STAMP): pyproject.toml constraints.txt setup.py components/body/_servo.c compo
 		echo "make setup: libtbb.so.12 is missing (Debian: apt-get install libtbb12): rhi run-system --master ecos refuses without it"
 	touch $(STAMP)
 
-.PHONY: setup test test-kernels experiment docs
+.PHONY: setup test test-kernels experiment docs tutorial
 setup: $(STAMP)
 
 # Two xdist workers, a module to each (modules share expensive fixtures); TEST_WORKERS=0 runs in one process.
@@ -26,6 +26,10 @@ test: $(STAMP)
 # rounding (tests/kernels.py; python -m tests.kernels --all: every set below).
 test-kernels: $(STAMP)
 	$(VENV)/bin/python -m tests.kernels
+
+# examples/tutorial.ipynb run at its full size and stored with its outputs, wall time and machine (tests/notebook.py).
+tutorial: $(STAMP)
+	$(VENV)/bin/python -m tests.notebook
 
 experiment: $(STAMP)
 	$(VENV)/bin/rhi experiment --out results
