@@ -158,25 +158,18 @@ class Experiment:
 
     @property
     def per_step(self):
-        """Every measure per trial and step, unrounded, as an xarray Dataset.
+        """Every measure per trial and step, unrounded, as an xarray Dataset: per_step.nc's contents.
 
         Dimensions ``trial`` and ``time_s``; coordinates ``decoder``, ``condition``, ``stimulation``,
-        ``index`` and ``seed`` along ``trial``; attributes ``model`` and ``seed``. ``.to_netcdf(FILE)`` stores it
-        (about a tenth of trials.csv's size)."""
-        import numpy as np
-        import xarray as xr
+        ``index`` and ``seed`` along ``trial``; attributes ``model`` and ``seed``
+        (:func:`rhi.master.tasks.illusion.publish.per_step_dataset`)."""
+        from rhi.master.tasks.illusion.publish import per_step_dataset
 
-        trials = self.result.trials
-        along = {key: ("trial", np.array([getattr(t, key) for t in trials])) for key in
-                 ("decoder", "condition", "stimulation", "index", "seed")}
-        data = {key: (("trial", "time_s"), np.asarray(values).T) for key, values in self.result.per_step.items()}
-        return xr.Dataset(data, coords={"trial": np.arange(len(trials)), "time_s": self.result.times, **along},
-                          attrs={"model": self.config.get("model", {}).get("name", "paper"),
-                                 "seed": self.config["experiment"]["seed"]})
+        return per_step_dataset(self.result)
 
     def write(self, out: str | Path, force: bool = False) -> None:
-        """Write the folder ``rhi experiment --out DIR`` writes (summary.csv, trials.csv, figures/, run.json),
-        whole or not at all."""
+        """Write the folder ``rhi experiment --out DIR`` writes (summary.csv, trials.csv, per_step.nc, figures/,
+        run.json), whole or not at all."""
         self.result.write(out, force)
 
 

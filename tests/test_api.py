@@ -149,3 +149,14 @@ def test_a_sweep_runs_in_memory_as_a_frame_a_row_per_trial(tmp_path, monkeypatch
     assert list(frame["point"]) == [sweep.points.index({"brain.gamma0": g}) for g in frame["brain.gamma0"]]
     drift = dict(zip(frame["brain.gamma0"], frame["drift_cm"]))
     assert drift[0.01] != drift[0.9]
+
+
+def test_per_step_nc_reads_back_as_the_dataset_bit_for_bit(tiny):
+    """The folder's per_step.nc, opened by xarray, is ``r.per_step``: the same values to the bit (NetCDF-4 keeps
+    float64 and int64 as they are), dims, coordinates and attributes."""
+    import xarray as xr
+
+    folder, _, (summary, trials, per_step, arrays) = tiny
+    with xr.open_dataset(folder / "out" / "per_step.nc", engine="h5netcdf") as stored:
+        xr.testing.assert_identical(stored.load(), per_step)
+        assert stored["seed"].dtype == np.int64

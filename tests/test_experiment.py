@@ -45,7 +45,8 @@ def quick_run(tmp_path_factory, cache):
 
 
 def test_quick_run_writes_the_contract(quick_run):
-    assert sorted(p.name for p in quick_run.iterdir()) == [".rhi-manifest.json", "figures", "run.json", "summary.csv", "trials.csv"]
+    assert sorted(p.name for p in quick_run.iterdir()) == [".rhi-manifest.json", "figures", "per_step.nc", "run.json", "summary.csv",
+                                                         "trials.csv"]
     with open(quick_run / "summary.csv") as file:
         rows = list(csv.DictReader(file))
     assert list(rows[0]) == SUMMARY_COLUMNS
@@ -79,7 +80,8 @@ def test_same_seed_same_bytes(quick_run, cache, tmp_path):
     again = rhi("experiment", "--quick", "--out", str(tmp_path / "again"), cache=cache, one_core=True)
     assert again.returncode == 0, again.stderr[-3000:]
     assert (tmp_path / "again" / "summary.csv").read_bytes() == (quick_run / "summary.csv").read_bytes()
-    assert (tmp_path / "again" / "trials.csv").read_bytes() == (quick_run / "trials.csv").read_bytes()
+    for name in ("trials.csv", "per_step.nc"):
+        assert (tmp_path / "again" / name).read_bytes() == (quick_run / name).read_bytes(), name
     figures = sorted(path.name for path in (quick_run / "figures").iterdir())  # written side by side, then in turn
     assert figures == sorted(path.name for path in (tmp_path / "again" / "figures").iterdir())
     for name in figures:
@@ -257,4 +259,5 @@ def test_a_failing_trial_is_left_out_and_the_rest_are_written(quick_run, cache, 
         if key[3] == 0:  # rerun in a smaller batch: other float32 sums, as tests/test_batching.py derives
             for name, column in trial.items():
                 np.testing.assert_allclose(column, native[key][name][:21], rtol=1e-5, atol=1e-9, err_msg=f"{key} {name}")
-    assert sorted(p.name for p in out.iterdir()) == [".rhi-manifest.json", "figures", "run.json", "summary.csv", "trials.csv"]
+    assert sorted(p.name for p in out.iterdir()) == [".rhi-manifest.json", "figures", "per_step.nc", "run.json", "summary.csv",
+                                                         "trials.csv"]

@@ -84,7 +84,8 @@ def write_figures(result: ExperimentResult, folder, workers: Workers | None, wit
     shown = next((i for i, t in enumerate(trials) if (t.condition, t.stimulation) == ("left", "sync")), 0)
     name = f"trial_{trials[shown].decoder}_{trials[shown].condition}_{trials[shown].stimulation}.gif"
     animated = {key: per_step[key][:, shown] for key in ANIMATED}
-    jobs = [(write_trials, folder / "trials.csv", trials, result.times, per_step)] if with_trials else []
+    jobs = [(write_trials, folder / "trials.csv", trials, result.times, per_step),
+            (write_per_step, folder / "per_step.nc", result)] if with_trials else []
     jobs += [(write_jacobians, folder / "figures" / "h_jacobians.png", result.provenance["checkpoints"], config),
              (write_animation, folder / "figures" / name, trials[shown], animated, config["experiment"]["resolution"]),
              *figures.panel_jobs(folder / "figures", trials, result.times, per_step, result.final, None)]
@@ -213,6 +214,38 @@ ANIMATED = ("ball_x_m", "ball_y_m", "mu_shoulder_deg", "mu_elbow_deg")  # the me
 def write_trials(path, trials, times, per_step) -> None:
     """trials.csv (a job of :func:`run_into`)."""
     atomic_write(path, tables.trials_csv(trials, times, per_step))
+
+
+def per_step_dataset(result: ExperimentResult):
+    """Every measure per trial and step, unrounded, as an xarray Dataset.
+
+    Parameters
+    ----------
+    result : ExperimentResult
+        A run of the protocol.
+
+    Returns
+    -------
+    xarray.Dataset
+        One variable per measure, dims ``trial`` (len(trials)) x ``time_s`` (steps + 1); coordinates ``decoder``,
+        ``condition``, ``stimulation``, ``index`` and ``seed`` along ``trial``; attributes ``model`` and ``seed``.
+    """
+    import xarray as xr
+
+    trials = result.trials
+    along = {key: ("trial", np.array([getattr(t, key) for t in trials])) for key in
+             ("decoder", "condition", "stimulation", "index", "seed")}
+    data = {key: (("trial", "time_s"), np.asarray(values).T) for key, values in result.per_step.items()}
+    return xr.Dataset(data, coords={"trial": np.arange(len(trials)), "time_s": result.times, **along},
+                      attrs={"model": models.of(result.config).name, "seed": result.config["experiment"]["seed"]})
+
+
+def write_per_step(path, result: ExperimentResult) -> None:
+    """per_step.nc: :func:`per_step_dataset` as NetCDF-4 (h5netcdf; NetCDF-3 holds no 64-bit seeds), each
+    variable zlib-compressed (level 4) and the bytes the same for the same run (a job of :func:`run_into`)."""
+    dataset = per_step_dataset(result)
+    encoding = {name: {"zlib": True, "complevel": 4} for name in dataset.data_vars}
+    atomic_write(path, bytes(dataset.to_netcdf(engine="h5netcdf", encoding=encoding)))
 
 
 def write_jacobians(path, checkpoints: dict[str, str], config: dict) -> None:
