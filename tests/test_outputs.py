@@ -178,3 +178,24 @@ def test_cells_and_sample_sd_by_hand():
     np.testing.assert_allclose(mean, [1.5, 4.5])
     np.testing.assert_allclose(sd, [np.sqrt(0.5), np.sqrt(4.5)])  # ddof 1: (x - mean)^2 summed over n - 1
     assert outputs.mean_sd([7.0]) == (7.0, 0.0) and outputs.mean_sd([]) == (None, None)
+
+
+def test_run_json_has_one_writer(tmp_path):
+    """Every command's run.json is written by rhi.master.outputs.provenance.write_run_record and nothing else: no
+    other module of rhi names run.json beside a write; the writer's file reads back as the record, whole."""
+    import json
+    import re
+    from pathlib import Path
+
+    from rhi.master.outputs.provenance import write_run_record
+
+    root = Path(__file__).resolve().parents[1]
+    writes = re.compile(r"run\.json.*(atomic_write|write_text|write_bytes|open\()|(atomic_write|write_text|open\().*run\.json")
+    found = [f"{path.relative_to(root)}:{number}" for folder in ("master", "rhi") for path in (root / folder).rglob("*.py")
+             if path.name != "provenance.py"
+             for number, line in enumerate(path.read_text().splitlines(), 1)
+             if writes.search(line) and "read_text" not in line and "json.loads" not in line]
+    assert not found, found
+    write_run_record(tmp_path, {"command": "rhi test", "path": tmp_path, "values": [1.5, float("nan")]})
+    record = json.loads((tmp_path / "run.json").read_text())
+    assert record["path"] == str(tmp_path) and record["values"][0] == 1.5 and record["command"] == "rhi test"

@@ -29,7 +29,7 @@ from rhi.master.fit.simulate import Pool, participants_sweep, simulate, statisti
 from rhi.master.outputs.figures import save
 from rhi.master.outputs.files import atomic_write
 from rhi.master.outputs.own_paths import LockFile, make_folder
-from rhi.master.outputs.provenance import package_versions
+from rhi.master.outputs.provenance import package_versions, write_run_record
 from rhi.master.sweeps.plan import canonical_hash
 
 log = logging.getLogger("rhi.fit")
@@ -231,7 +231,7 @@ def _fit(data: Data, plan: FitPlan, drawn: np.ndarray, sweep, out: Path, pool, l
     predictive = predictive_check(data, plan, posterior, out, pool, own)
     result = run_record(data, plan, sweep, records, training, timing, calibration, predictive, valid, held_rows,
                         simulated_s, ran_now, time.perf_counter() - began)
-    atomic_write(out / "run.json", json.dumps(result, indent=1, sort_keys=True, allow_nan=True) + "\n")
+    write_run_record(out, result)
     written(own, "run.json")
     return result
 

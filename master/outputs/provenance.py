@@ -1,10 +1,14 @@
 """What every result records of where it came from: package versions, the platform and the CPU."""
 from __future__ import annotations
 
+import json
 import os
 import platform
 import sys
 from importlib import metadata
+from pathlib import Path
+
+from rhi.master.outputs.atomic import atomic_write
 
 PACKAGES = ("numpy", "scipy", "torch", "pymunk", "pillow", "fmpy", "pythonfmu", "matplotlib", "dask", "rhi")
 
@@ -45,3 +49,15 @@ def package_versions() -> dict:
         except metadata.PackageNotFoundError:
             pass
     return versions
+
+
+def write_run_record(folder: str | os.PathLike, record: dict) -> None:
+    """run.json in ``folder``: what a result records of where it came from, whole or not at all. The one writer of
+    every command's run.json (a task's folder, a fit, a power analysis).
+
+    Parameters
+    ----------
+    folder : the folder (a staging folder, or a fit's own) that receives run.json.
+    record : JSON-able values; anything else (a path, a numpy scalar) is written as its ``str``.
+    """
+    atomic_write(Path(folder) / "run.json", json.dumps(record, indent=2, default=str) + "\n")

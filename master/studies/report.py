@@ -2,14 +2,13 @@
 all."""
 from __future__ import annotations
 
-import json
 
 from matplotlib.figure import Figure
 
 from rhi.master import models
 from rhi.master.cosim import ConfigError
 from rhi.master.outputs.files import atomic_write, output_folder
-from rhi.master.outputs.provenance import package_versions
+from rhi.master.outputs.provenance import package_versions, write_run_record
 from rhi.master.outputs.tables import csv_text, number
 
 METADATA = {"Software": None}  # no version string in the file: same data, same bytes
@@ -58,4 +57,4 @@ def write(out, curve, config: dict, arguments: dict, force: bool, seconds: float
         provenance = {"command": "rhi power", "model": models.of(config).name, "configuration": config,
                       "arguments": {key: value for key, value in arguments.items() if key != "run"},
                       "versions": package_versions(), "timings_s": {"total": seconds}}
-        atomic_write(staging / "run.json", json.dumps(provenance, indent=2, default=str) + "\n")
+        write_run_record(staging, provenance)

@@ -19,7 +19,6 @@ methods, the same signature for every task:
 """
 from __future__ import annotations
 
-import json
 import re
 import sys
 import time
@@ -33,7 +32,7 @@ from rhi.master import models
 from rhi.master.cosim import ConfigError
 from rhi.master.outputs import tables
 from rhi.master.outputs.files import atomic_write, check_output, output_folder
-from rhi.master.outputs.provenance import package_versions
+from rhi.master.outputs.provenance import package_versions, write_run_record
 from rhi.master.runtime.context import RunContext
 
 EXPORT_HOOKS = ("agent", "model_name", "system_name", "system_description", "trial_form", "trials", "trial_name",
@@ -226,7 +225,7 @@ class TaskResult:
         elif figures:
             provenance["figures"] = sorted(figures)
         provenance["timings_s"] = {**provenance.get("timings_s", {}), "total": time.perf_counter() - self.began}
-        atomic_write(staging / "run.json", json.dumps(provenance, indent=2, default=str) + "\n")
+        write_run_record(staging, provenance)
 
     def write_figures(self, staging: Path, workers=None) -> list[str]:
         """The task's figures (:meth:`Task.figures`) into ``staging``; their names."""
@@ -268,14 +267,17 @@ def run(task: Task, config: dict | None = None, context: RunContext | None = Non
 
 
 def run_into(task: Task, out, config: dict, context: RunContext | None = None) -> TaskResult:
-    """Run ``task`` and write DIR = ``out`` as :meth:`TaskResult.write` does; the folder is checked and its staging
-    folder made before any work (a folder that cannot be written is refused before the run, not after it)."""
+    """Run ``task`` and write DIR = ``out`` as :meth:`TaskResult.write` does. The settings are checked first
+    (:meth:`Task.check_before_work`: before any folder is made or decoder trained), then the folder and its staging
+    folder (one that cannot be written is refused before the run, not after it)."""
     from rhi.master.runtime.pool import Workers
 
-    context = context or RunContext()
+    began, context = time.perf_counter(), context or RunContext()
+    task.check_before_work(config, context)
     check_output(out, context.force)
     with output_folder(out, context.force) as staging, \
             Workers(1 if context.device != "cpu" else context.processes) as workers:
-        result = run(task, config, context, workers)
+        result = task.simulate(config, context, workers)
+        result.began = began
         result.write_files(Path(staging), workers)
     return result
