@@ -170,3 +170,39 @@ def test_the_drift_read_within_the_trial_is_a_measure_whose_time_the_fit_reads(t
             read_data(write(tmp_path / "bad.csv", PROBES.replace(old, new)))
     with pytest.raises(ConfigError, match="beyond the trial"):  # 5 steps of 0.02 s: the trial ends at 0.1 s
         read_plan(str(write(tmp_path / "short.toml", FIT.format(participants=3))), data)
+
+
+ONSET = """participant,offset_m,delay_s,time_s,ownership_onset_s,ownership_onset_s_q90
+group,-0.15,0,2,1.0,1.8
+"""
+
+
+def test_an_onsets_mean_and_percentile_are_a_studys_statistics_with_the_never_owned_beyond_the_trial(tmp_path):
+    """ownership_onset_s and its percentile column: the mean over the participants who owned the hand, the 90th
+    percentile (numpy's linear, type 7) over all, one who never did counted at the trial's end (2 s here); checked
+    against the hand computation of made-up records. A model that does not record the measure is refused."""
+    from rhi.master.fit.plan import read_plan
+    from rhi.master.fit.simulate import participants_sweep, statistics
+
+    data = read_data(write(tmp_path / "o.csv", ONSET))
+    assert data.measures == ["ownership_onset_s", "ownership_onset_s_q90"]
+    assert data.observed.tolist() == [[1.0, 1.8]]
+    fit = FIT.format(participants=5).replace("steps = 5", "steps = 100").replace("[fit]\n", '[fit]\nmodel = "ownership"\n')
+    plan = read_plan(str(write(tmp_path / "fit.toml", fit)), data)
+    sweep = participants_sweep(plan, np.array([[np.log(0.05), 1.0]]), "test")
+    onsets = [0.4, float("nan"), 1.2, 0.8, float("nan")]  # two never owned within the 2-s trial
+    outcomes = {t.id: {"status": "ok", "outcome": {"ownership_onset_s": onsets[t.index]}} for t in sweep.trials}
+    x = statistics(sweep, outcomes, data, plan.measures)
+    # by hand: mean of 0.4, 1.2, 0.8 = 0.8; sorted with the never owned at 2.0: 0.4 0.8 1.2 2.0 2.0, the 90th
+    # percentile at position 0.9 x 4 = 3.6 between 2.0 and 2.0: 2.0
+    assert x[0].tolist() == pytest.approx([0.8, 2.0], rel=1e-12)
+    onsets = [0.4, 0.6, 1.2, 0.8, float("nan")]  # one never owned: position 3.6 between 1.2 and 2.0
+    outcomes = {t.id: {"status": "ok", "outcome": {"ownership_onset_s": onsets[t.index]}} for t in sweep.trials}
+    x = statistics(sweep, outcomes, data, plan.measures)
+    assert x[0].tolist() == pytest.approx([0.75, 1.2 + 0.6 * 0.8], rel=1e-12)
+    failed = {**outcomes, sweep.trials[0].id: {"status": "failed"}}
+    assert np.isnan(statistics(sweep, failed, data, plan.measures)).all()  # a failed trial is no participant's onset
+    with pytest.raises(ConfigError, match="model 'paper' does not record it"):
+        read_plan(str(write(tmp_path / "paper.toml", fit.replace('model = "ownership"', 'model = "paper"'))), data)
+    with pytest.raises(ConfigError, match="without its measure ownership_onset_s"):
+        read_data(write(tmp_path / "bad.csv", ONSET.replace("ownership_onset_s,", "drift_cm,")))

@@ -7,13 +7,14 @@ Columns (docs/fit.md):
   ``offset_m`` (the rubber hand's lateral offset from the real hand, m); ``stimulation`` (a name of
   ``[stimulations]``) or ``delay_s`` (one fixed visuo-tactile delay after every touch, s); optionally
   ``time_s``, the trial's length (s), the same on every row;
-- the observed measures: ``drift_cm`` and optionally ``force_n`` (a trial outcome's final values) and the drift
+- the observed measures, at least one: ``drift_cm`` and ``force_n`` (a trial outcome's final values), the drift
   read at times within the trial, ``drift_at_<t>s_cm`` (``drift_at_2s_cm``: a participant's pointing at 2 s; the
-  fit reads the simulated drift then, ``experiment.probe_times``);
-- optionally, beside a measure, its between-participant sd ``drift_cm_sd`` (``force_n_sd``): a group's row of a
-  cell gives the group's mean and sd there, and a fit of group data simulates each draw as a study of
-  ``fit.trials_per_cell`` participants of a ``[population]`` (docs/population.md), whose cell means and sds are
-  its statistics;
+  fit reads the simulated drift then, ``experiment.probe_times``), and ``ownership_onset_s``, the time ownership
+  first reached 1/2 (a model's own measure: only a model that records it can fit it);
+- optionally, beside a measure, its between-participant sd ``drift_cm_sd`` (``force_n_sd``) or percentile
+  ``ownership_onset_s_q90`` (two digits, 01-99): a group's row of a cell gives the group's mean and spread there,
+  and a fit of group data simulates each draw as a study of ``fit.trials_per_cell`` participants of a
+  ``[population]`` (docs/population.md), whose cell means, sds and percentiles are its statistics;
 - optionally, beside a measure, its noise column ``drift_cm_sem`` (``force_n_sem``): the standard error of the
   cell's value, in the measure's unit, the sd of the observation noise a fit adds to that cell's simulated mean
   in place of ``fit.noise.MEASURE`` (a group mean's reported SEM); one value per design cell, >= 0.
@@ -41,9 +42,12 @@ import numpy as np
 from rhi.master.cosim import ConfigError
 from rhi.master.outputs.tables import probe_name
 
-MEASURES = ("drift_cm", "force_n")  # observed measures a fit can explain: trial outcomes of the same name
+MEASURES = ("drift_cm", "force_n", "ownership_onset_s")  # observed measures a fit can explain: trial outcomes
+MODEL_MEASURES = ("ownership_onset_s",)  # of these, a model's own (Model.measures): the fit's model must record it
+EVENT_TIMES = ("ownership_onset_s",)  # times of an event a participant may never reach: NaN is "not within the trial"
 NOISE = tuple(f"{measure}_sem" for measure in MEASURES)  # each measure's per-cell noise sd (its standard error)
 SPREADS = tuple(f"{measure}_sd" for measure in MEASURES)  # a group's between-participant sd of the measure per cell
+PERCENTILE = re.compile(r"(.+)_q(0[1-9]|[1-9][0-9])")  # a group's percentile of a measure per cell: ownership_onset_s_q90
 DESIGN = ("condition", "offset_m", "stimulation", "delay_s", "time_s")
 COLUMNS = ("participant", *DESIGN, *MEASURES, *SPREADS, *NOISE)
 NUMERIC = ("offset_m", "delay_s", "time_s", *MEASURES, *SPREADS, *NOISE)
@@ -118,9 +122,18 @@ def is_measure(column: str) -> bool:
 
 
 def spread_of(column: str) -> str | None:
-    """The measure whose between-participant sd the column gives (``drift_cm_sd``: ``drift_cm``), else None."""
+    """The measure whose between-participant sd or percentile the column gives (``drift_cm_sd``,
+    ``drift_cm_q90``: ``drift_cm``), else None."""
     base = column.removesuffix("_sd")
+    if base == column and PERCENTILE.fullmatch(column):
+        base = PERCENTILE.fullmatch(column).group(1)
     return base if base != column and is_measure(base) else None
+
+
+def percentile_of(column: str) -> int | None:
+    """The percentile a group's column gives (``ownership_onset_s_q90``: 90), else None."""
+    found = PERCENTILE.fullmatch(column)
+    return int(found.group(2)) if found and is_measure(found.group(1)) else None
 
 
 def noise_of(column: str) -> str | None:
@@ -131,10 +144,13 @@ def noise_of(column: str) -> str | None:
 
 def measure_order(columns) -> list[str]:
     """The measures and spreads among ``columns`` in the statistics' order: :data:`MEASURES`, the probes by time,
-    then the spreads in the same order."""
+    then the sds in the same order, then the percentiles (by measure, then percentile)."""
     means = [m for m in MEASURES if m in columns] + sorted((c for c in columns if probe_time(c) is not None),
                                                            key=probe_time)
-    return means + [f"{m}_sd" for m in means if f"{m}_sd" in columns]
+    percentiles = sorted((c for c in columns if percentile_of(c) is not None),
+                         key=lambda c: (means.index(spread_of(c)) if spread_of(c) in means else len(means),
+                                        percentile_of(c)))
+    return means + [f"{m}_sd" for m in means if f"{m}_sd" in columns] + percentiles
 
 
 def known_column(column: str) -> bool:
@@ -167,14 +183,15 @@ def read_data(path: str | Path) -> Data:
     measures = measure_order(header)
     for column in header:
         if spread_of(column) is not None and spread_of(column) not in header:
-            raise ConfigError(f"{name}: column {column} without its measure {column.removesuffix('_sd')} (a group's "
-                              "between-participant sd beside its mean)")
+            raise ConfigError(f"{name}: column {column} without its measure {spread_of(column)} (a group's "
+                              "between-participant sd or percentile beside its mean)")
     for column in header:
         if noise_of(column) is not None and noise_of(column) not in header:
             raise ConfigError(f"{name}: column {column} without its measure {column.removesuffix('_sem')} (a noise "
                               "column gives the sd of that measure's observation noise)")
-    if "drift_cm" not in measures:
-        raise ConfigError(f"{name}: no drift_cm column (the observed drift, cm)")
+    if not any(is_measure(m) for m in measures):
+        raise ConfigError(f"{name}: no measure column (drift_cm, the observed drift in cm, or another of "
+                          f"{', '.join(MEASURES)})")
     if not rows:
         raise ConfigError(f"{name}: no data rows")
     values = []
@@ -196,7 +213,7 @@ def read_data(path: str | Path) -> Data:
                 if column in ("delay_s", "time_s") and not (number >= 0 if column == "delay_s" else number > 0):
                     raise ConfigError(f"{name} line {line}: column {column} = {text} must be "
                                       f"{'>= 0' if column == 'delay_s' else 'positive'}")
-                if spread_of(column) is not None and number < 0:
+                if spread_of(column) is not None and percentile_of(column) is None and number < 0:
                     raise ConfigError(f"{name} line {line}: column {column} = {text} is an sd: it must be >= 0")
                 if noise_of(column) is not None and not 0 <= number <= MAX_NOISE_SD:
                     raise ConfigError(f"{name} line {line}: column {column} = {text} must be a standard error >= 0 "

@@ -13,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from rhi.master.fit.data import Data, spread_of
+from rhi.master.config.schedules import trial_length
+from rhi.master.fit.data import EVENT_TIMES, Data, percentile_of, spread_of
 from rhi.master.fit.plan import FitPlan, simulation_seed
 from rhi.master.sweeps import plan as sweeps
 
@@ -73,9 +74,14 @@ class Pool:
 
 
 def statistics(sweep: sweeps.Sweep, records: dict[str, dict], data: Data, measures: list[str]) -> np.ndarray:
-    """(participants, cells x measures): each simulated participant's cell means, NaN where a trial failed; a
-    group's spread (``drift_cm_sd``, :func:`rhi.master.fit.data.spread_of`) is the sample sd (ddof 1) of the measure over
-    the cell's trials, each trial one participant of the simulated study (a ``[population]``)."""
+    """(participants, cells x measures): each simulated participant's cell means, NaN where a trial failed.
+
+    A group's statistics, each trial one participant of the simulated study (a ``[population]``): a spread
+    (``drift_cm_sd``, :func:`rhi.master.fit.data.spread_of`) is the sample sd (ddof 1) of the measure over the cell's
+    trials, a percentile (``ownership_onset_s_q90``) numpy's linear one (Hyndman & Fan type 7). An event's time
+    (:data:`rhi.master.fit.data.EVENT_TIMES`) that a participant never reached within the trial is beyond its end:
+    its mean is over the participants who reached it (NaN if none did), its percentiles count the others as the
+    trial's length (exact wherever the percentile falls before the end, as a reported one does)."""
     cells = {cell: n for n, cell in enumerate(data.cells)}
     bases = [spread_of(m) or m for m in measures]
     values = np.full((len(sweep.points), len(data.cells), len(measures)), None, dtype=object)
@@ -87,11 +93,26 @@ def statistics(sweep: sweeps.Sweep, records: dict[str, dict], data: Data, measur
         failed = record is None or record.get("status") != "ok"
         for position, base in enumerate(bases):
             found = values[trial.point, cell, position] or []
-            values[trial.point, cell, position] = [*found, np.nan if failed else record["outcome"][base]]
+            if failed:
+                value = np.nan
+            elif base in EVENT_TIMES and np.isnan(record["outcome"][base]):
+                value = np.inf  # never within the trial
+            else:
+                value = record["outcome"][base]
+            values[trial.point, cell, position] = [*found, value]
     result = np.full(values.shape, np.nan)
     for index in np.ndindex(values.shape):
         given = np.asarray(values[index] or [np.nan], dtype=float)
-        if spread_of(measures[index[2]]) is not None:
+        measure = measures[index[2]]
+        if np.isinf(given).any() and percentile_of(measure) is not None:
+            given = np.minimum(given, trial_length(sweep.configs[index[0]]))
+        elif np.isinf(given).any():  # an event's mean or sd: over the participants who reached it
+            given = given[np.isfinite(given) | np.isnan(given)]
+        if given.size == 0:
+            continue
+        if percentile_of(measure) is not None:
+            result[index] = np.quantile(given, percentile_of(measure) / 100.0)
+        elif spread_of(measure) is not None:
             result[index] = given.std(ddof=1) if given.size > 1 else np.nan
         else:  # summed in trial order, then divided: the bits of the sums this function always made
             result[index] = sum(given.tolist()) / given.size
