@@ -34,7 +34,8 @@ def step(made, t, s_p, seen, visual=-np.inf, tactile=-np.inf, visible=1.0):
 
 def test_no_seen_hand_no_pull_and_no_touch_evidence():
     # two trials: the arm in view and not; the same phantom reading x_v and the same synchronous touches
-    made = brain(2, realignment_rate=0.1, switching_rate=0.0, coupling_prior=0.9, participant_seed=[1, 1])
+    made = brain(2, realignment_rate=0.1, switching_rate=0.0, coupling_prior=0.9, participant_seed=[1, 1],
+                 ownership_prior=0.01)
     s_p, phantom = np.array([140.0, -90.0]), np.array([150.0, -80.0])
     for k in range(round(10.0 / STEP)):
         visual = 2.0 * (k // 100) if k >= 100 else -np.inf

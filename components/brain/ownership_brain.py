@@ -61,8 +61,8 @@ class OwnershipBrain(PerceptualNoise, BeliefBrain):
         probability = dict(min=1e-6, max=1.0 - 1e-6)
         # The parameters' starts are the model's settings (master/models/ownership.toml; tests/test_model_defaults.py).
         super().__init__(name, [
-            Variable("ownership_prior", "parameter", start=0.01, unit="1", **probability,
-                     description="gamma_t's prior and the stationary probability of its chain (the paper's gamma0)"),
+            Variable("ownership_prior", "parameter", start=0.000227, unit="1", **probability,
+                     description="gamma_t's prior and the stationary probability of its chain (the paper's gamma0 in role)"),
             Variable("coupling_prior", "parameter", start=0.189, unit="1", **probability,
                      description="rho's prior: a seen hand is coupled to the felt one before any touch"),
             Variable("timing_sd", "parameter", start=0.2, unit="s", **positive,
@@ -81,7 +81,7 @@ class OwnershipBrain(PerceptualNoise, BeliefBrain):
                      description="the body schema's upper arm (shoulder to elbow)"),
             Variable("forearm_length", "parameter", start=0.3694, unit="m", **positive,
                      description="the body schema's forearm (elbow to hand); the reach L is the two summed"),
-            Variable("switching_rate", "parameter", start=0.0319, unit="1/s", min=0.0,
+            Variable("switching_rate", "parameter", start=0.255, unit="1/s", min=0.0,
                      description="lambda = k_on + k_off of ownership's chain (0: evidence kept for good)"),
             Variable("realignment_weight", "parameter", start=0.39, unit="1", min=1e-6, max=1.0,
                      description="w0: the fraction of the way a seen arm pulls the felt one, proprioception rested"),

@@ -3,9 +3,9 @@
 Its system is a task's with the pose encoder added (the camera's image in, the seen pose into the brain) and
 the ownership brain in the paper brain's place; like the causal brain it declares no input for a simulator
 position, so the assembly (:func:`rhi.master.tasks.scene.assemble`) leaves out the links that would hand it one.
-Its parameters the paper's brain also has come from ``[brain]`` as for the paper (its ownership prior is the
-paper's ``brain.gamma0``, its stroke period ``stimulus.period``); the rest from ``[ownership]``
-(master/models/ownership.toml) or derived here.
+Its parameters the paper's brain also has come from ``[brain]`` as for the paper (its ownership prior is
+``brain.gamma0``, which ownership.toml sets to its own fitted value, its stroke period ``stimulus.period``); the rest
+from ``[ownership]`` (master/models/ownership.toml) or derived here.
 """
 from __future__ import annotations
 
@@ -35,9 +35,7 @@ OWN_SOURCES = {
     "brain.participant_seed": "per trial: the trial's seed (its own stream of perceptual timing noise)",
 }
 # Why the keys shared with the paper's model are this model's constants too (docs/model.md's table).
-SHARED_KEYS = {"brain.gamma0": "the paper's initial gamma (Rood et al. 2020: \"The initial gamma value was set to "
-                               "0.01\"), here the prior of ownership and its chain's stationary probability",
-               "stimulus.period": "s, the protocol's stroke period: the asynchrony under two causes is uniform over "
+SHARED_KEYS = {"stimulus.period": "s, the protocol's stroke period: the asynchrony under two causes is uniform over "
                                   "one period, density 1/T",
                "brain.sync_sd": "s, ownership's visuo-tactile window: the paper's sd of t_v - t_t under one cause (Rood "
                                 "et al. 2020, eq. 8, for strokes; the illusion survives delays up to about 300 ms, "
@@ -46,23 +44,26 @@ SHARED_KEYS = {"brain.gamma0": "the paper's initial gamma (Rood et al. 2020: \"T
 DERIVED_FROM = {"brain.peripersonal_sd": "ownership.peripersonal_boundary"}
 # The free parameters, fitted on the training set: (prior, low, high) each, stated before the fit that uses it
 # (docs/model.md, "The ownership model": why these ranges, and why the coupling prior joined the rates). Their
-# values in ownership.toml are the adopted joint point (point.csv) of the population fit shipped in FIT_FOLDER
-# (relative to the project), its population medians where it fits a [population]; a parameter that fit leaves out
-# keeps the posterior median of the individual fit in MEDIAN_FIT_FOLDER (fitted_values).
+# values in ownership.toml are the adopted joint points (point.csv) of the population fits shipped in FIT_FOLDERS
+# (relative to the project; the drift's on Rohde et al. 2011, the onset's on Kalckert & Ehrsson 2017), their
+# population medians where they fit a [population]; a parameter no such fit has keeps the posterior median of the
+# individual fit in MEDIAN_FIT_FOLDER (fitted_values).
 FREE_PARAMETERS = {"ownership.switching_rate": ("log-uniform", 1.0 / 600.0, 1.0),
                    "ownership.realignment_rate": ("log-uniform", 1.0 / 600.0, 1.0),
                    "ownership.coupling_prior": ("uniform", 0.01, 0.99),
                    "ownership.coupling_window_sd": ("log-uniform", 0.1, 10.0),
                    "ownership.counter_evidence_leak": ("log-uniform", 1.0 / 600.0, 1.0),
-                   "ownership.proprioceptive_fading_rate": ("log-uniform", 1.0 / 600.0, 1.0)}
-FIT_FOLDER = "docs/fit/human/ownership_group"
+                   "ownership.proprioceptive_fading_rate": ("log-uniform", 1.0 / 600.0, 1.0),
+                   "brain.gamma0": ("log-uniform", 1e-5, 0.5)}  # ownership's prior: the onset fit's only
+FIT_FOLDERS = ("docs/fit/human/ownership_group", "docs/fit/human/ownership_onset")
 MEDIAN_FIT_FOLDER = "docs/fit/human/ownership_rohde2011"
 
 
 def fitted_values(root) -> dict[str, dict]:
-    """Each free parameter's fitted value as shipped: {key: {"value", "q05", "q95", "rule", "folder"}}, from
-    FIT_FOLDER's point.csv and estimates.csv (the key itself, or its population median ``population.KEY.median``),
-    else MEDIAN_FIT_FOLDER's estimates.csv (the posterior median); ``root`` the project's folder."""
+    """Each free parameter's fitted value as shipped: {key: {"value", "q05", "q95", "rule", "folder"}}, from the
+    first of FIT_FOLDERS whose point.csv and estimates.csv have it (the key itself, or its population median
+    ``population.KEY.median``), else MEDIAN_FIT_FOLDER's estimates.csv (the posterior median); ``root`` the
+    project's folder."""
     import csv
     from pathlib import Path
 
@@ -70,15 +71,17 @@ def fitted_values(root) -> dict[str, dict]:
         with open(Path(root) / folder / name, encoding="utf-8") as file:
             return {row["parameter"]: row for row in csv.DictReader(file)}
 
-    point, estimates, medians = (rows(FIT_FOLDER, "point.csv"), rows(FIT_FOLDER, "estimates.csv"),
-                                 rows(MEDIAN_FIT_FOLDER, "estimates.csv"))
+    fits = [(folder, rows(folder, "point.csv"), rows(folder, "estimates.csv")) for folder in FIT_FOLDERS]
+    medians = rows(MEDIAN_FIT_FOLDER, "estimates.csv")
     result = {}
     for key in FREE_PARAMETERS:
-        fitted = next((name for name in (key, f"population.{key}.median") if name in point), None)
+        fitted = next(((folder, point, estimates, name) for folder, point, estimates in fits
+                       for name in (key, f"population.{key}.median") if name in point), None)
         if fitted:
-            result[key] = {"value": float(point[fitted]["value"]), "q05": float(estimates[fitted]["q05"]),
-                           "q95": float(estimates[fitted]["q95"]), "rule": "the joint posterior mode",
-                           "folder": FIT_FOLDER}
+            folder, point, estimates, name = fitted
+            result[key] = {"value": float(point[name]["value"]), "q05": float(estimates[name]["q05"]),
+                           "q95": float(estimates[name]["q95"]), "rule": "the joint posterior mode",
+                           "folder": folder}
         elif key in medians:
             result[key] = {"value": float(medians[key]["median"]), "q05": float(medians[key]["q05"]),
                            "q95": float(medians[key]["q95"]), "rule": "the posterior median", "folder": MEDIAN_FIT_FOLDER}

@@ -298,14 +298,16 @@ def ownership_constants() -> str:
 
 
 def population_spreads() -> str:
-    """Every shipped population (docs/population/*.toml): each parameter's distribution, median, spread, bounds and
-    the source of its spread (the entry's ``source``), as the configuration reads them."""
+    """Every shipped population (docs/population/*.toml; one named after a model is that model's): each parameter's
+    distribution, median, spread, bounds and the source of its spread (the entry's ``source``), as the configuration
+    reads them."""
     from rhi.master import config as configuration
+    from rhi.master import models
     from rhi.master.config import population
 
     rows = []
     for path in sorted((Path(__file__).resolve().parents[2] / "docs" / "population").glob("*.toml")):
-        config = configuration.load(path)
+        config = configuration.load(path, model_name=path.stem if path.stem in models.names() else "paper")
         for key, entry in population.entries(config).items():
             name = entry["distribution"]
             spread = population.DISTRIBUTIONS[name].spread
