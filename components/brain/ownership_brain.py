@@ -7,7 +7,7 @@ Each step, for each of the B trials (docs/model.md, "The ownership model"; each 
 1. a hand is seen only where the scene says one is in view (``arm_visible``, :func:`seen_hand`); the seen
    hand's place (the pose encoder's reading against the sensed angles, by the body schema) is evidence about one
    cause, counted once (:func:`spatial_log_likelihood_ratio`);
-2. the timing belief gamma_t is a two-state chain relaxing to the paper's gamma0 at the switching rate
+2. the timing belief gamma_t is a two-state chain relaxing to its prior gamma0 at the switching rate
    (:func:`~rhi.components.brain.body_inference.hazard_predict`); at a new visuo-tactile pair of a seen hand it adds
    the perceived asynchrony's log ratio in ownership's window (:func:`asynchrony_log_likelihood_ratio`, the
    delay plus this trial's perceptual noise) by Bayes' rule; ownership gamma is gamma_t with the place
@@ -62,7 +62,7 @@ class OwnershipBrain(PerceptualNoise, BeliefBrain):
         # The parameters' starts are the model's settings (master/models/ownership.toml; tests/test_model_defaults.py).
         super().__init__(name, [
             Variable("ownership_prior", "parameter", start=0.000227, unit="1", **probability,
-                     description="gamma_t's prior and the stationary probability of its chain (the paper's gamma0 in role)"),
+                     description="gamma_t's prior and the stationary probability of its chain (the paper's gamma0's role)"),
             Variable("coupling_prior", "parameter", start=0.189, unit="1", **probability,
                      description="rho's prior: a seen hand is coupled to the felt one before any touch"),
             Variable("timing_sd", "parameter", start=0.2, unit="s", **positive,
