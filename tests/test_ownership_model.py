@@ -340,3 +340,25 @@ def test_trials_record_the_onset_as_the_first_time_gamma_reaches_one_half(tiny_o
         assert np.isnan(table["ownership_onset_s"][:first, trial]).all()
         assert (table["ownership_onset_s"][first:, trial] == result.times[first]).all()
     assert np.array_equal(table["coupling"], result.values["brain.coupling"])
+
+
+def test_the_shipped_population_s_spreads_are_the_fits_adopted_spreads():
+    """docs/population/ownership.toml holds each spread at the adopted point of the population fit that fitted it
+    (point.csv's population.KEY.logit_sd or .log_sd), to the 3 significant digits written; its medians are the
+    model's own (no median of its own in the file)."""
+    import csv
+
+    from rhi.master.config import population
+
+    fitted = {}
+    for folder in ("ownership_group", "ownership_onset"):
+        with open(ROOT / "docs/fit/human" / folder / "point.csv") as file:
+            fitted.update({row["parameter"]: float(row["value"]) for row in csv.DictReader(file)
+                           if row["parameter"].endswith(("logit_sd", "log_sd"))})
+    config = configuration.load(ROOT / "docs/population/ownership.toml", model_name="ownership")
+    entries = population.entries(config)
+    assert {f"population.{key}.{spread}" for key, entry in entries.items()
+            for spread in ("logit_sd", "log_sd") if spread in entry} == set(fitted)
+    for name, value in fitted.items():
+        key, spread = name.removeprefix("population.").rsplit(".", 1)
+        assert entries[key][spread] == pytest.approx(value, rel=5e-3) and "median" not in entries[key]
