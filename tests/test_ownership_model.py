@@ -278,7 +278,7 @@ def test_the_drift_depends_on_neither_of_the_onset_fits_parameters(tiny_ownershi
 
     runs = []
     for gamma0, rate in ((0.000227, 0.255), (0.01, 0.0319)):
-        config = configuration.merge(tiny_ownership, {"experiment": {"steps": 300}, "brain": {"gamma0": gamma0},
+        config = configuration.merge(tiny_ownership, {"experiment": {"steps": 150}, "brain": {"gamma0": gamma0},
                                                       "ownership": {"switching_rate": rate}})
         decoder = Decoder(GenerativeModel(build("conv", "tiny", 16).decoder, kinematics.REST_POSE, (40.0, 50.0),
                                           {"kind": "conv"}), threads=1)
