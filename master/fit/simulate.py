@@ -100,19 +100,20 @@ def statistics(sweep: sweeps.Sweep, records: dict[str, dict], data: Data, measur
             else:
                 value = record["outcome"][base]
             values[trial.point, cell, position] = [*found, value]
+    percentiles = [percentile_of(m) for m in measures]
     result = np.full(values.shape, np.nan)
     for index in np.ndindex(values.shape):
         given = np.asarray(values[index] or [np.nan], dtype=float)
-        measure = measures[index[2]]
-        if np.isinf(given).any() and percentile_of(measure) is not None:
+        percentile = percentiles[index[2]]
+        if np.isinf(given).any() and percentile is not None:
             given = np.minimum(given, trial_length(sweep.configs[index[0]]))
         elif np.isinf(given).any():  # an event's mean or sd: over the participants who reached it
             given = given[np.isfinite(given) | np.isnan(given)]
         if given.size == 0:
             continue
-        if percentile_of(measure) is not None:
-            result[index] = np.quantile(given, percentile_of(measure) / 100.0)
-        elif spread_of(measure) is not None:
+        if percentile is not None:
+            result[index] = np.quantile(given, percentile / 100.0)
+        elif bases[index[2]] != measures[index[2]]:  # a spread: the sample sd
             result[index] = given.std(ddof=1) if given.size > 1 else np.nan
         else:  # summed in trial order, then divided: the bits of the sums this function always made
             result[index] = sum(given.tolist()) / given.size
