@@ -180,3 +180,28 @@ def test_the_group_fit_file_fits_a_population_over_rohde_s_protocol_on_means_and
     priors = {p.key.removeprefix("population.").removesuffix(".median"): (p.prior, p.low, p.high)
               for p in plan.parameters if not p.key.endswith((".logit_sd", ".log_sd"))}
     assert priors == {k: v for k, v in FREE_PARAMETERS.items() if k not in ("ownership.switching_rate", "brain.gamma0")}
+
+
+def test_the_training_set_is_two_studies_each_under_its_own_protocol():
+    """docs/fit/human/training.csv with ownership_training.toml: Rohde's protocol as rohde2011.toml gives it with its
+    n = 10; Kocur's 22.5 cm, 180 s and n = 24 (kocur2022.csv's source) as a sync - async contrast whose sd follows
+    from the F test (sd = 1.6 / sqrt(F) sqrt(n)); the fit file's priors and population the group fit's."""
+    rohde = protocol(HUMAN / "protocols" / "rohde2011_exp2.toml")
+    individual = protocol(HUMAN / "rohde2011.toml")
+    assert rohde.pop("experiment") == {"trials": 10, **{k: v for k, v in individual.pop("experiment").items()
+                                                        if k in ("steps", "probe_times")}}
+    assert rohde == individual
+    data = read_data(HUMAN / "training.csv")
+    assert data.observed[0, :6].tolist() == read_data(HUMAN / "rohde2011_group.csv").observed[0].tolist()
+    assert data.cells[3] == ("protocols/kocur2022.toml:kocur", "sync-async")
+    assert data.observed[0, 6:].tolist() == [-1.6, pytest.approx(1.6 / 6.591 ** 0.5 * 24 ** 0.5, abs=5e-4)]
+    plan = read_plan(str(HUMAN / "ownership_training.toml"), data)
+    (kocur_config,) = plan.configs()[1:]
+    step = kocur_config["experiment"]["step_size"]
+    assert (kocur_config["conditions"]["kocur"], kocur_config["experiment"]["steps"] * step,
+            kocur_config["experiment"]["trials"]) == (-0.225, pytest.approx(180.0), 24)
+    group = read_plan(str(HUMAN / "ownership_group.toml"), read_data(HUMAN / "rohde2011_group.csv"))
+    assert [p.describe() for p in plan.parameters] == [p.describe() for p in group.parameters]
+    assert plan.base["population"] == group.base["population"]
+    assert {k: v for k, v in plan.settings.items() if k != "trials_per_cell"} == {
+        k: v for k, v in group.settings.items() if k != "trials_per_cell"}

@@ -7,6 +7,13 @@ Columns (docs/fit.md):
   ``offset_m`` (the rubber hand's lateral offset from the real hand, m); ``stimulation`` (a name of
   ``[stimulations]``) or ``delay_s`` (one fixed visuo-tactile delay after every touch, s); optionally
   ``time_s``, the trial's length (s), the same on every row;
+- optionally ``protocol``, the protocol file (a configuration file, relative to the data file's folder) the row's
+  study ran: rows of several protocols (other offsets, stroke rates, trial lengths, group sizes) are fitted in one fit,
+  each protocol's cells simulated under its file's tables over the fit file's, its ``experiment.trials`` the group's
+  n (else ``fit.trials_per_cell``); every participant (a group's label) must have rows in every protocol;
+- optionally ``baseline``, a stimulation subtracted: the row's measures are the difference of its stimulation's and
+  the baseline's (a within-participant contrast, ``sync`` minus ``async``, each participant their own baseline; its
+  sd the sd of the differences), the design cell named ``sync-async``; empty where a row is no contrast;
 - the observed measures, at least one: ``drift_cm`` and ``force_n`` (a trial outcome's final values), the drift
   read at times within the trial, ``drift_at_<t>s_cm`` (``drift_at_2s_cm``: a participant's pointing at 2 s; the
   fit reads the simulated drift then, ``experiment.probe_times``), and ``ownership_onset_s``, the time ownership
@@ -48,7 +55,7 @@ EVENT_TIMES = ("ownership_onset_s",)  # times of an event a participant may neve
 NOISE = tuple(f"{measure}_sem" for measure in MEASURES)  # each measure's per-cell noise sd (its standard error)
 SPREADS = tuple(f"{measure}_sd" for measure in MEASURES)  # a group's between-participant sd of the measure per cell
 PERCENTILE = re.compile(r"(.+)_q(0[1-9]|[1-9][0-9])")  # a group's percentile of a measure per cell: ownership_onset_s_q90
-DESIGN = ("condition", "offset_m", "stimulation", "delay_s", "time_s")
+DESIGN = ("protocol", "condition", "offset_m", "stimulation", "baseline", "delay_s", "time_s")
 COLUMNS = ("participant", *DESIGN, *MEASURES, *SPREADS, *NOISE)
 NUMERIC = ("offset_m", "delay_s", "time_s", *MEASURES, *SPREADS, *NOISE)
 PROBE = re.compile(r"drift_at_(\d+(?:\.\d+)?)s_cm")  # the drift read at a time within the trial: probe_name
@@ -70,6 +77,9 @@ class Data:
     counts: np.ndarray                          # (participants, cells): rows averaged per cell
     time_s: float | None                        # the trials' length, when the file gives it
     noise: dict[str, np.ndarray] = field(default_factory=dict)  # measure -> (cells,) sd of its MEASURE_sem column
+    contrasts: dict[str, tuple[str, str]] = field(default_factory=dict)  # cell stimulation -> (stimulation, baseline)
+    protocol: str | None = None                 # a part's protocol file, as the data give it (relative to the data)
+    parts: tuple = ()                           # a file of several protocols: each protocol's Data, in file order
 
     def noise_sd(self, measures: list[str], default: dict[str, float]) -> np.ndarray:
         """The observation noise's sd of each statistic of ``measures``, cell-major as the statistics.
@@ -89,6 +99,14 @@ class Data:
         """
         return np.array([self.noise[m][n] if m in self.noise else default.get(m, 0.0)
                          for n in range(len(self.cells)) for m in measures], dtype=float)
+
+    def designs(self) -> tuple:
+        """The data's parts, one per protocol (the data itself when it names none)."""
+        return self.parts or (self,)
+
+    def protocol_path(self) -> Path:
+        """The part's protocol file, relative to the data file's folder."""
+        return Path(self.path).parent / self.protocol
 
     def probe_times(self) -> list[float]:
         """The times (s) within the trial at which the data read the drift (their ``drift_at_<t>s_cm`` columns)."""
@@ -180,6 +198,9 @@ def read_data(path: str | Path) -> Data:
         if len(given) != 1:
             raise ConfigError(f"{name}: give exactly one of the columns {pair[0]} and {pair[1]}, got "
                               f"{', '.join(given) or 'neither'}")
+    if "baseline" in header and "stimulation" not in header:
+        raise ConfigError(f"{name}: column baseline names a stimulation subtracted: give the stimulation column "
+                          "(not delay_s) beside it")
     measures = measure_order(header)
     for column in header:
         if spread_of(column) is not None and spread_of(column) not in header:
@@ -201,6 +222,8 @@ def read_data(path: str | Path) -> Data:
         record = {}
         for column, text in zip(header, row):
             text = text.strip()
+            if column == "baseline" and not text:  # a row that is no contrast
+                continue
             if not text:
                 raise ConfigError(f"{name} line {line}: empty value in column {column}")
             if column in NUMERIC or is_measure(column) or spread_of(column) or noise_of(column):
@@ -224,6 +247,12 @@ def read_data(path: str | Path) -> Data:
                                   "printable (a line break, a tab, a control character); a name is one line of text")
             else:
                 record[column] = text
+        if "protocol" in record and not (Path(path).parent / record["protocol"]).is_file():
+            raise ConfigError(f"{name} line {line}: column protocol = {record['protocol'][:80]!r}: no such file "
+                              f"(a protocol file's path is relative to the data file's folder)")
+        if record.get("baseline") is not None and record["baseline"] == record["stimulation"]:
+            raise ConfigError(f"{name} line {line}: column baseline = {record['baseline']!r} is the row's own "
+                              "stimulation: a contrast subtracts another")
         values.append((line, record))
     return summarise(str(path), values, measures)
 
@@ -265,9 +294,37 @@ def read_rows(path: str | Path) -> tuple[list[tuple[int, list[str]]], list[str]]
 
 
 def summarise(path: str, values: list[tuple[int, dict]], measures: list[str]) -> Data:
+    """Cell means per participant, each protocol's part apart when the rows name protocols (:func:`combined`)."""
+    if "protocol" not in values[0][1]:
+        return summarise_part(path, values, measures)
+    protocols = list(dict.fromkeys(record["protocol"] for _, record in values))
+    return combined(path, [summarise_part(path, [(line, record) for line, record in values
+                                                 if record["protocol"] == protocol], measures, protocol)
+                           for protocol in protocols])
+
+
+def combined(path: str, parts: list[Data]) -> Data:
+    """Several protocols' parts as one data set: their cells in turn, each condition named with its protocol
+    (``rohde2011.toml:rohde``), the statistics concatenated cell-major; a ConfigError unless every part has the same
+    participants."""
+    name, first = Path(path).name, parts[0]
+    for part in parts[1:]:
+        if set(part.participants) != set(first.participants):
+            other = sorted(set(part.participants) ^ set(first.participants))[0]
+            raise ConfigError(f"{name}: participant {other} has no rows of protocol "
+                              f"{(part if other in first.participants else first).protocol}; every participant "
+                              "needs every protocol (a group fitted on several studies: one label on all their rows)")
+    order = [[part.participants.index(p) for p in first.participants] for part in parts]
+    noise = {m: np.concatenate([part.noise[m] for part in parts]) for m in first.noise}  # one header: all or none
+    return Data(path, first.participants, [(f"{part.protocol}:{c}", s) for part in parts for c, s in part.cells],
+                {}, {}, first.measures, np.concatenate([p.observed[o] for p, o in zip(parts, order)], axis=1),
+                np.concatenate([p.counts[o] for p, o in zip(parts, order)], axis=1), None, noise, parts=tuple(parts))
+
+
+def summarise_part(path: str, values: list[tuple[int, dict]], measures: list[str], protocol: str | None = None) -> Data:
     """Cell means per participant; a ConfigError for a participant lacking a cell or two trial lengths."""
     name = Path(path).name
-    conditions, stimulations, cell_of = {}, {}, []
+    conditions, stimulations, contrasts, cell_of = {}, {}, {}, []
     for _, record in values:
         if "offset_m" in record:
             condition = offset_name(record["offset_m"])
@@ -279,11 +336,15 @@ def summarise(path: str, values: list[tuple[int, dict]], measures: list[str]) ->
             stimulations[stimulation] = record["delay_s"]
         else:
             stimulation = record["stimulation"]
+        if record.get("baseline") is not None:
+            contrasts[f"{stimulation}-{record['baseline']}"] = (stimulation, record["baseline"])
+            stimulation = f"{stimulation}-{record['baseline']}"
         cell_of.append((condition, stimulation))
     lengths = sorted({record["time_s"] for _, record in values if "time_s" in record})
     if len(lengths) > 1:
         raise ConfigError(f"{name}: column time_s has {len(lengths)} values ({', '.join(f'{t:g}' for t in lengths[:4])}"
-                          f"{', ...' if len(lengths) > 4 else ''}); a fit simulates one trial length")
+                          f"{', ...' if len(lengths) > 4 else ''}){f' in protocol {protocol}' if protocol else ''}; "
+                          "a protocol has one trial length (rows of other lengths name their protocol files)")
     participants = list(dict.fromkeys(record["participant"] for _, record in values))
     cells = sorted(set(cell_of))
     sums = np.zeros((len(participants), len(cells), len(measures)))
@@ -302,7 +363,7 @@ def summarise(path: str, values: list[tuple[int, dict]], measures: list[str]) ->
                               "needs every cell")
     observed = (sums / counts[:, :, None]).reshape(len(participants), -1)
     return Data(path, participants, cells, conditions, stimulations, measures, observed, counts,
-                lengths[0] if lengths else None, cell_noise(name, values, cell_of, cells, measures))
+                lengths[0] if lengths else None, cell_noise(name, values, cell_of, cells, measures), contrasts, protocol)
 
 
 def cell_noise(name: str, values: list[tuple[int, dict]], cell_of: list, cells: list, measures: list[str]) -> dict:
@@ -323,9 +384,14 @@ def cell_noise(name: str, values: list[tuple[int, dict]], cell_of: list, cells: 
 
 
 def check_against(data: Data, config: dict) -> None:
-    """The named conditions and stimulations must exist in the fit's configuration."""
+    """The named conditions and stimulations (a contrast's two) must exist in the fit's configuration."""
     name = Path(data.path).name
-    for condition, stimulation in data.cells:
+    for contrast in data.contrasts:
+        if contrast in config["stimulations"]:
+            raise ConfigError(f"{name}: the contrast {contrast} has the name of a stimulation of [stimulations]; "
+                              "rename that stimulation")
+    cells = [(c, s) for c, named in data.cells for s in data.contrasts.get(named, (named,))]
+    for condition, stimulation in cells:
         if condition not in data.conditions and condition not in config["conditions"]:
             raise ConfigError(f"{name}: condition {condition!r} is not defined in [conditions] "
                               f"({', '.join(config['conditions'])}); give offset_m instead, or define it in the fit file")

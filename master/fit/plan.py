@@ -65,6 +65,9 @@ class FitPlan:
         Measure -> sd of the observation noise added to a simulated cell mean, in the measure's unit.
     estimator : dict
         ``fit.estimator``'s settings, the defaults filled in.
+    designs : list of dict
+        A fit of several protocols (the data's ``protocol`` column): per protocol, in the data's order, the dotted
+        keys its configuration sets over ``base`` (its design, its file's tables); empty for one design.
     """
 
     parameters: list[Parameter]
@@ -73,6 +76,11 @@ class FitPlan:
     measures: list[str]                  # the summary statistics' measures, per design cell
     noise: dict[str, float]              # measure -> sd of the observation noise added to a simulated cell mean
     estimator: dict = field(default_factory=dict)
+    designs: list[dict] = field(default_factory=list)  # per protocol: the keys its configuration sets over base
+
+    def configs(self) -> list[dict]:
+        """The configuration each protocol's simulated participants run (one design: ``base``)."""
+        return [configuration.merge(self.base, configuration.nest(keys)) for keys in self.designs] or [self.base]
 
 
 def population_field(written: str, config: dict) -> str | None:
@@ -205,13 +213,22 @@ def read_plan(path: str, data: Data, model: str | None = None) -> FitPlan:
         base["experiment"]["decoders"] = ["conv"]
     if len(base["experiment"]["decoders"]) != 1:
         raise ConfigError("experiment.decoders: a fit simulates one decoder; name one")
-    base = with_design(base, data, whole["trials_per_cell"])
+    if data.parts:  # several protocols: each its own design over the fit file's configuration
+        configuration.validate(base)
+        designs = [protocol_keys(base, with_protocol(base, part, whole["trials_per_cell"])) for part in data.parts]
+    else:
+        base, designs = with_design(base, data, whole["trials_per_cell"]), []
     parameters = settings.get("parameters")
     if not isinstance(parameters, dict) or not parameters:
         raise ConfigError("fit.parameters: name at least one parameter to fit, each a table with its prior")
     fitted = [read_parameter(written, spec, base) for written, spec in parameter_tables(parameters)]
     if len({p.key for p in fitted}) != len(fitted):
         raise ConfigError("fit.parameters names one parameter twice")
+    for part, keys in zip(data.parts, designs):
+        for p in fitted:
+            if p.key in keys or any(key.startswith(f"{p.key}.") for key in keys):
+                raise ConfigError(f"protocol {part.protocol}: sets {p.key}, a fitted parameter; a protocol gives the "
+                                  "study's design, the fit its parameters")
     measures = settings.get("measures", data.measures)
     if not isinstance(measures, list) or not measures or any(m not in data.measures for m in measures):
         raise ConfigError(f"fit.measures = {measures!r} must list measures of the data file ({', '.join(data.measures)})")
@@ -239,17 +256,47 @@ def read_plan(path: str, data: Data, model: str | None = None) -> FitPlan:
     chosen = read_estimator(settings.get("estimator", {}), len(fitted), len(data.cells) * len(measures))
     return FitPlan(fitted, base, {**whole, "model": model, "quick": quick, "workers": workers,
                                      "calibration_design": design}, measures,
-                   {m: float(noise.get(m, 0.0)) for m in measures}, chosen)
+                   {m: float(noise.get(m, 0.0)) for m in measures}, chosen, designs)
+
+
+PROTOCOL_REFUSED = ("fit", "population", "sweep")  # a protocol file gives a study's design, not a fit's or a sweep's
+
+
+def with_protocol(base: dict, part: Data, trials: int) -> dict:
+    """``base`` running the part's design under its protocol file (its tables over the fit file's; its
+    ``experiment.trials``, when it sets it, the group's n in place of ``trials``); ConfigError naming the file."""
+    path = part.protocol_path()
+    tables = configuration.read_toml(path)
+    for table in PROTOCOL_REFUSED:
+        if table in tables:
+            raise ConfigError(f"protocol {part.protocol}: a protocol file gives a study's design; its [{table}] "
+                              "belongs in the fit file")
+    try:
+        config = configuration.merge(base, tables)
+        return with_design(config, part, tables.get("experiment", {}).get("trials", trials))
+    except ConfigError as error:
+        raise ConfigError(f"protocol {part.protocol}: {error}") from None
+
+
+def protocol_keys(base: dict, config: dict) -> dict:
+    """The dotted keys whose values ``config`` sets other than ``base``: a protocol's part of a sweep point."""
+    from rhi.master.sweeps.plan import flatten
+
+    before = {table: flatten(values) for table, values in base.items() if isinstance(values, dict)}
+    return {f"{table}.{key}": value for table, values in config.items() if isinstance(values, dict)
+            for key, value in flatten(values).items() if before.get(table, {}).get(key, ...) != value}
 
 
 def with_design(config: dict, data: Data, trials: int) -> dict:
-    """``config`` running exactly the data's design: its conditions and stimulations, one trial length."""
+    """``config`` running exactly the data's design: its conditions and stimulations (a contrast's two), one trial
+    length."""
     config = configuration.merge(config, {
         "conditions": dict(data.conditions),
         "stimulations": {name: {"delay_min": delay, "delay_max": delay} for name, delay in data.stimulations.items()}})
     check_against(data, config)
     config["experiment"]["conditions"] = sorted({c for c, _ in data.cells})
-    config["experiment"]["stimulations"] = sorted({s for _, s in data.cells})
+    config["experiment"]["stimulations"] = sorted({s for _, named in data.cells
+                                                   for s in data.contrasts.get(named, (named,))})
     config["experiment"]["trials"] = trials
     if data.probe_times():  # the drift read when the data read it (checked against the trial's length below)
         config["experiment"]["probe_times"] = sorted({*config["experiment"]["probe_times"], *data.probe_times()})

@@ -223,7 +223,7 @@ def _fit(data: Data, plan: FitPlan, drawn: np.ndarray, sweep, out: Path, pool, l
         atomic_write(out / "recovery.csv", report.recovery_csv(
             plan.parameters, report.natural(plan.parameters, drawn[held_rows]), report.natural(plan.parameters, held),
             calibration["ranks"]))
-        atomic_write(out / "held_out.csv", held_out_csv(data, plan, x[held_rows], held_rows))
+        atomic_write(out / "held_out.csv", held_out_csv(data, plan, x[held_rows], held_rows, out))
         save(report.calibration_figure(plan.parameters, calibration, drawn[held_rows]),
              out / "figures" / "calibration.png", dpi=report.FIGURE_DPI)
         written(own, "calibration.csv", "recovery.csv", "held_out.csv", "figures/calibration.png")
@@ -275,22 +275,32 @@ def load_or_train(plan: FitPlan, theta, x, path: Path, identity: str):
     return estimators, summary
 
 
-def held_out_csv(data: Data, plan: FitPlan, x: np.ndarray, rows) -> str:
-    """The held-out simulated participants as a data file (their statistics, noise included): a fit of it is a
-    recovery of the parameters recovery.csv lists (participant simN: prior draw N)."""
+def held_out_csv(data: Data, plan: FitPlan, x: np.ndarray, rows, out: Path) -> str:
+    """The held-out simulated participants as a data file in ``out`` (their statistics, noise included; its
+    protocols' paths relative to ``out``): a fit of it is a recovery of the parameters recovery.csv lists
+    (participant simN: prior draw N)."""
+    import os
+
     from rhi.master.outputs.tables import csv_text, number
 
-    condition = "offset_m" if data.conditions else "condition"
-    stimulation = "delay_s" if data.stimulations else "stimulation"
+    parts = data.designs()
+    condition = "offset_m" if any(p.conditions for p in parts) else "condition"
+    stimulation = "delay_s" if any(p.stimulations for p in parts) else "stimulation"
     noisy = [m for m in plan.measures if m in data.noise]  # its noise columns too: a refit adds the same noise
-    header = ["participant", condition, stimulation, *(["time_s"] if data.time_s is not None else []), *plan.measures,
+    header = ["participant", *(["protocol"] if data.parts else []), condition, stimulation,
+              *(["baseline"] if any(p.contrasts for p in parts) else []),
+              *(["time_s"] if any(p.time_s is not None for p in parts) else []), *plan.measures,
               *(f"{m}_sem" for m in noisy)]
+    cells = [(part, c, s) for part in parts for c, s in part.cells]
     lines = []
     for values, row in zip(x.reshape(len(x), len(data.cells), len(plan.measures)), rows):
-        for n, ((c, s), cell) in enumerate(zip(data.cells, values)):
-            lines.append([f"sim{int(row)}", number(data.conditions[c]) if data.conditions else c,
-                          number(data.stimulations[s]) if data.stimulations else s,
-                          *([number(data.time_s)] if data.time_s is not None else []), *(number(v) for v in cell),
+        for n, ((part, c, s), cell) in enumerate(zip(cells, values)):
+            named, baseline = part.contrasts.get(s, (s, ""))
+            lines.append([f"sim{int(row)}", *([os.path.relpath(part.protocol_path(), out)] if data.parts else []),
+                          number(part.conditions[c]) if part.conditions else c,
+                          number(part.stimulations[s]) if part.stimulations else named,
+                          *([baseline] if "baseline" in header else []),
+                          *([number(part.time_s)] if "time_s" in header else []), *(number(v) for v in cell),
                           *(number(data.noise[m][n]) for m in noisy)])
     return csv_text(header, lines)
 
@@ -353,11 +363,14 @@ def run_record(data, plan, sweep, records, training, timing, calibration, predic
                         "wall_s_now": round(simulated_s, 3),
                         "trials_per_s_now": round(ran_now / simulated_s, 3) if ran_now and simulated_s else None,
                         "cpu_s_per_trial": cpu_per_trial(records),
-                        "steps_per_trial": plan.base["experiment"]["steps"],
+                        "steps_per_trial": steps if len(steps := [c["experiment"]["steps"] for c in plan.configs()]) > 1
+                        else steps[0],
                         "resolution": plan.base["experiment"]["resolution"]},
         "posterior_seconds_per_participant": {"max": round(max(timing), 4), "mean": round(float(np.mean(timing)), 4)},
         "wall_s": round(wall_s, 3), "configuration": plan.base, "versions": package_versions(),
     }
+    if data.parts:  # each protocol's keys over the configuration
+        result["protocols"] = {part.protocol: keys for part, keys in zip(data.parts, plan.designs)}
     for package in ("sbi", "nflows", "zuko"):
         try:
             from importlib import metadata

@@ -21,12 +21,16 @@ from rhi.master.sweeps import plan as sweeps
 
 def participant_points(plan: FitPlan, inference_values: np.ndarray, stream: str) -> list[dict]:
     """One sweep point per row of ``inference_values`` (draws in the inference space): the parameters'
-    values in their own units and the participant's master seed."""
+    values in their own units and the participant's master seed. A fit of several protocols has one point per
+    protocol and row, protocol by protocol, each protocol's with its design's keys and its own seed (another
+    group of people)."""
     points = []
-    for number, row in enumerate(inference_values):
-        point = {p.key: float(p.from_inference(value)) for p, value in zip(plan.parameters, row)}
-        point["experiment.seed"] = simulation_seed(plan.settings["seed"], number, stream)
-        points.append(point)
+    for part, keys in enumerate(plan.designs or [{}]):
+        named = f"{stream}/protocol {part}" if plan.designs else stream
+        for number, row in enumerate(inference_values):
+            point = {**keys, **{p.key: float(p.from_inference(value)) for p, value in zip(plan.parameters, row)}}
+            point["experiment.seed"] = simulation_seed(plan.settings["seed"], number, named)
+            points.append(point)
     return points
 
 
@@ -74,50 +78,66 @@ class Pool:
 
 
 def statistics(sweep: sweeps.Sweep, records: dict[str, dict], data: Data, measures: list[str]) -> np.ndarray:
-    """(participants, cells x measures): each simulated participant's cell means, NaN where a trial failed.
+    """(draws, cells x measures): each simulated participant's (or study's) statistics, NaN where a trial failed.
 
     A group's statistics, each trial one participant of the simulated study (a ``[population]``): a spread
     (``drift_cm_sd``, :func:`rhi.master.fit.data.spread_of`) is the sample sd (ddof 1) of the measure over the cell's
-    trials, a percentile (``ownership_onset_s_q90``) numpy's linear one (Hyndman & Fan type 7). An event's time
+    trials, a percentile (``ownership_onset_s_q90``) numpy's linear one (Hyndman & Fan type 7). A contrast's cell
+    (``sync-async``) takes each participant's difference of the two stimulations first. An event's time
     (:data:`rhi.master.fit.data.EVENT_TIMES`) that a participant never reached within the trial is beyond its end:
     its mean is over the participants who reached it (NaN if none did), its percentiles count the others as the
-    trial's length (exact wherever the percentile falls before the end, as a reported one does)."""
-    cells = {cell: n for n, cell in enumerate(data.cells)}
+    trial's length (exact wherever the percentile falls before the end, as a reported one does). Several
+    protocols' statistics follow one another, as the data's cells do."""
+    parts = data.designs()
+    draws = len(sweep.points) // len(parts)
     bases = [spread_of(m) or m for m in measures]
-    values = np.full((len(sweep.points), len(data.cells), len(measures)), None, dtype=object)
+    outcomes: dict[tuple, dict[int, float]] = {}  # (point, condition, stimulation, measure) -> trial index -> value
     for trial in sweep.trials:
-        cell = cells.get((trial.condition, trial.stimulation))
-        if cell is None:  # a cell of the full cross that the data lack
-            continue
         record = records.get(trial.id)
         failed = record is None or record.get("status") != "ok"
-        for position, base in enumerate(bases):
-            found = values[trial.point, cell, position] or []
-            if failed:
-                value = np.nan
-            elif base in EVENT_TIMES and np.isnan(record["outcome"][base]):
+        for base in set(bases):
+            value = np.nan if failed else record["outcome"][base]
+            if base in EVENT_TIMES and not failed and np.isnan(value):
                 value = np.inf  # never within the trial
-            else:
-                value = record["outcome"][base]
-            values[trial.point, cell, position] = [*found, value]
+            outcomes.setdefault((trial.point, trial.condition, trial.stimulation, base), {})[trial.index] = value
     percentiles = [percentile_of(m) for m in measures]
-    result = np.full(values.shape, np.nan)
-    for index in np.ndindex(values.shape):
-        given = np.asarray(values[index] or [np.nan], dtype=float)
-        percentile = percentiles[index[2]]
-        if np.isinf(given).any() and percentile is not None:
-            given = np.minimum(given, trial_length(sweep.configs[index[0]]))
-        elif np.isinf(given).any():  # an event's mean or sd: over the participants who reached it
-            given = given[np.isfinite(given) | np.isnan(given)]
-        if given.size == 0:
-            continue
-        if percentile is not None:
-            result[index] = np.quantile(given, percentile / 100.0)
-        elif bases[index[2]] != measures[index[2]]:  # a spread: the sample sd
-            result[index] = given.std(ddof=1) if given.size > 1 else np.nan
-        else:  # summed in trial order, then divided: the bits of the sums this function always made
-            result[index] = sum(given.tolist()) / given.size
-    return result.reshape(len(sweep.points), -1)
+    result = np.full((draws, len(data.cells), len(measures)), np.nan)
+    cell = 0
+    for number, part in enumerate(parts):
+        for condition, named in part.cells:
+            for draw in range(draws):
+                point = number * draws + draw
+                for position, base in enumerate(bases):
+                    result[draw, cell, position] = cell_statistic(
+                        cell_values(outcomes, point, condition, part.contrasts.get(named, (named,)), base),
+                        percentiles[position], base != measures[position], trial_length(sweep.configs[point]))
+            cell += 1
+    return result.reshape(draws, -1)
+
+
+def cell_values(outcomes: dict, point: int, condition: str, stimulations: tuple, measure: str) -> np.ndarray:
+    """One cell's value of each participant, in trial order: a stimulation's, or a contrast's two subtracted
+    participant by participant (inf - inf, an event neither reached, is NaN: no difference known)."""
+    found = [outcomes.get((point, condition, s, measure), {}) for s in stimulations]
+    if len(found) == 1:
+        return np.array([found[0][k] for k in sorted(found[0])] or [np.nan], dtype=float)
+    with np.errstate(invalid="ignore"):
+        return np.array([found[0][k] - found[1].get(k, np.nan) for k in sorted(found[0])] or [np.nan], dtype=float)
+
+
+def cell_statistic(given: np.ndarray, percentile: int | None, spread: bool, length: float) -> float:
+    """A cell's statistic of its participants' values: their percentile, sample sd or mean (module notes)."""
+    if np.isinf(given).any() and percentile is not None:
+        given = np.minimum(given, length)
+    elif np.isinf(given).any():  # an event's mean or sd: over the participants who reached it
+        given = given[np.isfinite(given) | np.isnan(given)]
+    if given.size == 0:
+        return np.nan
+    if percentile is not None:
+        return float(np.quantile(given, percentile / 100.0))
+    if spread:  # the sample sd
+        return float(given.std(ddof=1)) if given.size > 1 else np.nan
+    return sum(given.tolist()) / given.size  # summed in trial order, then divided: the bits this function always made
 
 
 def with_noise(values: np.ndarray, data: Data, measures: list[str], noise: dict[str, float], seed: int,

@@ -275,15 +275,14 @@ def describe(point: dict) -> str:
 
 def chunk_cells(configs: list[dict], batch: int | None,
                 points_per_batch: int = 1) -> list[list[tuple[int, experiment.Trial]]]:
-    """Per chunk: its (point, protocol trial) pairs. Per group of ``points_per_batch`` consecutive points (1:
-    each point alone) and decoder, the protocol's trials in its order, split into the fewest near-equal
-    consecutive chunks of at most ``batch`` (None: one chunk); the larger chunks first. Depends on the
-    configurations, ``batch`` and ``points_per_batch`` alone."""
+    """Per chunk: its (point, protocol trial) pairs. Per group of points (:func:`batch_groups`) and decoder, the
+    protocol's trials in its order, split into the fewest near-equal consecutive chunks of at most ``batch``
+    (None: one chunk); the larger chunks first. Depends on the configurations, ``batch`` and ``points_per_batch``
+    alone."""
     chunks = []
-    for first in range(0, len(configs), points_per_batch):
-        group = range(first, min(first + points_per_batch, len(configs)))
+    for group in batch_groups(configs, points_per_batch):
         trials = [(number, t) for number in group for t in experiment.plan(configs[number])]
-        for decoder in configs[first]["experiment"]["decoders"]:
+        for decoder in configs[group[0]]["experiment"]["decoders"]:
             mine = [(number, t) for number, t in trials if t.decoder == decoder]
             count = -(-len(mine) // batch) if batch else 1
             size, extra = divmod(len(mine), count)
@@ -295,11 +294,11 @@ def chunk_cells(configs: list[dict], batch: int | None,
     return chunks
 
 
-def check_batchable(configs: list[dict], points_per_batch: int) -> None:
-    """ConfigError unless the points of each group of ``points_per_batch`` differ only where a lockstep batch
-    lets its trials differ: the batchable parameter keys (:func:`rhi.master.config.sources.batchable_keys`),
-    the master seed, the conditions' offsets and the stimulations' delays (each trial's own), and the population
-    (its draws are each trial's own values of batchable keys)."""
+def batch_groups(configs: list[dict], points_per_batch: int) -> list[range]:
+    """The points that share a lockstep batch: each run of consecutive points that differ only where a batch lets
+    its trials differ (the batchable parameter keys, :func:`rhi.master.config.sources.batchable_keys`, the master
+    seed, the conditions' offsets, the stimulations' delays, the population: each trial's own), cut into groups of
+    ``points_per_batch`` (1: each point alone). A fit of several protocols gives one run per protocol."""
     from rhi.master.config.sources import batchable_keys
 
     def shared(config: dict) -> str:
@@ -311,13 +310,13 @@ def check_batchable(configs: list[dict], points_per_batch: int) -> None:
             kept[table].pop(name, None)
         return canonical_hash(kept)
 
-    for first in range(0, len(configs), points_per_batch):
-        reference = shared(configs[first])
-        for number in range(first + 1, min(first + points_per_batch, len(configs))):
-            if shared(configs[number]) != reference:
-                raise ConfigError(f"sweep points {first} and {number} share a lockstep batch but differ in more than "
-                                  "the per-trial parameters (batchable keys, experiment.seed, conditions, "
-                                  "stimulations, population)")
+    if points_per_batch == 1:
+        return [range(number, number + 1) for number in range(len(configs))]
+    hashes, groups, first = [shared(config) for config in configs], [], 0
+    for end in [n for n in range(1, len(configs)) if hashes[n] != hashes[n - 1]] + [len(configs)]:
+        groups += [range(start, min(start + points_per_batch, end)) for start in range(first, end, points_per_batch)]
+        first = end
+    return groups
 
 
 def plan(configs: list[dict], task: str, batch: int | None = None,
@@ -388,7 +387,7 @@ def build(base: dict, points: list[dict], task: str = DEFAULT_TASK, batch: int |
     configuration validated, the trials planned and chunked.
 
     points_per_batch: with the default task, this many consecutive points share each lockstep batch (1: a
-    point's trials alone); their configurations may differ only per trial (:func:`check_batchable`).
+    point's trials alone), each run of points that differ only per trial cut into such groups (:func:`batch_groups`).
     """
     configs = [point_config(base, point, number) for number, point in enumerate(points)]
     seen: dict[str, int] = {}
@@ -397,9 +396,7 @@ def build(base: dict, points: list[dict], task: str = DEFAULT_TASK, batch: int |
         if other != number:
             raise ConfigError(f"sweep points {other} and {number} are the same configuration")
     batched = task == DEFAULT_TASK
-    if points_per_batch > 1 and batched:
-        check_batchable(configs, points_per_batch)
-    else:
+    if not batched:
         points_per_batch = 1
     trials, chunks = plan(configs, task, batch, points_per_batch)
     keys = list(dict.fromkeys(key for point in points for key in point))

@@ -1,0 +1,156 @@
+"""A fit of several studies' protocols at once (the data's ``protocol`` column) and of a within-participant contrast
+(its ``baseline`` column): each protocol's cells simulated under its own file, a contrast taken participant by
+participant. Checked against the protocol files' own values and against hand statistics of records made up for the
+sweep's trials; one tiny real run checks that each protocol's trials run its own trial length."""
+import statistics as python
+
+import numpy as np
+import pytest
+
+from rhi.master.cosim import ConfigError
+from rhi.master.fit.data import read_data
+
+DATA = """participant,protocol,condition,stimulation,baseline,time_s,drift_cm,drift_cm_sd
+group,a.toml,near,sync,,0.1,-2.0,1.5
+group,a.toml,near,async,,0.1,-0.1,0.4
+group,b.toml,far,sync,async,1.0,-1.6,3.0
+"""
+PROTOCOL_A = """[conditions]
+near = -0.15
+[experiment]
+trials = 3
+"""
+PROTOCOL_B = """[conditions]
+far = -0.225
+[stimulus]
+period = 0.2
+"""
+FIT = """[population]
+"brain.gamma0" = {distribution = "logit-normal", logit_sd = 1.0, high = 0.5}
+[fit]
+simulations = 20
+calibration = 0
+trials_per_cell = 2
+participants_per_batch = 2
+[fit.parameters."population.brain.gamma0.median"]
+prior = "log-uniform"
+low = 0.005
+high = 0.2
+"""
+
+
+def files(folder, data=DATA, a=PROTOCOL_A, b=PROTOCOL_B, fit=FIT):
+    for name, text in (("a.toml", a), ("b.toml", b), ("fit.toml", fit), ("data.csv", data)):
+        (folder / name).write_text(text)
+    return str(folder / "data.csv"), str(folder / "fit.toml")
+
+
+def test_rows_of_several_protocols_are_one_data_set_protocol_by_protocol(tmp_path):
+    data = read_data(files(tmp_path)[0])
+    assert [part.protocol for part in data.parts] == ["a.toml", "b.toml"]
+    assert data.cells == [("a.toml:near", "async"), ("a.toml:near", "sync"), ("b.toml:far", "sync-async")]
+    assert data.observed.tolist() == [[-0.1, 0.4, -2.0, 1.5, -1.6, 3.0]]  # each part's cells sorted, cell-major
+    assert data.parts[1].contrasts == {"sync-async": ("sync", "async")} and data.parts[0].contrasts == {}
+    assert [part.time_s for part in data.parts] == [0.1, 1.0]
+
+
+@pytest.mark.parametrize("change, message", [
+    (("b.toml,far", "c.toml,far"), "column protocol = 'c.toml': no such file"),
+    (("group,b.toml", "other,b.toml"), "participant (group|other) has no rows of protocol"),
+    (("sync,async,1.0", "sync,sync,1.0"), "is the row's own stimulation"),
+    (("stimulation,baseline", "delay_s,baseline"), None),
+])
+def test_a_bad_protocol_or_contrast_row_is_refused_in_one_line(tmp_path, change, message):
+    text = DATA.replace(*change)
+    if change[1] == "delay_s,baseline":  # a baseline names a stimulation: it needs the stimulation column
+        text = text.replace(",sync,", ",0.0,").replace(",async,", ",1.0,", 1)
+        message = "give the stimulation column"
+    with pytest.raises(ConfigError, match=message):
+        read_data(files(tmp_path, data=text)[0])
+
+
+def test_each_protocol_runs_its_own_design_and_group_size_in_batches_of_its_own(tmp_path):
+    from rhi.master.fit.plan import read_plan
+    from rhi.master.fit.simulate import participants_sweep
+
+    data_path, fit_path = files(tmp_path)
+    plan = read_plan(fit_path, read_data(data_path))
+    a, b = plan.configs()
+    step = a["experiment"]["step_size"]
+    assert (a["experiment"]["steps"], b["experiment"]["steps"]) == (round(0.1 / step), round(1.0 / step))
+    assert (a["experiment"]["trials"], b["experiment"]["trials"]) == (3, 2)  # a's file sets its n, b has the fit's
+    assert (a["conditions"]["near"], b["conditions"]["far"], b["stimulus"]["period"]) == (-0.15, -0.225, 0.2)
+    assert a["stimulus"]["period"] == plan.base["stimulus"]["period"]
+    assert (a["experiment"]["stimulations"], b["experiment"]["stimulations"]) == (["async", "sync"], ["async", "sync"])
+    theta = np.log([[0.01], [0.1], [0.05]])
+    sweep = participants_sweep(plan, theta, "test")
+    assert len(sweep.points) == 6  # protocol by protocol, a draw each
+    for point in range(6):
+        assert sweep.configs[point]["experiment"]["steps"] == (a if point < 3 else b)["experiment"]["steps"]
+        assert sweep.points[point]["population.brain.gamma0.median"] == pytest.approx(np.exp(theta[point % 3, 0]))
+    assert len({sweep.points[p]["experiment.seed"] for p in range(6)}) == 6  # another group of people each
+    for chunk in sweep.chunks:  # two draws a batch, never two protocols in one
+        assert len({sweep.trials[t].point // 3 for t in chunk}) == 1
+    assert sorted(len({sweep.trials[t].point for t in chunk}) for chunk in sweep.chunks) == [1, 1, 2, 2]
+    fitted = FIT.replace('population.brain.gamma0.median"]', 'brain.sync_sd"]').replace("0.005", "0.1").replace(
+        "0.2\n", "0.5\n")
+    with pytest.raises(ConfigError, match="protocol b.toml: sets brain.sync_sd, a fitted parameter"):
+        read_plan(files(tmp_path, b=PROTOCOL_B + "[brain]\nsync_sd = 0.3\n", fit=fitted)[1], read_data(data_path))
+    with pytest.raises(ConfigError, match=r"protocol a.toml: a protocol file gives a study's design; its \[fit\]"):
+        read_plan(files(tmp_path, a=PROTOCOL_A + "[fit]\nseed = 1\n")[1], read_data(data_path))
+
+
+def test_each_protocols_statistics_and_a_contrast_are_the_hand_statistics_of_its_participants(tmp_path):
+    from rhi.master.fit.plan import read_plan
+    from rhi.master.fit.simulate import participants_sweep, statistics
+
+    data_path, fit_path = files(tmp_path)
+    data = read_data(data_path)
+    plan = read_plan(fit_path, data)
+    sweep = participants_sweep(plan, np.log([[0.01], [0.1]]), "test")
+
+    def drift(t):  # made-up outcomes: every trial its own value
+        return {"sync": -1.0, "async": 0.5}[t.stimulation] * (t.point + 1) * (t.index + 1) ** 2
+
+    records = {t.id: {"status": "ok", "outcome": {"drift_cm": drift(t), "force_n": 0.0}} for t in sweep.trials}
+    x = statistics(sweep, records, data, plan.measures)
+    assert x.shape == (2, 6)
+    for draw in (0, 1):
+        sign = {"sync": -1.0, "async": 0.5}
+        near = {s: [sign[s] * (draw + 1) * (k + 1) ** 2 for k in range(3)] for s in sign}
+        far = [(-1.0 - 0.5) * (draw + 3) * (k + 1) ** 2 for k in range(2)]  # sync minus async, participant by participant
+        expected = [python.mean(near["async"]), python.stdev(near["async"]), python.mean(near["sync"]),
+                    python.stdev(near["sync"]), python.mean(far), python.stdev(far)]
+        assert x[draw] == pytest.approx(expected, rel=1e-12)  # sums of a few exact binary fractions: rounding only
+    records[next(t.id for t in sweep.trials if t.point == 3 and t.stimulation == "async")]["status"] = "failed"
+    assert np.isnan(statistics(sweep, records, data, plan.measures)[1, 4:]).all()  # a failed baseline: no contrast
+
+
+def test_a_real_protocols_studies_give_the_bits_of_a_sweep_of_them_alone(tmp_path):
+    """The simulator, not made-up records: a protocol's studies, run beside another protocol's, give the bits of a
+    sweep of those studies alone (a lockstep batch's numbers depend on its members: the same members, the same
+    bits); the contrast is the difference of their trials, participant by participant."""
+    from rhi.master.fit.plan import read_plan
+    from rhi.master.fit.simulate import participants_sweep, statistics
+    from rhi.master.sweeps import plan as sweeps
+    from rhi.master.sweeps.runner import run_in_memory
+
+    data_path, fit_path = files(tmp_path)
+    data = read_data(data_path)
+    plan = read_plan(fit_path, data)
+    sweep = participants_sweep(plan, np.log([[0.01], [0.1]]), "test")
+    records = run_in_memory(sweep)
+    x = statistics(sweep, records, data, plan.measures)
+    for points in ((0, 1), (2, 3)):
+        alone = sweeps.build(plan.base, [sweep.points[p] for p in points], points_per_batch=2)
+        own = run_in_memory(alone)
+        by_cell = {(points[t.point], t.condition, t.stimulation, t.index): t.id for t in alone.trials}
+        for trial in (t for t in sweep.trials if t.point in points):
+            np.testing.assert_equal(records[trial.id]["outcome"],  # every value's bits, NaN equal to NaN
+                                    own[by_cell[trial.point, trial.condition, trial.stimulation, trial.index]]["outcome"])
+    for draw in (0, 1):
+        drift = {(t.stimulation, t.index): records[t.id]["outcome"]["drift_cm"] for t in sweep.trials
+                 if t.point == 2 + draw}
+        far = [drift["sync", k] - drift["async", k] for k in range(2)]
+        assert x[draw, 4:].tolist() == [python.mean(far), python.stdev(far)]
+        assert abs(x[draw, 4]) > 1e-6  # strokes within the second: the two stimulations part
