@@ -154,3 +154,65 @@ def test_a_real_protocols_studies_give_the_bits_of_a_sweep_of_them_alone(tmp_pat
         far = [drift["sync", k] - drift["async", k] for k in range(2)]
         assert x[draw, 4:].tolist() == [python.mean(far), python.stdev(far)]
         assert abs(x[draw, 4]) > 1e-6  # strokes within the second: the two stimulations part
+
+
+def test_each_participants_own_measurement_error_enters_the_groups_statistics(tmp_path):
+    """fit.participant_noise: every simulated participant's value gets an error of its own before the group's mean
+    and sd (and before a contrast's difference: two judgements, two errors), drawn as documented."""
+    from rhi.master.fit.plan import read_plan
+    from rhi.master.fit.simulate import participants_sweep, simulated_statistics
+
+    data_path, fit_path = files(tmp_path, fit=FIT.replace("[fit]\n", "[fit]\nparticipant_noise = {drift_cm = 1.5}\n"))
+    data = read_data(data_path)
+    plan = read_plan(fit_path, data)
+    assert plan.participant_noise == {"drift_cm": 1.5}
+    sweep = participants_sweep(plan, np.log([[0.01], [0.1]]), "test")
+    records = {t.id: {"status": "ok", "outcome": {"drift_cm": float(t.index), "force_n": 0.0}} for t in sweep.trials}
+    x = simulated_statistics(plan, sweep, records, data, "prior")
+    error = dict(zip((t.id for t in sweep.trials), 1.5 * np.random.default_rng(
+        [plan.settings["seed"], 2, sum(map(ord, "prior")), sum(map(ord, "drift_cm"))]).standard_normal(len(sweep.trials))))
+    value = {(t.point, t.stimulation, t.index): t.index + error[t.id] for t in sweep.trials}
+    near = [value[1, "sync", k] for k in range(3)]  # draw 1 of protocol a: point 1
+    far = [value[3, "sync", k] - value[3, "async", k] for k in range(2)]  # draw 1 of protocol b: point 3
+    assert x[1, 2:4].tolist() == pytest.approx([python.mean(near), python.stdev(near)], rel=1e-12)
+    assert x[1, 4:].tolist() == pytest.approx([python.mean(far), python.stdev(far)], rel=1e-12)
+    for bad, message in (("drift_cm_sd = 1.0", "unknown fit key fit.participant_noise.drift_cm_sd"),
+                         ("drift_cm = -1.0", "must be a number >= 0")):
+        text = FIT.replace("[fit]\n", f"[fit]\nparticipant_noise = {{{bad}}}\n")
+        with pytest.raises(ConfigError, match=message):
+            read_plan(files(tmp_path, fit=text)[1], data)
+
+
+def test_a_fit_of_two_protocols_runs_and_its_simulations_serve_a_fit_with_other_statistics(tmp_path, capsys):
+    """rhi fit end to end on two protocols (a tiny paper-model fit); the same draws fitted again with each
+    participant's measurement error, from a copy of its simulations/: no trial runs again. A folder holding another
+    fit's simulations is refused in one line."""
+    import json
+    import shutil
+
+    from rhi.master.commands.cli import main
+
+    tiny = FIT.replace("[fit]\n", "[fit]\npredictive_draws = 0\n")
+    data_path, fit_path = files(tmp_path, fit=tiny)
+    first = tmp_path / "first"
+    assert main(["fit", "--data", data_path, "--config", fit_path, "--out", str(first)]) == 0
+    run = json.loads((first / "run.json").read_text())
+    assert run["statistics"][-2:] == ["drift_cm[b.toml:far/sync-async]", "drift_cm_sd[b.toml:far/sync-async]"]
+    assert run["protocols"]["b.toml"]["experiment.steps"] == 50 and run["simulations"]["steps_per_trial"] == [5, 50]
+    assert run["simulations"]["trials"] == 20 * (2 * 3 + 2 * 2)  # a: 2 cells x its 3; b: sync and async x 2
+    second = tmp_path / "second"
+    second.mkdir()
+    shutil.copytree(first / "simulations", second / "simulations")
+    noisy = tiny.replace("[fit]\n", "[fit]\nparticipant_noise = {drift_cm = 1.0}\n")
+    (tmp_path / "fit.toml").write_text(noisy)
+    assert main(["fit", "--data", data_path, "--config", fit_path, "--out", str(second)]) == 0
+    again = json.loads((second / "run.json").read_text())
+    assert again["simulations"]["trials_run_now"] == 0 and again["participant_noise"] == {"drift_cm": 1.0}
+    assert again["seeds"] == run["seeds"]
+    other = tmp_path / "other"
+    other.mkdir()
+    shutil.copytree(first / "simulations", other / "simulations")
+    (tmp_path / "b.toml").write_text(PROTOCOL_B.replace("period = 0.2", "period = 0.25"))
+    capsys.readouterr()
+    assert main(["fit", "--data", data_path, "--config", fit_path, "--out", str(other)]) == 2
+    assert "is not empty and holds no fit" in capsys.readouterr().err

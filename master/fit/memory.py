@@ -19,7 +19,7 @@ import numpy as np
 
 from rhi.master.fit.data import Data
 from rhi.master.fit.plan import FitPlan, draw_prior, simulation_seed
-from rhi.master.fit.simulate import participants_sweep, statistics, with_noise
+from rhi.master.fit.simulate import participants_sweep, simulated_statistics
 
 
 def draw(plan: FitPlan, count: int) -> np.ndarray:
@@ -51,8 +51,7 @@ def simulate(plan: FitPlan, data: Data, theta: np.ndarray, stream: str = "prior"
 
     sweep = participants_sweep(plan, np.asarray(theta, dtype=float), stream)
     records = run_in_memory(sweep)
-    return with_noise(statistics(sweep, records, data, plan.measures), data, plan.measures, plan.noise,
-                      plan.settings["seed"], stream)
+    return simulated_statistics(plan, sweep, records, data, stream)
 
 
 def train(plan: FitPlan, theta: np.ndarray, x: np.ndarray):

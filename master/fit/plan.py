@@ -42,7 +42,7 @@ __all__ = ["FitPlan", "read_plan", "with_design", "parameter_tables", "populatio
 
 FIT_KEYS = ("model", "quick", "simulations", "calibration", "calibration_design", "seed", "trials_per_cell",
             "participants_per_batch", "workers", "measures", "posterior_samples", "calibration_samples",
-            "predictive_draws", "predictive_participants", "noise", "estimator", "parameters")
+            "predictive_draws", "predictive_participants", "noise", "participant_noise", "estimator", "parameters")
 WHOLE = {"simulations": 1000, "calibration": 100, "seed": 0, "trials_per_cell": 1, "participants_per_batch": 10,
          "posterior_samples": 1000, "calibration_samples": 99, "predictive_draws": 10, "predictive_participants": 8}
 
@@ -63,6 +63,9 @@ class FitPlan:
         The summary statistics' measures per design cell (drift_cm, force_n), in that order.
     noise : dict of str to float
         Measure -> sd of the observation noise added to a simulated cell mean, in the measure's unit.
+    participant_noise : dict of str to float
+        Measure -> sd of each participant's own measurement error (``fit.participant_noise``), added to every
+        simulated participant's value before a group's statistics, in the measure's unit; empty: none.
     estimator : dict
         ``fit.estimator``'s settings, the defaults filled in.
     designs : list of dict
@@ -77,6 +80,7 @@ class FitPlan:
     noise: dict[str, float]              # measure -> sd of the observation noise added to a simulated cell mean
     estimator: dict = field(default_factory=dict)
     designs: list[dict] = field(default_factory=list)  # per protocol: the keys its configuration sets over base
+    participant_noise: dict[str, float] = field(default_factory=dict)  # measure -> sd of a participant's own error
 
     def configs(self) -> list[dict]:
         """The configuration each protocol's simulated participants run (one design: ``base``)."""
@@ -238,25 +242,36 @@ def read_plan(path: str, data: Data, model: str | None = None) -> FitPlan:
         if measure in MODEL_MEASURES and measure not in recorded:
             raise ConfigError(f"{Path(data.path).name}: column {measure}: model {model!r} does not record it (its own "
                               f"measures: {', '.join(recorded) or 'none'}); fit it with a model that does")
-    noise = settings.get("noise", {})
-    if not isinstance(noise, dict):
-        raise ConfigError("fit.noise must be a table: measure = sd of the observation noise")
-    for key, value in noise.items():
-        if not is_measure(key):
-            raise configuration.unknown_key(f"fit.noise.{key}", [*MEASURES, *(m for m in data.measures if
-                                                                             probe_time(m) is not None)], "fit")
-        if key in data.noise:
-            raise ConfigError(f"fit.noise.{key}: the data's column {key}_sem gives each cell's noise sd; give one of them")
-        if not isinstance(value, (int, float)) or isinstance(value, bool) or not (math.isfinite(value) and value >= 0):
-            raise ConfigError(f"fit.noise.{key} = {value!r} must be a number >= 0")
-        if value > MAX_NOISE_SD:
-            raise ConfigError(f"fit.noise.{key} = {value!r} is over the limit of {MAX_NOISE_SD:g} (in the measure's "
-                              "unit: 10 m of drift, 1 kN of force, far beyond any drift the arm's reach or force its "
-                              "servos allow; a larger sd buries every simulation in noise)")
+    noise = read_noise(settings, "noise", data, measures)
+    own = read_noise(settings, "participant_noise", data, measures)
     chosen = read_estimator(settings.get("estimator", {}), len(fitted), len(data.cells) * len(measures))
     return FitPlan(fitted, base, {**whole, "model": model, "quick": quick, "workers": workers,
                                      "calibration_design": design}, measures,
-                   {m: float(noise.get(m, 0.0)) for m in measures}, chosen, designs)
+                   {m: float(noise.get(m, 0.0)) for m in measures}, chosen, designs,
+                   {m: float(sd) for m, sd in own.items() if sd > 0})
+
+
+def read_noise(settings: dict, name: str, data: Data, measures: list[str]) -> dict:
+    """``fit.noise`` (an sd added to each simulated cell mean) or ``fit.participant_noise`` (an sd added to each
+    simulated participant's value, a group's measurement error: only a measure, not its spread) checked: measure ->
+    a finite sd >= 0 in the measure's unit; ConfigError otherwise."""
+    noise = settings.get(name, {})
+    if not isinstance(noise, dict):
+        raise ConfigError(f"fit.{name} must be a table: measure = sd of the observation noise")
+    for key, value in noise.items():
+        if not is_measure(key) or (name == "participant_noise" and key not in measures):
+            known = [m for m in measures if is_measure(m)] if name == "participant_noise" else [
+                *MEASURES, *(m for m in data.measures if probe_time(m) is not None)]
+            raise configuration.unknown_key(f"fit.{name}.{key}", known, "fit")
+        if name == "noise" and key in data.noise:
+            raise ConfigError(f"fit.noise.{key}: the data's column {key}_sem gives each cell's noise sd; give one of them")
+        if not isinstance(value, (int, float)) or isinstance(value, bool) or not (math.isfinite(value) and value >= 0):
+            raise ConfigError(f"fit.{name}.{key} = {value!r} must be a number >= 0")
+        if value > MAX_NOISE_SD:
+            raise ConfigError(f"fit.{name}.{key} = {value!r} is over the limit of {MAX_NOISE_SD:g} (in the measure's "
+                              "unit: 10 m of drift, 1 kN of force, far beyond any drift the arm's reach or force its "
+                              "servos allow; a larger sd buries every simulation in noise)")
+    return noise
 
 
 PROTOCOL_REFUSED = ("fit", "population", "sweep")  # a protocol file gives a study's design, not a fit's or a sweep's

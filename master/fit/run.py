@@ -25,7 +25,7 @@ from rhi.master.fit.calibration import calibrate
 from rhi.master.fit.data import Data, read_data
 from rhi.master.fit.plan import FitPlan, draw_participants, read_plan, simulation_seed
 from rhi.master.runtime.context import RunContext
-from rhi.master.fit.simulate import Pool, participants_sweep, simulate, statistics, with_noise
+from rhi.master.fit.simulate import Pool, participants_sweep, simulate, simulated_statistics
 from rhi.master.outputs.figures import save
 from rhi.master.outputs.files import atomic_write
 from rhi.master.outputs.own_paths import LockFile, make_folder
@@ -58,6 +58,8 @@ def fingerprint(plan: FitPlan, sweep_fingerprint: str, data: Data | None = None)
     identity = {"simulations": sweep_fingerprint, "parameters": [p.describe() for p in plan.parameters],
                 "settings": named(plan.settings), "measures": plan.measures, "noise": plan.noise,
                 "estimator": named(plan.estimator)}
+    if plan.participant_noise:  # a fit without it keeps the fingerprint it had
+        identity["participant_noise"] = plan.participant_noise
     if data is not None and cell_noise(data, plan):  # a fit without noise columns keeps the fingerprint it had
         identity["cell_noise"] = cell_noise(data, plan)
     return canonical_hash(identity)
@@ -78,7 +80,8 @@ def prepare_folder(out: Path, identity: str, simulations: str | None = None) -> 
 
     check_folder(out)
     manifest = out / "fit.json"
-    if out.is_dir() and any(out.iterdir()) and not only_leftovers(out, ("figures",)):
+    if out.is_dir() and any(out.iterdir()) and not only_leftovers(out, ("figures",)) and not (
+            simulations is not None and only_simulations(out, simulations)):
         try:
             old = json.loads(manifest.read_text(encoding="utf-8")) if not manifest.is_symlink() else None
         except (OSError, ValueError, RecursionError):  # unreadable, not JSON, nested too deep: not a fit's
@@ -108,6 +111,20 @@ def prepare_folder(out: Path, identity: str, simulations: str | None = None) -> 
     except OSError as error:
         raise ConfigError(f"cannot write {out}: {error.strerror or error}") from None
     atomic_write(manifest, json.dumps({"command": COMMAND, "fingerprint": identity}, indent=1) + "\n")
+
+
+def only_simulations(out: Path, simulations: str) -> bool:
+    """Whether ``out`` holds nothing but a ``simulations/`` sweep rhi wrote of fingerprint ``simulations``: another
+    fit's simulated participants, copied to fit the same draws again with other statistics or estimator settings
+    (docs/fit.md, "What DIR holds"); the fit starts there and runs only the trials missing."""
+    from rhi.master.sweeps.folder import read_manifest
+
+    folder = out / "simulations"
+    names = {entry.name for entry in out.iterdir()} - {".lock"}  # the lock this fit holds
+    if names != {"simulations"} or folder.is_symlink() or not folder.is_dir():
+        return False
+    sweep = read_manifest(folder / "sweep.json")
+    return sweep is not None and sweep["fingerprint"] == simulations
 
 
 def fit(data_path: str, config_path: str, out: Path, model: str | None = None, context: RunContext | None = None,
@@ -187,8 +204,7 @@ def _fit(data: Data, plan: FitPlan, drawn: np.ndarray, sweep, out: Path, pool, l
     started = time.perf_counter()
     records, ran_now = simulate(sweep, out / "simulations", pool, "rhi fit: simulations")
     simulated_s = time.perf_counter() - started
-    x = with_noise(statistics(sweep, records, data, plan.measures), data, plan.measures, plan.noise,
-                   settings["seed"], "prior")
+    x = simulated_statistics(plan, sweep, records, data, "prior")
     valid = np.all(np.isfinite(x), axis=1)
     train_rows = np.flatnonzero(valid[:settings["simulations"]])
     held_rows = settings["simulations"] + np.flatnonzero(valid[settings["simulations"]:])
@@ -321,8 +337,7 @@ def predictive_check(data: Data, plan: FitPlan, posterior, out: Path, pool, own)
                              for n in range(count)])
     sweep = participants_sweep(plan, values, "predictive")
     records, _ = simulate(sweep, out / "predictive", pool, "rhi fit: posterior predictive", replace=True)
-    predicted = with_noise(statistics(sweep, records, data, plan.measures), data, plan.measures, plan.noise,
-                           settings["seed"], "predictive").reshape(count, draws, -1)
+    predicted = simulated_statistics(plan, sweep, records, data, "predictive").reshape(count, draws, -1)
     names = data_statistic_names(data, plan)
     atomic_write(out / "predictive.csv", report.predictive_csv(names, data.participants[:count], observed, predicted))
     save(report.predictive_figure(names, data.participants[:count], observed, predicted),
@@ -356,6 +371,7 @@ def run_record(data, plan, sweep, records, training, timing, calibration, predic
         "statistics": data_statistic_names(data, plan), "model": plan.settings["model"],
         "parameters": [p.describe() for p in plan.parameters], "settings": plan.settings, "measures": plan.measures,
         "noise": plan.noise, **({"cell_noise": cell_noise(data, plan)} if cell_noise(data, plan) else {}),
+        **({"participant_noise": plan.participant_noise} if plan.participant_noise else {}),
         "estimator": {**plan.estimator, "torch_threads": torch.get_num_threads(), **training},
         "seeds": {"fit": plan.settings["seed"], "simulated_participants": [p["experiment.seed"] for p in sweep.points]},
         "simulations": {"participants": len(sweep.points), "trials": len(sweep.trials),

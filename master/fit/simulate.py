@@ -77,7 +77,29 @@ class Pool:
         return self.stack.__exit__(*exc)
 
 
-def statistics(sweep: sweeps.Sweep, records: dict[str, dict], data: Data, measures: list[str]) -> np.ndarray:
+def simulated_statistics(plan: FitPlan, sweep: sweeps.Sweep, records: dict[str, dict], data: Data,
+                         stream: str) -> np.ndarray:
+    """(draws, cells x measures): the statistics a fit compares with the data's, each participant's own measurement
+    error (``fit.participant_noise``) and each cell mean's observation noise (``fit.noise``, the data's
+    ``MEASURE_sem``) included, drawn from the fit's seed and ``stream``."""
+    own = participant_errors(sweep, plan.participant_noise, plan.settings["seed"], stream)
+    return with_noise(statistics(sweep, records, data, plan.measures, own), data, plan.measures, plan.noise,
+                      plan.settings["seed"], stream)
+
+
+def participant_errors(sweep: sweeps.Sweep, noise: dict[str, float], seed: int, stream: str) -> dict[str, dict]:
+    """Measure -> {trial id: a normal error of sd ``noise[measure]``}: each simulated participant's own measurement
+    error in each cell (a pointing's), one draw per trial in the sweep's order from numpy's
+    ``default_rng([seed, 2, stream's code, measure's code])``; empty without ``fit.participant_noise``."""
+    errors = {}
+    for measure, sd in sorted(noise.items()):
+        rng = np.random.default_rng([seed, 2, sum(map(ord, stream)), sum(map(ord, measure))])
+        errors[measure] = dict(zip((t.id for t in sweep.trials), sd * rng.standard_normal(len(sweep.trials))))
+    return errors
+
+
+def statistics(sweep: sweeps.Sweep, records: dict[str, dict], data: Data, measures: list[str],
+               errors: dict[str, dict] | None = None) -> np.ndarray:
     """(draws, cells x measures): each simulated participant's (or study's) statistics, NaN where a trial failed.
 
     A group's statistics, each trial one participant of the simulated study (a ``[population]``): a spread
@@ -87,7 +109,8 @@ def statistics(sweep: sweeps.Sweep, records: dict[str, dict], data: Data, measur
     (:data:`rhi.master.fit.data.EVENT_TIMES`) that a participant never reached within the trial is beyond its end:
     its mean is over the participants who reached it (NaN if none did), its percentiles count the others as the
     trial's length (exact wherever the percentile falls before the end, as a reported one does). Several
-    protocols' statistics follow one another, as the data's cells do."""
+    protocols' statistics follow one another, as the data's cells do. ``errors``: measure -> {trial id: error}
+    added to each participant's value first (:func:`participant_errors`)."""
     parts = data.designs()
     draws = len(sweep.points) // len(parts)
     bases = [spread_of(m) or m for m in measures]
@@ -97,6 +120,8 @@ def statistics(sweep: sweeps.Sweep, records: dict[str, dict], data: Data, measur
         failed = record is None or record.get("status") != "ok"
         for base in set(bases):
             value = np.nan if failed else record["outcome"][base]
+            if errors and base in errors:
+                value = value + errors[base][trial.id]
             if base in EVENT_TIMES and not failed and np.isnan(value):
                 value = np.inf  # never within the trial
             outcomes.setdefault((trial.point, trial.condition, trial.stimulation, base), {})[trial.index] = value
