@@ -205,3 +205,19 @@ def test_the_training_set_is_two_studies_each_under_its_own_protocol():
     assert plan.base["population"] == group.base["population"]
     assert {k: v for k, v in plan.settings.items() if k != "trials_per_cell"} == {
         k: v for k, v in group.settings.items() if k != "trials_per_cell"}
+
+
+def test_the_judged_training_fit_is_the_training_fit_with_a_judgements_error_from_its_source():
+    """ownership_training_judged.toml: ownership_training.toml's design, priors and draws, plus each participant's
+    error of a judged drift: van Beers et al. 1998's joint-angle sd (0.6-1.1 deg, the midpoint) through the body's
+    Jacobian at rest (m/deg), the hand's lateral error, times sqrt(2) for after minus before (to the 1 um written)."""
+    from rhi.components.body.kinematics import REST_POSE, jacobian
+
+    data = read_data(HUMAN / "training.csv")
+    judged = read_plan(str(HUMAN / "ownership_training_judged.toml"), data)
+    plain = read_plan(str(HUMAN / "ownership_training.toml"), data)
+    assert (judged.base, judged.designs, judged.settings) == (plain.base, plain.designs, plain.settings)
+    assert [p.describe() for p in judged.parameters] == [p.describe() for p in plain.parameters]
+    lateral = jacobian(*REST_POSE)[0]  # d(hand x)/d(shoulder, elbow), m/deg
+    sd_cm = 100 * 0.85 * float(np.hypot(*lateral)) * 2 ** 0.5
+    assert plain.participant_noise == {} and judged.participant_noise == {"drift_cm": pytest.approx(sd_cm, abs=5e-4)}
