@@ -115,12 +115,13 @@ def snapshot(folder: Path) -> dict:
     return found
 
 
-def rhi(root: Path, *args, timeout=60, own_process=False):
+def rhi(root: Path, *args, timeout=60, own_process=False, python=None):
     """``rhi ARGS`` with cwd root/work, TMPDIR root/tmp and RHI_CACHE root/cache: in this process (tests.in_process:
     a refusal then costs milliseconds, not the seconds of a fresh interpreter importing torch), or with
     ``own_process`` in a subprocess, for a run that may hang (its timeout is the check), talks to a listener,
-    starts a child process, or would, were a bound missing, allocate or start threads without end. A
-    CompletedProcess either way."""
+    starts a child process, or would, were a bound missing, allocate or start threads without end. ``python``
+    (own process only): ``python -c`` this instead of ``python -m rhi``, ARGS its sys.argv[1:] (a module's
+    constant set before main() runs). A CompletedProcess either way."""
     for name in ("work", "tmp", "cache"):
         (root / name).mkdir(parents=True, exist_ok=True)
     arguments = [*map(str, args)]
@@ -131,7 +132,8 @@ def rhi(root: Path, *args, timeout=60, own_process=False):
                               timeout=timeout)
         return subprocess.CompletedProcess(["rhi", *arguments], done.status, done.stdout, done.stderr)
     env = {**ENV, "TMPDIR": str(root / "tmp"), "RHI_CACHE": str(root / "cache")}
-    return subprocess.run([sys.executable, "-m", "rhi", *arguments], cwd=root / "work", env=env,
+    start = ["-c", python] if python is not None else ["-m", "rhi"]
+    return subprocess.run([sys.executable, *start, *arguments], cwd=root / "work", env=env,
                           capture_output=True, text=True, timeout=timeout)
 
 
