@@ -192,14 +192,15 @@ def test_a_fit_of_two_protocols_runs_and_its_simulations_serve_a_fit_with_other_
 
     from rhi.master.commands.cli import main
 
-    tiny = FIT.replace("[fit]\n", "[fit]\npredictive_draws = 0\n")
+    tiny = FIT.replace("[fit]\n", "[fit]\npredictive_draws = 0\n").replace("simulations = 20", "simulations = 10") + (
+        "[fit.estimator]\nhidden_features = 8\ntransforms = 1\nmax_epochs = 5\n")  # the folders, not the estimator
     data_path, fit_path = files(tmp_path, fit=tiny)
     first = tmp_path / "first"
     assert main(["fit", "--data", data_path, "--config", fit_path, "--out", str(first)]) == 0
     run = json.loads((first / "run.json").read_text())
     assert run["statistics"][-2:] == ["drift_cm[b.toml:far/sync-async]", "drift_cm_sd[b.toml:far/sync-async]"]
     assert run["protocols"]["b.toml"]["experiment.steps"] == 50 and run["simulations"]["steps_per_trial"] == [5, 50]
-    assert run["simulations"]["trials"] == 20 * (2 * 3 + 2 * 2)  # a: 2 cells x its 3; b: sync and async x 2
+    assert run["simulations"]["trials"] == 10 * (2 * 3 + 2 * 2)  # a: 2 cells x its 3; b: sync and async x 2
     second = tmp_path / "second"
     second.mkdir()
     shutil.copytree(first / "simulations", second / "simulations")
