@@ -1,5 +1,5 @@
-"""The adopted point of a fit (rhi.master.fit.point): the posterior sample of highest density in the inference space,
-checked against the change of variables worked by hand."""
+"""The adopted point of a fit (rhi.master.fit.point): the posterior sample of highest density in the flow's own space,
+and the inference-space density beside it, checked against the change of variables worked by hand."""
 import math
 
 import numpy as np
@@ -58,11 +58,15 @@ def test_the_highest_density_draw_skips_non_finite_values_and_takes_the_first_of
         point.highest_density_draw([float("nan"), float("-inf")])
 
 
-def test_the_point_is_the_mode_among_the_samples_in_the_parameters_units():
-    # by hand (by_hand above) the middle sample is the densest of the three
+def flow_by_hand(a: float, log_b: float) -> float:
+    """log q in the flow's space: each coordinate's logit, z = logit(u), under the stand-in's standard normal."""
+    return sum(log_phi(math.log(u / (1 - u))) for u in (a, (log_b - math.log(0.1)) / (math.log(10.0) - math.log(0.1))))
+
+
+def test_the_point_is_the_mode_among_the_samples_in_the_flows_space_in_the_parameters_units():
     samples = np.array([[[0.3, 0.0], [0.5, 0.0], [0.9, -2.0]]])
-    densities = [by_hand(*row) for row in samples[0]]
-    assert int(np.argmax(densities)) == 1
+    densities = [flow_by_hand(*row) for row in samples[0]]
+    assert int(np.argmax(densities)) == 1  # by hand, the middle sample (the centre of both supports)
     text = point.point_csv(PARAMETERS, ["p"], StandardNormalFlow("unconstrained"), np.zeros((1, 2)), samples)
     lines = text.strip().splitlines()
     assert lines[0] == ",".join(point.POINT_COLUMNS)
@@ -70,4 +74,26 @@ def test_the_point_is_the_mode_among_the_samples_in_the_parameters_units():
     assert [r[1] for r in rows] == ["x.a", "x.b"]
     assert float(rows[0][2]) == pytest.approx(0.5) and float(rows[1][2]) == pytest.approx(1.0)  # e^0: its own unit
     assert rows[0][3] == rows[1][3] == "1"
-    assert float(rows[0][4]) == pytest.approx(densities[1], abs=1e-4)  # float32, as above
+    assert float(rows[0][4]) == pytest.approx(densities[1], abs=1e-5)  # float32 of numbers of order 1
+
+
+class CauchyFlow(StandardNormalFlow):
+    """A stand-in whose tails are too heavy (a Cauchy in the flow's space): the error an estimator makes far out."""
+
+    def log_prob(self, z, x, norm_posterior):
+        return torch.distributions.Cauchy(x[0], 1.0).log_prob(z).sum(-1)
+
+
+def test_a_flows_heavy_tail_puts_the_inference_space_mode_at_the_edge_and_the_rule_keeps_the_bulk():
+    """Why the rule takes the flow's own space: the inference-space density is the flow's times 1/(u (1 - u)), which
+    at u = 0.999 multiplies it by about 1000, more than a Cauchy tail loses there (logit 0.999 = 6.9: by hand,
+    log q_z falls from -log(pi) to -log(pi (1 + 6.9^2)), 3.89 nats, while the Jacobian gains 6.91 - log 4 = 5.52)."""
+    samples = np.array([[0.5, 0.0], [0.999, 0.0]])
+    flow = CauchyFlow("unconstrained")
+    inference = point.inference_log_density(flow, np.zeros(2), samples)
+    own = point.flow_log_density(flow, np.zeros(2), samples)
+    by_hand_gain = -math.log(1 + math.log(999) ** 2) - math.log(0.999 * 0.001) - math.log(4)  # Cauchy, Jacobians
+    assert inference[1] - inference[0] == pytest.approx(by_hand_gain, abs=1e-3)  # float32 near the bound: about 1e-4
+    assert point.highest_density_draw(inference) == 1 and point.highest_density_draw(own) == 0
+    text = point.point_csv(PARAMETERS, ["p"], flow, np.zeros((1, 2)), samples[None])
+    assert float(text.strip().splitlines()[1].split(",")[2]) == pytest.approx(0.5)

@@ -247,14 +247,16 @@ def test_the_ownership_brain_never_reads_a_simulator_position(tiny_ownership):
 
 def test_the_free_parameters_are_the_shipped_fits_adopted_values():
     """master/models/ownership.toml holds each free parameter at the adopted point of the shipped population fits
-    (point.csv of docs/fit/human/ownership_group/, the drift's, and ownership_onset/, the onset's, written by rhi fit:
-    the key, or its population median), to the 3 significant digits written; each fitted by exactly one of them,
-    so the individual fit's medians (docs/fit/human/ownership_rohde2011/) are no longer adopted."""
+    (point.csv of each of FIT_FOLDERS, the drift's and the onset's, written by rhi fit: the key, or its population
+    median), to the 3 significant digits written; each fitted by exactly one of them, so the individual fit's
+    medians (docs/fit/human/ownership_rohde2011/) are no longer adopted."""
     import csv
 
+    from rhi.master.models.ownership import FIT_FOLDERS
+
     adopted = {}
-    for folder in ("ownership_group", "ownership_onset"):
-        with open(ROOT / "docs/fit/human" / folder / "point.csv") as file:
+    for folder in FIT_FOLDERS:
+        with open(ROOT / folder / "point.csv") as file:
             point = {row["parameter"].removeprefix("population.").removesuffix(".median"): float(row["value"])
                      for row in csv.DictReader(file) if not row["parameter"].endswith(("logit_sd", "log_sd"))}
         assert not set(point) & set(adopted)
@@ -350,9 +352,11 @@ def test_the_shipped_population_s_spreads_are_the_fits_adopted_spreads():
 
     from rhi.master.config import population
 
+    from rhi.master.models.ownership import FIT_FOLDERS
+
     fitted = {}
-    for folder in ("ownership_group", "ownership_onset"):
-        with open(ROOT / "docs/fit/human" / folder / "point.csv") as file:
+    for folder in FIT_FOLDERS:
+        with open(ROOT / folder / "point.csv") as file:
             fitted.update({row["parameter"]: float(row["value"]) for row in csv.DictReader(file)
                            if row["parameter"].endswith(("logit_sd", "log_sd"))})
     config = configuration.load(ROOT / "docs/population/ownership.toml", model_name="ownership")

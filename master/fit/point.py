@@ -3,10 +3,17 @@
 The marginal medians of a curved posterior need not be a point of it at all (each median is taken alone), and a
 model run at them need not reproduce what the posterior predicts. The rule here, fixed before any result it
 chooses is seen: of a participant's posterior samples (``fit.posterior_samples``, those posterior.csv holds), the
-one of highest posterior density under the trained estimator, the density taken in the *inference space* (the
-logarithm of a log-uniform parameter, the parameter itself otherwise: the space in which every prior is flat or a
-normal, so that the point is the likeliest draw relative to the priors' own measure, not to whichever space the
-flow was trained in). It uses the training data alone (the participant's statistics), nothing judged after.
+one of highest posterior density under the trained estimator in the *flow's own space* (the unconstrained space of
+``fit.estimator.space = "unconstrained"``, the inference space of a bounded flow): the density the flow was trained
+to give, with no change of variables. It uses the training data alone (the participant's statistics), nothing
+judged after.
+
+Why not the density in the inference space (the rule of the first population fits): that density is the flow's
+times the Jacobian of the unconstraining map, which diverges at a bounded prior's edges, so wherever the flow's
+tails are not exact a sample at an edge outranks the bulk; in the population fits of the ownership model the
+inference-space mode lay at or beyond its own marginal 90 % interval, at the prior's edge, in one or more
+parameters of every fit (docs/fit.md, "Several studies"). :func:`inference_log_density` remains, as that
+diagnostic.
 
 point.csv: per participant and parameter, the point's value in the parameter's unit, which sample it is, and its
 log density.
@@ -19,10 +26,10 @@ from rhi.master.outputs.tables import csv_text, number
 
 # column -> meaning, for docs/fit.md
 POINT_COLUMNS = {"participant": "the participant's label", "parameter": "the fitted parameter's key",
-                 "value": "the adopted point: the posterior sample of highest posterior density (in the inference "
+                 "value": "the adopted point: the posterior sample of highest posterior density (in the flow's own "
                           "space), in the key's unit",
                  "sample": "its index among the participant's posterior samples (posterior.csv's order)",
-                 "log_density": "the estimator's log posterior density there, in the inference space"}
+                 "log_density": "the estimator's log posterior density there, in the flow's own space"}
 
 
 def highest_density_draw(log_density: np.ndarray) -> int:
@@ -45,6 +52,18 @@ def inference_log_density(posterior_, observed: np.ndarray, samples: np.ndarray)
     posterior_ : a posterior of :func:`rhi.master.fit.inference.posterior` (its ``prior`` and
         ``statistics_scale``); observed : (statistics,) the participant's statistics, their own units;
     samples : (L, parameters) in the inference space (:func:`rhi.master.fit.inference.sample`'s)."""
+    flow, jacobian = log_densities(posterior_, observed, samples)
+    return flow + jacobian
+
+
+def flow_log_density(posterior_, observed: np.ndarray, samples: np.ndarray) -> np.ndarray:
+    """log q(z | x) of each sample in the flow's own space, z = T(theta): the density the estimator was trained to
+    give (:func:`inference_log_density` without its Jacobian term; the arguments the same)."""
+    return log_densities(posterior_, observed, samples)[0]
+
+
+def log_densities(posterior_, observed: np.ndarray, samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(log q(z | x), log |det dz/dtheta|) of each sample, float64 of the flow's float32."""
     import torch
 
     theta = torch.as_tensor(np.asarray(samples, dtype=float), dtype=torch.float32)
@@ -58,7 +77,7 @@ def inference_log_density(posterior_, observed: np.ndarray, samples: np.ndarray)
         z, jacobian = theta, torch.zeros(len(theta))
     with torch.no_grad():
         flow = posterior_.log_prob(z, x=scaled, norm_posterior=False)  # the normalisation is one constant
-    return (flow + jacobian).double().numpy()
+    return flow.double().numpy(), jacobian.double().numpy()
 
 
 def point_csv(parameters: list, participants: list[str], posterior_, observed: np.ndarray,
@@ -68,7 +87,7 @@ def point_csv(parameters: list, participants: list[str], posterior_, observed: n
     observed : (participants, statistics); samples : (participants, L, parameters) in the inference space."""
     rows = []
     for participant, x, block in zip(participants, observed, samples):
-        density = inference_log_density(posterior_, x, block)
+        density = flow_log_density(posterior_, x, block)
         best = highest_density_draw(density)
         for d, parameter in enumerate(parameters):
             value = float(parameter.from_inference(np.asarray(block[best, d])))
