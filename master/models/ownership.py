@@ -57,6 +57,8 @@ FREE_PARAMETERS = {"ownership.switching_rate": ("log-uniform", 1.0 / 600.0, 1.0)
                    "brain.gamma0": ("log-uniform", 1e-5, 0.5)}  # ownership's prior: the onset fit's only
 FIT_FOLDERS = ("docs/fit/human/ownership_group", "docs/fit/human/ownership_onset")
 MEDIAN_FIT_FOLDER = "docs/fit/human/ownership_rohde2011"
+# how FIT_FOLDERS' point.csv chose their points: the rule of rhi.master.fit.point when they ran, since replaced
+POINT_RULE_OF_FITS = "the joint posterior mode in the inference space (the rule then; docs/fit.md, \"Several studies\")"
 
 
 def fitted_values(root) -> dict[str, dict]:
@@ -80,7 +82,8 @@ def fitted_values(root) -> dict[str, dict]:
         if fitted:
             folder, point, estimates, name = fitted
             result[key] = {"value": float(point[name]["value"]), "q05": float(estimates[name]["q05"]),
-                           "q95": float(estimates[name]["q95"]), "rule": "the joint posterior mode",
+                           "q95": float(estimates[name]["q95"]),
+                           "rule": POINT_RULE_OF_FITS,
                            "folder": folder}
         elif key in medians:
             result[key] = {"value": float(medians[key]["median"]), "q05": float(medians[key]["q05"]),
