@@ -54,17 +54,16 @@ def test_rows_of_several_protocols_are_one_data_set_protocol_by_protocol(tmp_pat
     assert [part.time_s for part in data.parts] == [0.1, 1.0]
 
 
-@pytest.mark.parametrize("change, message", [
-    (("b.toml,far", "c.toml,far"), "column protocol = 'c.toml': no such file"),
-    (("group,b.toml", "other,b.toml"), "participant (group|other) has no rows of protocol"),
-    (("sync,async,1.0", "sync,sync,1.0"), "is the row's own stimulation"),
-    (("stimulation,baseline", "delay_s,baseline"), None),
+DELAYS = DATA.replace("stimulation,baseline", "delay_s,baseline").replace(",sync,", ",0.0,").replace(",async,", ",1.0,", 1)
+
+
+@pytest.mark.parametrize("text, message", [
+    (DATA.replace("b.toml,far", "c.toml,far"), "column protocol = 'c.toml': no such file"),
+    (DATA.replace("group,b.toml", "other,b.toml"), "participant (group|other) has no rows of protocol"),
+    (DATA.replace("sync,async,1.0", "sync,sync,1.0"), "is the row's own stimulation"),
+    (DELAYS, "give the stimulation column"),  # a baseline names a stimulation: not beside delay_s
 ])
-def test_a_bad_protocol_or_contrast_row_is_refused_in_one_line(tmp_path, change, message):
-    text = DATA.replace(*change)
-    if change[1] == "delay_s,baseline":  # a baseline names a stimulation: it needs the stimulation column
-        text = text.replace(",sync,", ",0.0,").replace(",async,", ",1.0,", 1)
-        message = "give the stimulation column"
+def test_a_bad_protocol_or_contrast_row_is_refused_in_one_line(tmp_path, text, message):
     with pytest.raises(ConfigError, match=message):
         read_data(files(tmp_path, data=text)[0])
 
