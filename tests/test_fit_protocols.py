@@ -216,3 +216,38 @@ def test_a_fit_of_two_protocols_runs_and_its_simulations_serve_a_fit_with_other_
     capsys.readouterr()
     assert main(["fit", "--data", data_path, "--config", fit_path, "--out", str(other)]) == 2
     assert "is not empty and holds no fit" in capsys.readouterr().err
+
+
+def test_a_groups_correlation_of_two_measures_is_pearsons_r_over_its_participants(tmp_path):
+    """r_drift_cm_vs_force_n: Pearson's r over each cell's participants (python's statistics.correlation by hand),
+    in a contrast's cell of the participants' differences; refused without its measures or outside [-1, 1]."""
+    from rhi.master.fit.plan import read_plan
+    from rhi.master.fit.simulate import participants_sweep, statistics
+
+    text = DATA.replace("drift_cm,drift_cm_sd", "drift_cm,force_n,r_drift_cm_vs_force_n").replace(
+        "-2.0,1.5", "-2.0,0.1,0.9").replace("-0.1,0.4", "-0.1,0.0,0.5").replace("-1.6,3.0", "-1.6,0.0,0.2")
+    data = read_data(files(tmp_path, data=text)[0])
+    assert data.measures == ["drift_cm", "force_n", "r_drift_cm_vs_force_n"]
+    plan = read_plan(str(tmp_path / "fit.toml"), data)
+    sweep = participants_sweep(plan, np.log([[0.01], [0.1]]), "test")
+    sign = {"sync": -1.0, "async": 0.5}
+
+    def outcome(t):  # two measures that do not move together exactly
+        return {"drift_cm": sign[t.stimulation] * (t.index + 1) ** 2 * (t.point + 1),
+                "force_n": sign[t.stimulation] * (t.index + 1) + 0.1 * t.point}
+
+    records = {t.id: {"status": "ok", "outcome": outcome(t)} for t in sweep.trials}
+    x = statistics(sweep, records, data, plan.measures).reshape(2, 3, 3)
+    for draw in (0, 1):
+        by = {(t.stimulation, t.index): outcome(t) for t in sweep.trials if t.point == draw}
+        drift, force = ([by["sync", k][m] for k in range(3)] for m in ("drift_cm", "force_n"))
+        assert x[draw, 1, 2] == pytest.approx(python.correlation(drift, force), rel=1e-12)
+        by = {(t.stimulation, t.index): outcome(t) for t in sweep.trials if t.point == 2 + draw}
+        drift, force = ([by["sync", k][m] - by["async", k][m] for k in range(2)] for m in ("drift_cm", "force_n"))
+        assert np.isnan(x[draw, 2, 2])  # two participants: no correlation (three at least)
+        assert x[draw, 2, :2].tolist() == pytest.approx([python.mean(drift), python.mean(force)], rel=1e-12)
+    for bad, message in ((text.replace("drift_cm,force_n,r_", "drift_cm,force_x,r_"), "unknown column 'force_x'"),
+                         (text.replace(",force_n,r_drift_cm", ",drift_cm_sd,r_drift_cm"), "without its measures"),
+                         (text.replace("-2.0,0.1,0.9", "-2.0,0.1,1.5"), "is a correlation: it must lie in")):
+        with pytest.raises(ConfigError, match=message):
+            read_data(files(tmp_path, data=bad)[0])

@@ -22,6 +22,8 @@ Columns (docs/fit.md):
   ``ownership_onset_s_q90`` (two digits, 01-99): a group's row of a cell gives the group's mean and spread there,
   and a fit of group data simulates each draw as a study of ``fit.trials_per_cell`` participants of a
   ``[population]`` (docs/population.md), whose cell means, sds and percentiles are its statistics;
+- optionally, beside two measures, a group's correlation of them over its participants per cell,
+  ``r_drift_cm_vs_force_n`` (Pearson's r, in [-1, 1]);
 - optionally, beside a measure, its noise column ``drift_cm_sem`` (``force_n_sem``): the standard error of the
   cell's value, in the measure's unit, the sd of the observation noise a fit adds to that cell's simulated mean
   in place of ``fit.noise.MEASURE`` (a group mean's reported SEM); one value per design cell, >= 0.
@@ -55,6 +57,7 @@ EVENT_TIMES = ("ownership_onset_s",)  # times of an event a participant may neve
 NOISE = tuple(f"{measure}_sem" for measure in MEASURES)  # each measure's per-cell noise sd (its standard error)
 SPREADS = tuple(f"{measure}_sd" for measure in MEASURES)  # a group's between-participant sd of the measure per cell
 PERCENTILE = re.compile(r"(.+)_q(0[1-9]|[1-9][0-9])")  # a group's percentile of a measure per cell: ownership_onset_s_q90
+CORRELATION = re.compile(r"r_(.+)_vs_(.+)")  # a group's correlation of two measures over its participants per cell
 DESIGN = ("protocol", "condition", "offset_m", "stimulation", "baseline", "delay_s", "time_s")
 COLUMNS = ("participant", *DESIGN, *MEASURES, *SPREADS, *NOISE)
 NUMERIC = ("offset_m", "delay_s", "time_s", *MEASURES, *SPREADS, *NOISE)
@@ -148,6 +151,19 @@ def spread_of(column: str) -> str | None:
     return base if base != column and is_measure(base) else None
 
 
+def correlation_of(column: str) -> tuple[str, str] | None:
+    """The two measures whose correlation over a group's participants the column gives (``r_drift_cm_vs_force_n``:
+    ``("drift_cm", "force_n")``), else None."""
+    found = CORRELATION.fullmatch(column)
+    return (found.group(1), found.group(2)) if found and all(map(is_measure, found.groups())) else None
+
+
+def measures_of(column: str) -> tuple[str, ...]:
+    """The measures a statistic's column is made of: a correlation's two, a spread's or percentile's one, a
+    measure itself."""
+    return correlation_of(column) or ((spread_of(column) or column),)
+
+
 def percentile_of(column: str) -> int | None:
     """The percentile a group's column gives (``ownership_onset_s_q90``: 90), else None."""
     found = PERCENTILE.fullmatch(column)
@@ -162,18 +178,20 @@ def noise_of(column: str) -> str | None:
 
 def measure_order(columns) -> list[str]:
     """The measures and spreads among ``columns`` in the statistics' order: :data:`MEASURES`, the probes by time,
-    then the sds in the same order, then the percentiles (by measure, then percentile)."""
+    then the sds in the same order, then the percentiles (by measure, then percentile), then the correlations."""
     means = [m for m in MEASURES if m in columns] + sorted((c for c in columns if probe_time(c) is not None),
                                                            key=probe_time)
     percentiles = sorted((c for c in columns if percentile_of(c) is not None),
                          key=lambda c: (means.index(spread_of(c)) if spread_of(c) in means else len(means),
                                         percentile_of(c)))
-    return means + [f"{m}_sd" for m in means if f"{m}_sd" in columns] + percentiles
+    correlations = sorted(c for c in columns if correlation_of(c) is not None)
+    return means + [f"{m}_sd" for m in means if f"{m}_sd" in columns] + percentiles + correlations
 
 
 def known_column(column: str) -> bool:
     """A column read_data knows: :data:`COLUMNS`, a probe measure, its sd or its noise column."""
-    return column in COLUMNS or is_measure(column) or spread_of(column) is not None or noise_of(column) is not None
+    return (column in COLUMNS or is_measure(column) or spread_of(column) is not None or noise_of(column) is not None
+            or correlation_of(column) is not None)
 
 
 def read_data(path: str | Path) -> Data:
@@ -207,6 +225,10 @@ def read_data(path: str | Path) -> Data:
             raise ConfigError(f"{name}: column {column} without its measure {spread_of(column)} (a group's "
                               "between-participant sd or percentile beside its mean)")
     for column in header:
+        if correlation_of(column) is not None and not set(correlation_of(column)) <= set(header):
+            raise ConfigError(f"{name}: column {column} without its measures {' and '.join(correlation_of(column))} "
+                              "(a group's correlation of two measures beside their means)")
+    for column in header:
         if noise_of(column) is not None and noise_of(column) not in header:
             raise ConfigError(f"{name}: column {column} without its measure {column.removesuffix('_sem')} (a noise "
                               "column gives the sd of that measure's observation noise)")
@@ -226,7 +248,7 @@ def read_data(path: str | Path) -> Data:
                 continue
             if not text:
                 raise ConfigError(f"{name} line {line}: empty value in column {column}")
-            if column in NUMERIC or is_measure(column) or spread_of(column) or noise_of(column):
+            if column in NUMERIC or is_measure(column) or spread_of(column) or noise_of(column) or correlation_of(column):
                 try:
                     number = float(text)
                 except ValueError:
@@ -236,6 +258,9 @@ def read_data(path: str | Path) -> Data:
                 if column in ("delay_s", "time_s") and not (number >= 0 if column == "delay_s" else number > 0):
                     raise ConfigError(f"{name} line {line}: column {column} = {text} must be "
                                       f"{'>= 0' if column == 'delay_s' else 'positive'}")
+                if correlation_of(column) is not None and not -1 <= number <= 1:
+                    raise ConfigError(f"{name} line {line}: column {column} = {text} is a correlation: it must lie in "
+                                      "[-1, 1]")
                 if spread_of(column) is not None and percentile_of(column) is None and number < 0:
                     raise ConfigError(f"{name} line {line}: column {column} = {text} is an sd: it must be >= 0")
                 if noise_of(column) is not None and not 0 <= number <= MAX_NOISE_SD:

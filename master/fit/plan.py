@@ -28,8 +28,8 @@ from rhi.master import config as configuration
 from rhi.master.config.sources import TASK_SOURCES, batchable_keys
 from rhi.master.models.base import config_key
 from rhi.master.config.sources import declared_range
-from rhi.master.fit.data import (MAX_NOISE_SD, MEASURES, MODEL_MEASURES, Data, check_against, is_measure, probe_time,
-                                 spread_of)
+from rhi.master.fit.data import (MAX_NOISE_SD, MEASURES, MODEL_MEASURES, Data, check_against, is_measure,
+                                 measures_of, probe_time)
 from rhi.master.fit.estimator_settings import ESTIMATOR_DEFAULTS, MAX_ESTIMATOR, MAX_LEARNING_RATE, read_estimator
 from rhi.master.fit.priors import (CALIBRATION_DESIGNS, MAX_SIMULATIONS, PRIORS, Parameter, draw_participants,
                                    draw_prior, simulation_seed)
@@ -238,7 +238,7 @@ def read_plan(path: str, data: Data, model: str | None = None) -> FitPlan:
         raise ConfigError(f"fit.measures = {measures!r} must list measures of the data file ({', '.join(data.measures)})")
     measures = [m for m in data.measures if m in measures]  # the statistics' order (measure_order)
     recorded = models.of(base).measures
-    for measure in dict.fromkeys(spread_of(m) or m for m in measures):
+    for measure in dict.fromkeys(base for m in measures for base in measures_of(m)):
         if measure in MODEL_MEASURES and measure not in recorded:
             raise ConfigError(f"{Path(data.path).name}: column {measure}: model {model!r} does not record it (its own "
                               f"measures: {', '.join(recorded) or 'none'}); fit it with a model that does")

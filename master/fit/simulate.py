@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from rhi.master.config.schedules import trial_length
-from rhi.master.fit.data import EVENT_TIMES, Data, percentile_of, spread_of
+from rhi.master.fit.data import EVENT_TIMES, Data, correlation_of, measures_of, percentile_of
 from rhi.master.fit.plan import FitPlan, simulation_seed
 from rhi.master.sweeps import plan as sweeps
 
@@ -104,7 +104,8 @@ def statistics(sweep: sweeps.Sweep, records: dict[str, dict], data: Data, measur
 
     A group's statistics, each trial one participant of the simulated study (a ``[population]``): a spread
     (``drift_cm_sd``, :func:`rhi.master.fit.data.spread_of`) is the sample sd (ddof 1) of the measure over the cell's
-    trials, a percentile (``ownership_onset_s_q90``) numpy's linear one (Hyndman & Fan type 7). A contrast's cell
+    trials, a percentile (``ownership_onset_s_q90``) numpy's linear one (Hyndman & Fan type 7), a correlation
+    (``r_drift_cm_vs_force_n``) Pearson's r of the two over the cell's participants. A contrast's cell
     (``sync-async``) takes each participant's difference of the two stimulations first. An event's time
     (:data:`rhi.master.fit.data.EVENT_TIMES`) that a participant never reached within the trial is beyond its end:
     its mean is over the participants who reached it (NaN if none did), its percentiles count the others as the
@@ -113,12 +114,12 @@ def statistics(sweep: sweeps.Sweep, records: dict[str, dict], data: Data, measur
     added to each participant's value first (:func:`participant_errors`)."""
     parts = data.designs()
     draws = len(sweep.points) // len(parts)
-    bases = [spread_of(m) or m for m in measures]
+    bases = [measures_of(m) for m in measures]
     outcomes: dict[tuple, dict[int, float]] = {}  # (point, condition, stimulation, measure) -> trial index -> value
     for trial in sweep.trials:
         record = records.get(trial.id)
         failed = record is None or record.get("status") != "ok"
-        for base in set(bases):
+        for base in set().union(*bases):
             value = np.nan if failed else record["outcome"][base]
             if errors and base in errors:
                 value = value + errors[base][trial.id]
@@ -132,10 +133,12 @@ def statistics(sweep: sweeps.Sweep, records: dict[str, dict], data: Data, measur
         for condition, named in part.cells:
             for draw in range(draws):
                 point = number * draws + draw
-                for position, base in enumerate(bases):
-                    result[draw, cell, position] = cell_statistic(
-                        cell_values(outcomes, point, condition, part.contrasts.get(named, (named,)), base),
-                        percentiles[position], base != measures[position], trial_length(sweep.configs[point]))
+                stimulations = part.contrasts.get(named, (named,))
+                for position, measure in enumerate(measures):
+                    values = [cell_values(outcomes, point, condition, stimulations, base) for base in bases[position]]
+                    result[draw, cell, position] = correlation(*values) if correlation_of(measure) else cell_statistic(
+                        values[0], percentiles[position], bases[position][0] != measure,
+                        trial_length(sweep.configs[point]))
             cell += 1
     return result.reshape(draws, -1)
 
@@ -148,6 +151,17 @@ def cell_values(outcomes: dict, point: int, condition: str, stimulations: tuple,
         return np.array([found[0][k] for k in sorted(found[0])] or [np.nan], dtype=float)
     with np.errstate(invalid="ignore"):
         return np.array([found[0][k] - found[1].get(k, np.nan) for k in sorted(found[0])] or [np.nan], dtype=float)
+
+
+def correlation(first: np.ndarray, second: np.ndarray) -> float:
+    """Pearson's r of two measures over a cell's participants (those with both finite, the same trials); NaN for
+    fewer than 3 or a measure that does not vary."""
+    both = np.isfinite(first) & np.isfinite(second)
+    if both.sum() < 3:
+        return np.nan
+    a, b = first[both] - first[both].mean(), second[both] - second[both].mean()
+    scale = float(np.sqrt((a * a).sum() * (b * b).sum()))
+    return float((a * b).sum() / scale) if scale > 0 else np.nan
 
 
 def cell_statistic(given: np.ndarray, percentile: int | None, spread: bool, length: float) -> float:
