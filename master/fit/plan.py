@@ -28,8 +28,8 @@ from rhi.master import config as configuration
 from rhi.master.config.sources import TASK_SOURCES, batchable_keys
 from rhi.master.models.base import config_key
 from rhi.master.config.sources import declared_range
-from rhi.master.fit.data import (MAX_NOISE_SD, MEASURES, MODEL_MEASURES, Data, check_against, is_measure,
-                                 measures_of, probe_time)
+from rhi.master.fit.columns import MEASURES, MODEL_MEASURES, is_measure, measures_of, probe_time
+from rhi.master.fit.data import MAX_NOISE_SD, Data, check_against
 from rhi.master.fit.estimator_settings import ESTIMATOR_DEFAULTS, MAX_ESTIMATOR, MAX_LEARNING_RATE, read_estimator
 from rhi.master.fit.priors import (CALIBRATION_DESIGNS, MAX_SIMULATIONS, PRIORS, Parameter, draw_participants,
                                    draw_prior, simulation_seed)

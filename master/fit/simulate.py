@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from rhi.master.config.schedules import trial_length
-from rhi.master.fit.data import EVENT_TIMES, Data, correlation_of, measures_of, percentile_of
+from rhi.master.fit.columns import EVENT_TIMES, correlation_of, measures_of, percentile_of
+from rhi.master.fit.data import Data
 from rhi.master.fit.plan import FitPlan, simulation_seed
 from rhi.master.sweeps import plan as sweeps
 
@@ -103,11 +104,11 @@ def statistics(sweep: sweeps.Sweep, records: dict[str, dict], data: Data, measur
     """(draws, cells x measures): each simulated participant's (or study's) statistics, NaN where a trial failed.
 
     A group's statistics, each trial one participant of the simulated study (a ``[population]``): a spread
-    (``drift_cm_sd``, :func:`rhi.master.fit.data.spread_of`) is the sample sd (ddof 1) of the measure over the cell's
+    (``drift_cm_sd``, :func:`rhi.master.fit.columns.spread_of`) is the sample sd (ddof 1) of the measure over the cell's
     trials, a percentile (``ownership_onset_s_q90``) numpy's linear one (Hyndman & Fan type 7), a correlation
     (``r_drift_cm_vs_force_n``) Pearson's r of the two over the cell's participants. A contrast's cell
     (``sync-async``) takes each participant's difference of the two stimulations first. An event's time
-    (:data:`rhi.master.fit.data.EVENT_TIMES`) that a participant never reached within the trial is beyond its end:
+    (:data:`rhi.master.fit.columns.EVENT_TIMES`) that a participant never reached within the trial is beyond its end:
     its mean is over the participants who reached it (NaN if none did), its percentiles count the others as the
     trial's length (exact wherever the percentile falls before the end, as a reported one does). Several
     protocols' statistics follow one another, as the data's cells do. ``errors``: measure -> {trial id: error}
