@@ -366,6 +366,7 @@ def run_record(data, plan, sweep, records, training, timing, calibration, predic
 
     from rhi.master.fit.calibration import LEVELS
 
+    steps = [config["experiment"]["steps"] for config in plan.configs()]
     result = {
         "command": COMMAND, "data": data.path, "participants": data.participants, "design_cells": data.cells,
         "statistics": data_statistic_names(data, plan), "model": plan.settings["model"],
@@ -379,8 +380,7 @@ def run_record(data, plan, sweep, records, training, timing, calibration, predic
                         "wall_s_now": round(simulated_s, 3),
                         "trials_per_s_now": round(ran_now / simulated_s, 3) if ran_now and simulated_s else None,
                         "cpu_s_per_trial": cpu_per_trial(records),
-                        "steps_per_trial": steps if len(steps := [c["experiment"]["steps"] for c in plan.configs()]) > 1
-                        else steps[0],
+                        "steps_per_trial": steps if len(steps) > 1 else steps[0],  # per protocol, if several
                         "resolution": plan.base["experiment"]["resolution"]},
         "posterior_seconds_per_participant": {"max": round(max(timing), 4), "mean": round(float(np.mean(timing)), 4)},
         "wall_s": round(wall_s, 3), "configuration": plan.base, "versions": package_versions(),
