@@ -251,3 +251,19 @@ def test_a_groups_correlation_of_two_measures_is_pearsons_r_over_its_participant
                          (text.replace("-2.0,0.1,0.9", "-2.0,0.1,1.5"), "is a correlation: it must lie in")):
         with pytest.raises(ConfigError, match=message):
             read_data(files(tmp_path, data=bad)[0])
+
+
+def test_the_model_at_a_point_is_the_simulation_of_that_point_repeated(tmp_path):
+    """rhi.fit.memory.at_point: count studies at one point are simulate's rows for that point's draw, each with its
+    own seed (so the studies differ), the point given in its parameters' own units."""
+    from rhi.master.fit import memory
+    from rhi.master.fit.plan import read_plan
+
+    data_path, fit_path = files(tmp_path)
+    data = read_data(data_path)
+    plan = read_plan(fit_path, data)
+    x = memory.at_point(plan, data, {"population.brain.gamma0.median": 0.05}, count=2, stream="t")
+    np.testing.assert_array_equal(x, memory.simulate(plan, data, np.log([[0.05], [0.05]]), "t"))
+    assert not np.array_equal(x[0], x[1])
+    with pytest.raises(KeyError, match="population.brain.gamma0.median"):
+        memory.at_point(plan, data, {}, count=1)

@@ -79,3 +79,26 @@ def sample(plan: FitPlan, posterior, observed: np.ndarray, count: int, seed: int
     from rhi.master.fit.report import natural
 
     return natural(plan.parameters, inference.sample(posterior, np.asarray(observed, dtype=float), count, seed))
+
+
+def at_point(plan: FitPlan, data: Data, point: dict[str, float], count: int = 20, stream: str = "point") -> np.ndarray:
+    """``count`` simulated participants (or studies) at one point of the parameters, as :func:`simulate` makes them:
+    the model at a fit's adopted point (point.csv's values) against the data it was fitted on.
+
+    Parameters
+    ----------
+    point : dict of str to float
+        Each fitted parameter's value in its own unit (the keys of ``plan.parameters``).
+    count : int
+        How many, each with its own seed of ``stream``.
+
+    Returns
+    -------
+    numpy.ndarray
+        (count, cells x measures), as :func:`simulate`'s.
+    """
+    missing = [p.key for p in plan.parameters if p.key not in point]
+    if missing:
+        raise KeyError(f"the point has no value of {', '.join(missing)}")
+    row = [float(p.to_inference(point[p.key])) for p in plan.parameters]
+    return simulate(plan, data, np.array([row] * count, dtype=float), stream)
