@@ -105,7 +105,8 @@ def test_the_fit_pages_tables_are_made_from_the_shipped_fits():
     page = (DOCS / "fit.md").read_text()
     variants = ("recovery_zscore", "recovery_bounded", "recovery_ensemble")
     for folder in ("recovery", *variants, "human/kocur2022", "group_recovery", "group_recovery_n20",
-                   "group_recovery_n20_probes", "group_recovery_n20_combined"):
+                   "group_recovery_n20_probes", "group_recovery_n20_combined",
+                   "group_recovery_n20_combined_1000"):
         tables = results_markdown(DOCS / "fit" / folder)
         first = tables.split("\n\n")[0]  # the variants' page shows their calibration table only
         assert (first if folder in variants else tables) in page, folder
@@ -117,7 +118,8 @@ def test_the_shipped_fits_coverage_is_that_of_their_ranks():
     import csv
 
     for folder in ("recovery", "recovery_noise", "human/kocur2022", "group_recovery", "group_recovery_n20",
-                   "group_recovery_n20_probes", "group_recovery_n20_combined"):
+                   "group_recovery_n20_probes", "group_recovery_n20_combined",
+                   "group_recovery_n20_combined_1000"):
         with open(DOCS / "fit" / folder / "recovery.csv", newline="") as file:
             rows = list(csv.DictReader(file))
         with open(DOCS / "fit" / folder / "calibration.csv", newline="") as file:
