@@ -43,6 +43,37 @@ def test_passive_openmp_waiting_is_set_before_torch_loads():
     assert result.stdout.split() == ["False", "PASSIVE"], result.stderr
 
 
+REFUSED_LOADS = """
+import contextlib, io, sys
+from rhi.master.commands.cli import main
+with contextlib.suppress(SystemExit), contextlib.redirect_stderr(io.StringIO()) as said:
+    main(sys.argv[1:])
+print(said.getvalue().strip().splitlines()[-1])
+print(sorted(name for name in ("torch", "scipy.special", "scipy.stats") if name in sys.modules))
+"""
+
+
+FIT_TABLE = '[fit.parameters."brain.gamma0"]\nprior = "uniform"\nlow = 0.001\nhigh = 0.1\n'
+
+
+@pytest.mark.parametrize("command, table", [(["experiment"], ""), (["reach"], ""), (["power", "--n", "10"], ""),
+                                            (["sweep"], "[sweep]\ntrials = 1\n"),
+                                            (["phenomenon", "time-course"], "[sweep]\ntrials = 1\n"),
+                                            (["fit", "--data", "{tmp}/data.csv"], FIT_TABLE)])
+def test_a_command_refused_for_its_configuration_loads_no_torch(tmp_path, command, table):
+    """A refusal costs a process start, not torch's import (1.4 s of CPU on an AVX2 EPYC): the configuration, the
+    commands' modules and the decoders' cache load torch and scipy's special functions only where they use them."""
+    (tmp_path / "bad.toml").write_text("[brain]\nsigma_p = 1.0\n" + table)
+    (tmp_path / "data.csv").write_text("participant,condition,stimulation,drift_cm\np,left,sync,-1.0\n")
+    args = [part.format(tmp=tmp_path) for part in command] + ["--config", str(tmp_path / "bad.toml"),
+                                                              "--out", str(tmp_path / "out")]
+    result = subprocess.run([sys.executable, "-c", REFUSED_LOADS, *args], capture_output=True, text=True, timeout=120)
+    said, loaded = result.stdout.strip().splitlines()
+    assert said == f"rhi {command[0]}: error: unknown config key brain.sigma_p", result.stdout + result.stderr
+    assert loaded == "[]", loaded
+    assert not (tmp_path / "out").exists()
+
+
 # Bad input for each command, and what its one line must say. {tmp} is a fresh folder; nothing may appear in it but
 # what the test put there.
 BAD_INPUT = {

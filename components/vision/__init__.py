@@ -5,7 +5,16 @@ Modules: :mod:`networks` (the shared decoder definition, the VAE encoder, preset
 :mod:`component` (the co-simulation component, forward-mode Jacobians).
 Training data come from the body's camera; that wiring lives in ``master/decoders/training_data.py``.
 """
-from .checkpoint import CheckpointError
-from .component import Decoder, GenerativeModel, jacobian_images
+import importlib
 
 __all__ = ["Decoder", "GenerativeModel", "jacobian_images", "CheckpointError"]
+_HOME = {"Decoder": "component", "GenerativeModel": "component", "jacobian_images": "component",
+         "CheckpointError": "checkpoint"}
+
+
+def __getattr__(name):
+    """The names above, loaded on first use (PEP 562): a module of this package that needs no torch, such as
+    :mod:`limits`, which the configuration reads, then loads none."""
+    if name not in _HOME:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(f".{_HOME[name]}", __name__), name)

@@ -31,7 +31,6 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from scipy import special
 
 from rhi.master.cosim import ConfigError
 
@@ -55,6 +54,8 @@ def log_normal(median: float, log_sd: float):
 def logit_normal(median: float, logit_sd: float):
     """Logit-normal on (0, 1): logit x normal with mean logit(median) and sd ``logit_sd`` (Aitchison & Shen 1980,
     Biometrika 67:261, the logistic-normal): x = expit(logit(median) + logit_sd z). Returns (z -> x, x -> z)."""
+    from scipy import special  # here, not at the top: a command refused while its configuration loads never pays for it
+
     centre = special.logit(median)
     return (lambda z: special.expit(centre + logit_sd * z)), (lambda x: (special.logit(x) - centre) / logit_sd)
 
@@ -62,6 +63,8 @@ def logit_normal(median: float, logit_sd: float):
 def uniform(low: float, high: float):
     """Uniform on [low, high]: x = low + (high - low) Phi(z), Phi the standard normal CDF (so u = Phi(z) is the
     uniform variate itself). Returns (z -> x, x -> z)."""
+    from scipy import special
+
     return (lambda z: low + (high - low) * special.ndtr(z)), (lambda x: special.ndtri((x - low) / (high - low)))
 
 
@@ -227,6 +230,8 @@ def quantile(entry: dict, median: float, u):
     """The value at probability ``u`` (scalar or array in (0, 1)) of the entry's distribution, truncated to its
     bounds: u mapped onto [F(low), F(high)], then through the standard normal's quantile and the distribution's
     map (inverse transform sampling)."""
+    from scipy import special
+
     name = entry["distribution"]
     if name == "uniform":
         return entry["low"] + (entry["high"] - entry["low"]) * np.asarray(u, dtype=float)

@@ -19,17 +19,20 @@ import os
 import tempfile
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from rhi.components.body import camera, kinematics
-from rhi.components.vision.checkpoint import CheckpointError
-from rhi.components.vision.component import Decoder, GenerativeModel, jacobian_images
 from rhi.master import models
 from rhi.master.config import file_problem
 from rhi.master.cosim import ConfigError
 from rhi.master.runtime.pool import Workers, run_jobs
-from rhi.master.decoders.training import load_decoder, prepare_data, train_decoder, train_settings
+
+if TYPE_CHECKING:
+    from rhi.components.vision.component import Decoder, GenerativeModel
+# The decoders' modules load torch: each function below imports what it uses, so that a command refused while it
+# checks its configuration (which imports this module) never pays for torch.
 
 log = logging.getLogger("rhi.decoders")
 
@@ -45,6 +48,8 @@ def cache_folder() -> Path:
 def checkpoint_path(kind: str, config: dict, must_exist: bool = False, device: str = "cpu") -> str:
     """The checkpoint of decoder ``kind``: the configured one, or the cached default (trained on ``device``,
     resolved: a decoder trained on a GPU has a name of its own)."""
+    from rhi.master.decoders.training import train_settings
+
     given = config["decoder"].get(f"{kind}_checkpoint") or ""
     if given:
         problem = file_problem(given)
@@ -107,6 +112,8 @@ def check_decoders(config: dict, device: str = "cpu") -> None:
         elif not Path(path).is_file():
             needs_training.append(kind)
     if needs_training:
+        from rhi.master.decoders.training import train_settings
+
         train_settings(config)
         check_cache_folder()
     if models.of(config).sees_pose:  # the model reads the seen arm through a pose encoder of each slot
@@ -116,6 +123,8 @@ def check_decoders(config: dict, device: str = "cpu") -> None:
 
 def check_kind(kind: str, path: str, model: GenerativeModel) -> None:
     """A checkpoint of another kind in the slot of ``kind`` is refused (a VAE's numbers are not conv's)."""
+    from rhi.components.vision.checkpoint import CheckpointError
+
     trained = model.metadata.get("kind")
     if trained != kind:
         raise CheckpointError(f"{path}: a {trained} decoder, given as the {kind} decoder "
@@ -152,6 +161,8 @@ def ensure_checkpoints(config: dict, progress: bool = True, device: str = "cpu",
     if not missing:
         return paths, {}
     began = time.perf_counter()
+    from rhi.master.decoders.training import prepare_data, train_decoder, train_settings
+
     settings, blur = train_settings(config), config["camera"]["blur"]
     prepare_data(check_cache_folder(), settings, blur, progress)
     seconds = {"data": time.perf_counter() - began}
@@ -175,6 +186,8 @@ def loaded(path: str, resolution: int, blur: float = camera.BLUR_SIGMA) -> Gener
 
 @functools.lru_cache(maxsize=4)
 def _loaded(path: str, version: int, resolution: int, blur: float) -> GenerativeModel:
+    from rhi.master.decoders.training import load_decoder
+
     return load_decoder(path, resolution, blur)
 
 
@@ -182,6 +195,8 @@ def decoder_component(kind: str, path: str, config: dict, fast: bool | None = No
                       threads: int | None = None, device: str = "cpu", name: str = "decoder") -> Decoder:
     """The exact decoder, or the linearised one of the fast mode when ``fast`` (default: ``decoder.fast``)
     is true; on ``threads`` torch threads (default: the usable cores) and on ``device``; component ``name``."""
+    from rhi.components.vision.component import Decoder
+
     model = loaded(path, config["experiment"]["resolution"], config["camera"]["blur"])
     check_kind(kind, path, model)
     if config["decoder"]["fast"] if fast is None else fast:
@@ -193,6 +208,8 @@ def decoder_component(kind: str, path: str, config: dict, fast: bool | None = No
 
 def jacobian_pair(kind: str, path: str, config: dict) -> np.ndarray:
     """dg/d(shoulder) and dg/d(elbow) at the rest pose: (2, R, R), 1/deg."""
+    from rhi.components.vision.component import jacobian_images
+
     model = loaded(path, config["experiment"]["resolution"], config["camera"]["blur"])
     return jacobian_images(model, np.array([kinematics.REST_POSE]))[0]
 
