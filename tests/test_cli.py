@@ -49,7 +49,7 @@ from rhi.master.commands.cli import main
 with contextlib.suppress(SystemExit), contextlib.redirect_stderr(io.StringIO()) as said:
     main(sys.argv[1:])
 print(said.getvalue().strip().splitlines()[-1])
-print(sorted(name for name in ("torch", "scipy.special", "scipy.stats") if name in sys.modules))
+print(sorted(name for name in ("torch", "scipy.special", "scipy.stats", "matplotlib") if name in sys.modules))
 """
 
 
@@ -61,8 +61,9 @@ FIT_TABLE = '[fit.parameters."brain.gamma0"]\nprior = "uniform"\nlow = 0.001\nhi
                                             (["phenomenon", "time-course"], "[sweep]\ntrials = 1\n"),
                                             (["fit", "--data", "{tmp}/data.csv"], FIT_TABLE)])
 def test_a_command_refused_for_its_configuration_loads_no_torch(tmp_path, command, table):
-    """A refusal costs a process start, not torch's import (1.4 s of CPU on an AVX2 EPYC): the configuration, the
-    commands' modules and the decoders' cache load torch and scipy's special functions only where they use them."""
+    """A refusal costs a process start, not torch's import (1.4 s of CPU on an AVX2 EPYC) or matplotlib's: the
+    configuration, the commands' modules and the decoders' cache load torch, scipy's special functions and
+    matplotlib only where they use them."""
     (tmp_path / "bad.toml").write_text("[brain]\nsigma_p = 1.0\n" + table)
     (tmp_path / "data.csv").write_text("participant,condition,stimulation,drift_cm\np,left,sync,-1.0\n")
     args = [part.format(tmp=tmp_path) for part in command] + ["--config", str(tmp_path / "bad.toml"),

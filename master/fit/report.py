@@ -6,15 +6,18 @@ bytes); every file whole or absent (atomic writes).
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-from matplotlib.figure import Figure
 
 from rhi.master.fit.calibration import LEVELS, central_interval, rank_histogram, rank_tests_verdict, verdict_words
 from rhi.master.fit.plan import Parameter
 from rhi.master.outputs.figures import subplots
 from rhi.master.outputs.files import atomic_write
 from rhi.master.outputs.tables import csv_text, number
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure  # matplotlib loads where a figure is drawn, not with the module
 
 FIGURE_DPI = 100  # the fit's figures' resolution (rhi.master.outputs.figures.save's dpi)
 

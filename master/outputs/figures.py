@@ -11,12 +11,15 @@ pyplot, no backend switch: importing rhi leaves a notebook's plotting as it was)
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-from matplotlib.figure import Figure
 
 from rhi.master.outputs.files import atomic_write
 from rhi.master.outputs.tables import cells, mean_sd
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure  # matplotlib loads where a figure is drawn, not with the module
 
 COLOURS = {"left": "tab:blue", "center": "tab:gray", "right": "tab:red"}
 STYLES = {"conv": "-", "vae": "--"}
@@ -48,6 +51,8 @@ def bars(axes, trials, per_trial, ylabel):
 
 def subplots(*grid, **options):
     """A new ``Figure`` and its axes, as ``matplotlib.pyplot.subplots`` gives them, without pyplot's state."""
+    from matplotlib.figure import Figure
+
     figure = Figure(figsize=options.pop("figsize", None))
     return figure, figure.subplots(*grid, **options)
 

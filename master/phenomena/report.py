@@ -10,10 +10,9 @@ import textwrap
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
-from matplotlib.figure import Figure
 
 from rhi.master.cosim import ConfigError
 from rhi.master.outputs.figures import COLOURS, STYLES, save, subplots
@@ -23,6 +22,9 @@ from rhi.master import models as registry
 from rhi.master.phenomena import FILES, human_file
 from rhi.master.sweeps import plan as sweeps
 from rhi.master.sweeps.folder import read_records
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure  # matplotlib loads where a figure is drawn, not with the module
 
 HUMAN = "tab:green"
 # per-trial outcome keys (rhi.master.tasks.illusion.trial_outcome) -> the table's mean (and sd) columns

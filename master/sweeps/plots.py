@@ -7,10 +7,13 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from matplotlib.figure import Figure
 
 from rhi.master.outputs.figures import save, subplots
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure  # matplotlib loads where a figure is drawn, not with the module
 
 OUTCOMES = {"drift_cm": "final drift (cm)", "force_n": "final force (N)", "gamma_final": "final gamma"}
 MAX_LEGEND = 12
