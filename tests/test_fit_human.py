@@ -221,3 +221,50 @@ def test_the_judged_training_fit_is_the_training_fit_with_a_judgements_error_fro
     lateral = jacobian(*REST_POSE)[0]  # d(hand x)/d(shoulder, elbow), m/deg
     sd_cm = 100 * 0.85 * float(np.hypot(*lateral)) * 2 ** 0.5
     assert plain.participant_noise == {} and judged.participant_noise == {"drift_cm": pytest.approx(sd_cm, abs=5e-4)}
+
+
+def test_the_drift_point_that_ships_is_a_prior_draw_of_the_training_fit_and_the_least_miss_of_its_checks():
+    """docs/fit/human/ownership_training_screen/ (docs/fit.md, "What ships"): point.csv is the fit's prior draw it
+    names (the draws made again from the fit file's seed: the same values to the 6 digits written), and checks.csv's
+    z are (mean - observed) / standard error, the standard errors from training.csv by hand (a mean's sd / sqrt n, an
+    sd's sd / sqrt(2 (n - 1)); n from the protocol files), the candidate that ships the one whose largest |z| is
+    least."""
+    from rhi.master.fit.priors import draw_participants
+
+    folder = HUMAN / "ownership_training_screen"
+    data = read_data(HUMAN / "training.csv")
+    plan = read_plan(str(HUMAN / "ownership_training_judged_1000.toml"), data)
+    with open(folder / "point.csv", newline="") as file:
+        point = list(csv.DictReader(file))
+    draw = {int(row["sample"]) for row in point}
+    assert len(draw) == 1
+    drawn = draw_participants(plan.parameters, plan.settings)[draw.pop()]
+    values = {row["parameter"]: float(row["value"]) for row in point}
+    assert set(values) == {p.key for p in plan.parameters}
+    for parameter, value in zip(plan.parameters, drawn):
+        assert values[parameter.key] == pytest.approx(float(parameter.from_inference(value)), rel=5e-6)
+
+    trials = {"rohde2011_exp2": 10, "kocur2022": 24}
+    with open(HUMAN / "training.csv", newline="") as file:
+        rows = list(csv.DictReader(line for line in file if not line.startswith("#")))
+    expected = {}
+    for row in rows:
+        n = trials[Path(row["protocol"]).stem]
+        cell = f"{row['protocol']}:{row['condition']}/{row['stimulation']}" + \
+            (f"-{row['baseline']}" if row["baseline"] else "")
+        sd = float(row["drift_cm_sd"])
+        expected[f"drift_cm[{cell}]"] = (float(row["drift_cm"]), sd / np.sqrt(n))
+        expected[f"drift_cm_sd[{cell}]"] = (sd, sd / np.sqrt(2 * (n - 1)))
+    largest = {}
+    with open(folder / "checks.csv", newline="") as file:
+        for row in csv.DictReader(file):
+            observed, error = expected[row["statistic"]]
+            assert float(row["observed"]) == observed and float(row["standard_error"]) == pytest.approx(error, rel=1e-3)
+            mean = float(row["mean_of_20_studies"])
+            z = (mean - observed) / error
+            # z is written to 3 significant digits and computed from the mean before it was written to 4: half a
+            # unit of each last digit, the mean's through 1/error
+            digit = lambda x, figures: 0.5 * 10.0 ** (np.floor(np.log10(abs(x))) - figures + 1)  # noqa: E731
+            assert float(row["z"]) == pytest.approx(z, abs=digit(z, 3) + digit(mean, 4) / error)
+            largest[row["candidate"]] = max(largest.get(row["candidate"], 0.0), abs(z))
+    assert len(largest) == 3 and min(largest, key=largest.get) == f"draw {int(point[0]['sample'])}"

@@ -45,7 +45,8 @@ DERIVED_FROM = {"brain.peripersonal_sd": "ownership.peripersonal_boundary"}
 # The free parameters, fitted on the training set: (prior, low, high) each, stated before the fit that uses it
 # (docs/model.md, "The ownership model": why these ranges, and why the coupling prior joined the rates). Their
 # values in ownership.toml are the adopted joint points (point.csv) of the population fits shipped in FIT_FOLDERS
-# (relative to the project; the drift's on Rohde et al. 2011, the onset's on Kalckert & Ehrsson 2017), their
+# (relative to the project; the drift's on Rohde et al. 2011 and Kocur et al. 2022, the onset's on Kalckert &
+# Ehrsson 2017), their
 # population medians where they fit a [population]; a parameter no such fit has keeps the posterior median of the
 # individual fit in MEDIAN_FIT_FOLDER (fitted_values).
 FREE_PARAMETERS = {"ownership.switching_rate": ("log-uniform", 1.0 / 600.0, 1.0),
@@ -55,10 +56,13 @@ FREE_PARAMETERS = {"ownership.switching_rate": ("log-uniform", 1.0 / 600.0, 1.0)
                    "ownership.counter_evidence_leak": ("log-uniform", 1.0 / 600.0, 1.0),
                    "ownership.proprioceptive_fading_rate": ("log-uniform", 1.0 / 600.0, 1.0),
                    "brain.gamma0": ("log-uniform", 1e-5, 0.5)}  # ownership's prior: the onset fit's only
-FIT_FOLDERS = ("docs/fit/human/ownership_group", "docs/fit/human/ownership_onset")
+# Each of FIT_FOLDERS with the rule that chose its point.csv (docs/fit.md: "What ships"; the onset's by the rule of
+# rhi.master.fit.point when it ran, since replaced: "Several studies")
+FIT_FOLDERS = {"docs/fit/human/ownership_training_screen": "the candidate of least largest miss over the training "
+                                                           "statistics (20 studies each; docs/fit.md, \"What ships\")",
+               "docs/fit/human/ownership_onset": "the joint posterior mode in the inference space (the rule then; "
+                                                 "docs/fit.md, \"Several studies\")"}
 MEDIAN_FIT_FOLDER = "docs/fit/human/ownership_rohde2011"
-# how FIT_FOLDERS' point.csv chose their points: the rule of rhi.master.fit.point when they ran, since replaced
-POINT_RULE_OF_FITS = "the joint posterior mode in the inference space (the rule then; docs/fit.md, \"Several studies\")"
 
 
 def fitted_values(root) -> dict[str, dict]:
@@ -83,7 +87,7 @@ def fitted_values(root) -> dict[str, dict]:
             folder, point, estimates, name = fitted
             result[key] = {"value": float(point[name]["value"]), "q05": float(estimates[name]["q05"]),
                            "q95": float(estimates[name]["q95"]),
-                           "rule": POINT_RULE_OF_FITS,
+                           "rule": FIT_FOLDERS[folder],
                            "folder": folder}
         elif key in medians:
             result[key] = {"value": float(medians[key]["median"]), "q05": float(medians[key]["q05"]),
