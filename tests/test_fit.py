@@ -312,7 +312,10 @@ def test_fit_file_refusals(tmp_path):
            good.replace("[fit.estimator]", '[fit.estimator]\nstatistics = "log"'):
                "fit.estimator.statistics = 'log' is not one of z-score, normal-scores",
            good.replace("seed = 3", 'seed = 3\ncalibration_design = "sobol"'):
-               "fit.calibration_design = 'sobol' is not one of random, latin-hypercube"}
+               "fit.calibration_design = 'sobol' is not one of random, latin-hypercube",
+           # a value the fit's design replaces (trials per cell are fit.trials_per_cell) is refused all the same
+           good.replace("[experiment]\nsteps = 5", "[experiment]\nsteps = 5\ntrials = -1"):
+               "experiment.trials must be at least 1, got -1"}
     for text, message in bad.items():
         with pytest.raises(ConfigError, match=message.replace("[", r"\[").replace("(", r"\(")):
             read_plan(write(tmp_path / "bad.toml", text), data)

@@ -111,10 +111,10 @@ def test_training_missing_decoders_says_so_in_one_logged_line(tmp_path, monkeypa
     """With progress on and the cache empty, the decoders to train are named in the log (the training itself is
     stood in for: what is checked is the line, which once raised a TypeError before any training)."""
     from rhi.master import config as configuration
-    from rhi.master.decoders import cache
+    from rhi.master.decoders import cache, training
 
     monkeypatch.setenv("RHI_CACHE", str(tmp_path))
-    monkeypatch.setattr(cache, "prepare_data", lambda *args: None)
+    monkeypatch.setattr(training, "prepare_data", lambda *args: None)  # the cache imports it where it trains
     monkeypatch.setattr(cache, "run_jobs", lambda function, jobs, *rest: [(None, {"train": 1.0}) for _ in jobs])
     config = configuration.load(quick=True, overrides={"experiment.decoders": ["conv"]})
     text = said(1, lambda: cache.ensure_checkpoints(config, progress=True))

@@ -13,7 +13,8 @@ from rhi.master import config as configuration
 from rhi.master.config.protocol import HALF_RANGES, rubber_pose
 from rhi.master.cosim import ConfigError
 from rhi.master.decoders import pose_encoders
-from rhi.master.decoders.cache import SHIPPED, pose_encoder_path, train_settings
+from rhi.master.decoders.cache import SHIPPED, pose_encoder_path
+from rhi.master.decoders.training import train_settings
 
 KINDS = ("conv", "vae")
 FAR = 0.60  # m, the farthest rubber hand of the distance study, shoulder at rest - 88.5 deg

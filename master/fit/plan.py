@@ -217,8 +217,8 @@ def read_plan(path: str, data: Data, model: str | None = None) -> FitPlan:
         base["experiment"]["decoders"] = ["conv"]
     if len(base["experiment"]["decoders"]) != 1:
         raise ConfigError("experiment.decoders: a fit simulates one decoder; name one")
+    configuration.validate(base)  # a value the design replaces (experiment.trials) is refused all the same
     if data.parts:  # several protocols: each its own design over the fit file's configuration
-        configuration.validate(base)
         designs = [protocol_keys(base, with_protocol(base, part, whole["trials_per_cell"])) for part in data.parts]
     else:
         base, designs = with_design(base, data, whole["trials_per_cell"]), []
