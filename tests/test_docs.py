@@ -106,7 +106,7 @@ def test_the_fit_pages_tables_are_made_from_the_shipped_fits():
     variants = ("recovery_zscore", "recovery_bounded", "recovery_ensemble")
     for folder in ("recovery", *variants, "human/kocur2022", "group_recovery", "group_recovery_n20",
                    "group_recovery_n20_probes", "group_recovery_n20_combined",
-                   "group_recovery_n20_combined_1000"):
+                   "group_recovery_n20_combined_1000", "group_recovery_n20_combined_ensemble"):
         tables = results_markdown(DOCS / "fit" / folder)
         first = tables.split("\n\n")[0]  # the variants' page shows their calibration table only
         assert (first if folder in variants else tables) in page, folder
@@ -119,7 +119,7 @@ def test_the_shipped_fits_coverage_is_that_of_their_ranks():
 
     for folder in ("recovery", "recovery_noise", "human/kocur2022", "group_recovery", "group_recovery_n20",
                    "group_recovery_n20_probes", "group_recovery_n20_combined",
-                   "group_recovery_n20_combined_1000"):
+                   "group_recovery_n20_combined_1000", "group_recovery_n20_combined_ensemble"):
         with open(DOCS / "fit" / folder / "recovery.csv", newline="") as file:
             rows = list(csv.DictReader(file))
         with open(DOCS / "fit" / folder / "calibration.csv", newline="") as file:

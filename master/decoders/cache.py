@@ -160,9 +160,9 @@ def ensure_checkpoints(config: dict, progress: bool = True, device: str = "cpu",
     missing = [kind for kind, path in paths.items() if not Path(path).is_file()]
     if not missing:
         return paths, {}
-    began = time.perf_counter()
     from rhi.master.decoders.training import prepare_data, train_decoder, train_settings
 
+    began = time.perf_counter()
     settings, blur = train_settings(config), config["camera"]["blur"]
     prepare_data(check_cache_folder(), settings, blur, progress)
     seconds = {"data": time.perf_counter() - began}
