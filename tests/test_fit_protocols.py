@@ -99,6 +99,40 @@ def test_each_protocol_runs_its_own_design_and_group_size_in_batches_of_its_own(
         read_plan(files(tmp_path, a=PROTOCOL_A + "[fit]\nseed = 1\n")[1], read_data(data_path))
 
 
+def test_a_protocols_own_parameter_is_set_in_its_simulations_alone(tmp_path):
+    """fit.parameters."b.toml:stimulus.period": a design value one study did not report, fitted as a nuisance
+    parameter: named so in the outputs, set in b.toml's points (their configurations carry the drawn value) and in
+    none of a.toml's (the fit file's value), its points still sharing lockstep batches; refused for a protocol the
+    data do not have, for data without protocols, and where the protocol file sets the key itself."""
+    from rhi.master.fit.plan import read_plan
+    from rhi.master.fit.simulate import participants_sweep
+
+    own = FIT + '[fit.parameters."b.toml:stimulus.period"]\nprior = "uniform"\nlow = 0.5\nhigh = 3.0\n'
+    data_path, fit_path = files(tmp_path, b=PROTOCOL_B.replace("[stimulus]\nperiod = 0.2\n", ""), fit=own)
+    plan = read_plan(fit_path, read_data(data_path))
+    gamma0, period = plan.parameters
+    assert (period.key, period.protocol, period.config_key) == ("b.toml:stimulus.period", "b.toml", "stimulus.period")
+    assert (gamma0.protocol, gamma0.config_key) == ("", gamma0.key)
+    theta = np.array([[np.log(0.01), 0.75], [np.log(0.1), 2.5], [np.log(0.05), 1.25]])
+    sweep = participants_sweep(plan, theta, "test")
+    for point in range(6):
+        drawn = sweep.configs[point]["stimulus"]["period"]
+        if point < 3:
+            assert "stimulus.period" not in sweep.points[point] and drawn == plan.base["stimulus"]["period"]
+        else:
+            assert sweep.points[point]["stimulus.period"] == drawn == theta[point - 3, 1]
+    assert sorted(len({sweep.trials[t].point for t in chunk}) for chunk in sweep.chunks) == [1, 1, 2, 2]
+    refused = {own.replace('"b.toml:', '"c.toml:'): "'c.toml' is not a protocol of the data file",
+               own: "protocol b.toml: sets stimulus.period, a fitted parameter"}
+    for text, message in refused.items():
+        with pytest.raises(ConfigError, match=message):
+            read_plan(files(tmp_path, fit=text)[1], read_data(data_path))
+    single = tmp_path / "single.csv"
+    single.write_text("participant,condition,stimulation,drift_cm,drift_cm_sd\ngroup,left,sync,-2.0,1.5\n")
+    with pytest.raises(ConfigError, match="'b.toml' is not a protocol of the data file .its protocols: none"):
+        read_plan(files(tmp_path, fit=own)[1], read_data(single))
+
+
 def test_each_protocols_statistics_and_a_contrast_are_the_hand_statistics_of_its_participants(tmp_path):
     from rhi.master.fit.plan import read_plan
     from rhi.master.fit.simulate import participants_sweep, statistics

@@ -18,7 +18,7 @@ The priors and the draws of the simulated participants are :mod:`rhi.master.fit.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from rhi.master import models
@@ -71,6 +71,8 @@ class FitPlan:
     designs : list of dict
         A fit of several protocols (the data's ``protocol`` column): per protocol, in the data's order, the dotted
         keys its configuration sets over ``base`` (its design, its file's tables); empty for one design.
+    protocols : list of str
+        The protocols of ``designs``, as the data's column names them.
     """
 
     parameters: list[Parameter]
@@ -81,6 +83,7 @@ class FitPlan:
     estimator: dict = field(default_factory=dict)
     designs: list[dict] = field(default_factory=list)  # per protocol: the keys its configuration sets over base
     participant_noise: dict[str, float] = field(default_factory=dict)  # measure -> sd of a participant's own error
+    protocols: list[str] = field(default_factory=list)  # the protocol of each of designs
 
     def configs(self) -> list[dict]:
         """The configuration each protocol's simulated participants run (one design: ``base``)."""
@@ -127,10 +130,31 @@ def parameter_key(written: str, config: dict) -> str:
     return key
 
 
-def read_parameter(written: str, spec, config: dict) -> Parameter:
+def read_parameters(tables: dict, base: dict, data: Data, trials: int) -> list[Parameter]:
+    """``fit.parameters``' priors (:func:`read_parameter`). A key written ``PROTOCOL:KEY`` (PROTOCOL as the data's
+    protocol column names it) belongs to that protocol alone: a design value its study did not report (a stroke
+    rate), fitted as a nuisance parameter, read against that protocol's configuration and set in its simulations
+    only."""
+    protocols = {part.protocol: part for part in data.parts}
+    fitted = []
+    for written, spec in parameter_tables(tables):
+        protocol, colon, key = written.rpartition(":")
+        if not colon:
+            fitted.append(read_parameter(written, spec, base))
+            continue
+        if protocol not in protocols:
+            raise ConfigError(f"fit.parameters.{written}: {protocol!r} is not a protocol of the data file (its "
+                              f"protocols: {', '.join(protocols) or 'none: it has no protocol column'})")
+        config = with_protocol(base, protocols[protocol], trials)
+        fitted.append(replace(read_parameter(key, spec, config, written), key=written, protocol=protocol))
+    return fitted
+
+
+def read_parameter(written: str, spec, config: dict, written_as: str | None = None) -> Parameter:
     """The :class:`Parameter` that ``fit.parameters.WRITTEN = spec`` describes, checked: a key a fit can vary, the
-    prior's keys and finite numbers, and finite bounds that are valid values of the key; ConfigError otherwise."""
-    where = f"fit.parameters.{written}"
+    prior's keys and finite numbers, and finite bounds that are valid values of the key; ConfigError otherwise.
+    ``written_as``: how the fit file writes it, where other than ``written`` (a protocol's parameter)."""
+    where = f"fit.parameters.{written_as or written}"
     if not isinstance(spec, dict):
         raise ConfigError(f"{where} must be a table with a prior (uniform, log-uniform or normal)")
     key = parameter_key(written, config)
@@ -225,14 +249,15 @@ def read_plan(path: str, data: Data, model: str | None = None) -> FitPlan:
     parameters = settings.get("parameters")
     if not isinstance(parameters, dict) or not parameters:
         raise ConfigError("fit.parameters: name at least one parameter to fit, each a table with its prior")
-    fitted = [read_parameter(written, spec, base) for written, spec in parameter_tables(parameters)]
+    fitted = read_parameters(parameters, base, data, whole["trials_per_cell"])
     if len({p.key for p in fitted}) != len(fitted):
         raise ConfigError("fit.parameters names one parameter twice")
     for part, keys in zip(data.parts, designs):
         for p in fitted:
-            if p.key in keys or any(key.startswith(f"{p.key}.") for key in keys):
-                raise ConfigError(f"protocol {part.protocol}: sets {p.key}, a fitted parameter; a protocol gives the "
-                                  "study's design, the fit its parameters")
+            if p.protocol in ("", part.protocol) and (p.config_key in keys or
+                                                     any(key.startswith(f"{p.config_key}.") for key in keys)):
+                raise ConfigError(f"protocol {part.protocol}: sets {p.config_key}, a fitted parameter; a protocol "
+                                  "gives the study's design, the fit its parameters")
     measures = settings.get("measures", data.measures)
     if not isinstance(measures, list) or not measures or any(m not in data.measures for m in measures):
         raise ConfigError(f"fit.measures = {measures!r} must list measures of the data file ({', '.join(data.measures)})")
@@ -248,7 +273,7 @@ def read_plan(path: str, data: Data, model: str | None = None) -> FitPlan:
     return FitPlan(fitted, base, {**whole, "model": model, "quick": quick, "workers": workers,
                                      "calibration_design": design}, measures,
                    {m: float(noise.get(m, 0.0)) for m in measures}, chosen, designs,
-                   {m: float(sd) for m, sd in own.items() if sd > 0})
+                   {m: float(sd) for m, sd in own.items() if sd > 0}, [part.protocol for part in data.parts])
 
 
 def read_noise(settings: dict, name: str, data: Data, measures: list[str]) -> dict:

@@ -21,12 +21,18 @@ MAX_SIMULATIONS = 100_000  # the most simulated participants a fit draws, fit.si
 class Parameter:
     """One fitted parameter: its configuration key and its prior."""
 
-    key: str                    # the configuration key, e.g. decoder.visual_variance
+    key: str                    # its name: the configuration key, e.g. decoder.visual_variance, or PROTOCOL:KEY
     prior: str                  # one of PRIORS
     low: float = -math.inf      # bounds, in the parameter's own units
     high: float = math.inf
     mean: float = 0.0           # normal only
     sd: float = 1.0
+    protocol: str = ""          # the one protocol it belongs to (a design value its study did not report); "": all
+
+    @property
+    def config_key(self) -> str:
+        """The configuration key it sets: ``key`` without its protocol."""
+        return self.key.removeprefix(f"{self.protocol}:") if self.protocol else self.key
 
     @property
     def log(self) -> bool:

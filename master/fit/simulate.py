@@ -28,8 +28,10 @@ def participant_points(plan: FitPlan, inference_values: np.ndarray, stream: str)
     points = []
     for part, keys in enumerate(plan.designs or [{}]):
         named = f"{stream}/protocol {part}" if plan.designs else stream
+        protocol = plan.protocols[part] if plan.designs else ""
         for number, row in enumerate(inference_values):
-            point = {**keys, **{p.key: float(p.from_inference(value)) for p, value in zip(plan.parameters, row)}}
+            point = {**keys, **{p.config_key: float(p.from_inference(value))  # a protocol's own: in it alone
+                                for p, value in zip(plan.parameters, row) if p.protocol in ("", protocol)}}
             point["experiment.seed"] = simulation_seed(plan.settings["seed"], number, named)
             points.append(point)
     return points
