@@ -7,9 +7,9 @@ Training data come from the body's camera; that wiring lives in ``master/decoder
 """
 import importlib
 
-__all__ = ["Decoder", "GenerativeModel", "jacobian_images", "CheckpointError"]
 _HOME = {"Decoder": "component", "GenerativeModel": "component", "jacobian_images": "component",
-         "CheckpointError": "checkpoint"}
+         "CheckpointError": "checkpoint"}  # each name the package exports, and its module
+__all__ = list(_HOME)
 
 
 def __getattr__(name):

@@ -130,12 +130,11 @@ def parameter_key(written: str, config: dict) -> str:
     return key
 
 
-def read_parameters(tables: dict, base: dict, data: Data, trials: int) -> list[Parameter]:
+def read_parameters(tables: dict, base: dict, protocols: dict[str, dict]) -> list[Parameter]:
     """``fit.parameters``' priors (:func:`read_parameter`). A key written ``PROTOCOL:KEY`` (PROTOCOL as the data's
-    protocol column names it) belongs to that protocol alone: a design value its study did not report (a stroke
-    rate), fitted as a nuisance parameter, read against that protocol's configuration and set in its simulations
-    only."""
-    protocols = {part.protocol: part for part in data.parts}
+    protocol column names it; ``protocols`` maps each to its configuration) belongs to that protocol alone: a design
+    value its study did not report (a stroke rate), fitted as a nuisance parameter, read against that protocol's
+    configuration and set in its simulations only."""
     fitted = []
     for written, spec in parameter_tables(tables):
         protocol, colon, key = written.rpartition(":")
@@ -145,8 +144,7 @@ def read_parameters(tables: dict, base: dict, data: Data, trials: int) -> list[P
         if protocol not in protocols:
             raise ConfigError(f"fit.parameters.{written}: {protocol!r} is not a protocol of the data file (its "
                               f"protocols: {', '.join(protocols) or 'none: it has no protocol column'})")
-        config = with_protocol(base, protocols[protocol], trials)
-        fitted.append(replace(read_parameter(key, spec, config, written), key=written, protocol=protocol))
+        fitted.append(replace(read_parameter(key, spec, protocols[protocol], written), key=written, protocol=protocol))
     return fitted
 
 
@@ -242,14 +240,15 @@ def read_plan(path: str, data: Data, model: str | None = None) -> FitPlan:
     if len(base["experiment"]["decoders"]) != 1:
         raise ConfigError("experiment.decoders: a fit simulates one decoder; name one")
     configuration.validate(base)  # a value the design replaces (experiment.trials) is refused all the same
-    if data.parts:  # several protocols: each its own design over the fit file's configuration
-        designs = [protocol_keys(base, with_protocol(base, part, whole["trials_per_cell"])) for part in data.parts]
-    else:
-        base, designs = with_design(base, data, whole["trials_per_cell"]), []
+    # several protocols: each its own design over the fit file's configuration
+    protocols = {part.protocol: with_protocol(base, part, whole["trials_per_cell"]) for part in data.parts}
+    designs = [protocol_keys(base, config) for config in protocols.values()]
+    if not data.parts:
+        base = with_design(base, data, whole["trials_per_cell"])
     parameters = settings.get("parameters")
     if not isinstance(parameters, dict) or not parameters:
         raise ConfigError("fit.parameters: name at least one parameter to fit, each a table with its prior")
-    fitted = read_parameters(parameters, base, data, whole["trials_per_cell"])
+    fitted = read_parameters(parameters, base, protocols)
     if len({p.key for p in fitted}) != len(fitted):
         raise ConfigError("fit.parameters names one parameter twice")
     for part, keys in zip(data.parts, designs):
@@ -273,7 +272,7 @@ def read_plan(path: str, data: Data, model: str | None = None) -> FitPlan:
     return FitPlan(fitted, base, {**whole, "model": model, "quick": quick, "workers": workers,
                                      "calibration_design": design}, measures,
                    {m: float(noise.get(m, 0.0)) for m in measures}, chosen, designs,
-                   {m: float(sd) for m, sd in own.items() if sd > 0}, [part.protocol for part in data.parts])
+                   {m: float(sd) for m, sd in own.items() if sd > 0}, list(protocols))
 
 
 def read_noise(settings: dict, name: str, data: Data, measures: list[str]) -> dict:
