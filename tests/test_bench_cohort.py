@@ -78,6 +78,21 @@ def test_a_study_row_sets_a_population_of_distinct_participants_against_as_many_
         assert len(values) == 3 and all(low <= v <= high for v in values), key
 
 
+def test_an_exact_study_row_runs_the_decoder_without_its_fast_mode(monkeypatch):
+    """The exact row's two batches both run the decoder exact (no linearisation shared between trials)."""
+    from rhi.master.bench import study_cost
+
+    seen = []
+    real = study_cost.batch_cpu
+    monkeypatch.setattr(study_cost, "batch_cpu", lambda config, checkpoint, with_population: (
+        seen.append(config["decoder"]["fast"]), real(config, checkpoint, with_population))[1])
+    row = study_cost.study_cost("paper", 2, 2, exact=True)
+    assert row["exact"] and seen and not any(seen)
+    assert row["study_decoder_points"] is None and row["clone_decoder_points"] is None  # nothing linearised
+    monkeypatch.setattr(study_cost, "study_cost", lambda model, n, steps, exact=False: (model, n, exact))
+    assert study_cost.study_rows(3, quick=True)[-1] == ("paper", study_cost.QUICK_STUDY_SIZES[0], True)
+
+
 def test_a_cohort_report_names_its_machine_and_prints_its_study_rows(monkeypatch):
     from rhi.master.bench import study_cost
 
@@ -91,4 +106,4 @@ def test_a_cohort_report_names_its_machine_and_prints_its_study_rows(monkeypatch
     text = cohort.cohort_table(report)
     assert report["machine"]["cpu"] and text.startswith(f"machine: {report['machine']['cpu']}")
     # 0.02 s x 12 trials = 0.240 s of clones against the study's 0.300 s
-    assert "paper         2     6     12     0.300        0.240  1.250  9, 6" in text
+    assert "paper           2     6     12     0.300        0.240  1.250  9, 6" in text

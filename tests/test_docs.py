@@ -99,17 +99,63 @@ def test_an_unknown_output_column_is_refused_until_it_is_documented(monkeypatch)
         reference.summary_columns()
 
 
+# docs/fit/'s group recoveries, in the order docs/fit.md reports them
+GROUP_RECOVERIES = ("group_recovery", "group_recovery_n20", "group_recovery_n20_probes", "group_recovery_n20_combined",
+                    "group_recovery_n20_combined_1000", "group_recovery_n20_combined_ensemble", "group_recovery_n20_30s")
+
+
 def test_the_fit_pages_tables_are_made_from_the_shipped_fits():
     from rhi.master.fit.report import results_markdown
 
     page = (DOCS / "fit.md").read_text()
     variants = ("recovery_zscore", "recovery_bounded", "recovery_ensemble")
-    for folder in ("recovery", *variants, "human/kocur2022", "group_recovery", "group_recovery_n20",
-                   "group_recovery_n20_probes", "group_recovery_n20_combined",
-                   "group_recovery_n20_combined_1000", "group_recovery_n20_combined_ensemble"):
+    for folder in ("recovery", *variants, "human/kocur2022", *GROUP_RECOVERIES):
         tables = results_markdown(DOCS / "fit" / folder)
         first = tables.split("\n\n")[0]  # the variants' page shows their calibration table only
         assert (first if folder in variants else tables) in page, folder
+
+
+def test_the_paper_length_recovery_is_what_its_shipped_files_plan():
+    """docs/fit/group_recovery_n20_30s/run.json was made from the shipped .toml and .csv: the same statistics, the
+    same settings and the same configuration (1500 steps, the probe at 6 s), as read_plan reads them today."""
+    import json
+
+    from rhi.master.fit.data import read_data
+    from rhi.master.fit.plan import read_plan
+    from rhi.master.fit.run import data_statistic_names
+
+    run = json.loads((DOCS / "fit" / "group_recovery_n20_30s" / "run.json").read_text())
+    data = read_data(DOCS / "fit" / "group_recovery_n20_30s.csv")
+    plan = read_plan(DOCS / "fit" / "group_recovery_n20_30s.toml", data)
+    assert data_statistic_names(data, plan) == run["statistics"] and len(run["statistics"]) == 16
+    assert {key: plan.settings[key] for key in run["settings"]} == run["settings"]
+    assert plan.base["experiment"] == run["configuration"]["experiment"]
+    assert (plan.base["experiment"]["steps"], plan.base["experiment"]["probe_times"]) == (1500, [6.0])
+
+
+def test_the_fit_pages_pilot_and_screen_numbers_are_their_tables():
+    """docs/fit.md's trial-length pilot rows and screen numbers ("Which statistic carries Σv's spread") as
+    docs/fit/pilots/trial_length.csv and screen.csv give them."""
+    page = (DOCS / "fit.md").read_text()
+    pilots = DOCS / "fit" / "pilots"
+    with open(pilots / "trial_length.csv", newline="") as file:
+        rows = {(row["stimulation"], row["statistic"]): row for row in csv.DictReader(file)}
+    labels = {("sync", "drift_at_6s_cm"): "drift at 6 s", ("sync", "drift_at_12s_cm"): "drift at 12 s",
+              ("sync", "drift_cm"): "drift at 30 s (final)", ("sync", "force_n"): "force at 30 s",
+              ("async", "drift_cm"): "async drift at 30 s"}
+    for key, label in labels.items():
+        row = rows[key]
+        signed = [f"{float(row[name]):+.2f}".replace("-", "\u2212")
+                  for name in ("visual_variance", "proprioceptive_variance", "gamma0")]
+        assert f"| {label} | {' | '.join(signed)} | {row['r2']} |" in page, label
+    with open(pilots / "screen.csv", newline="") as file:
+        screened = {row["data"]: row["population.decoder.visual_variance.log_sd_r"] for row in csv.DictReader(file)}
+    words = {"group_recovery_n20_combined.csv": "the 20 statistics above {}",
+             "screen_contrast.csv": "30 statistics) {}", "screen_percentiles.csv": "90th percentiles {}",
+             "screen_pretouch_correlations.csv": "with the force) {}"}
+    flat = " ".join(page.split())
+    for name, phrase in words.items():
+        assert phrase.format(screened[name]) in flat, name
 
 
 def test_the_shipped_fits_coverage_is_that_of_their_ranks():
@@ -117,9 +163,7 @@ def test_the_shipped_fits_coverage_is_that_of_their_ranks():
     the central 50 % interval when its rank is 25 to 74, inside the 90 % interval when it is 5 to 94."""
     import csv
 
-    for folder in ("recovery", "recovery_noise", "human/kocur2022", "group_recovery", "group_recovery_n20",
-                   "group_recovery_n20_probes", "group_recovery_n20_combined",
-                   "group_recovery_n20_combined_1000", "group_recovery_n20_combined_ensemble"):
+    for folder in ("recovery", "recovery_noise", "human/kocur2022", *GROUP_RECOVERIES):
         with open(DOCS / "fit" / folder / "recovery.csv", newline="") as file:
             rows = list(csv.DictReader(file))
         with open(DOCS / "fit" / folder / "calibration.csv", newline="") as file:

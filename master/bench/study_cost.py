@@ -76,22 +76,24 @@ def batch_cpu(config: dict, checkpoint: str, with_population: bool) -> tuple[flo
     return spent, len(trials), used
 
 
-def study_cost(model: str, n: int, steps: int) -> dict:
+def study_cost(model: str, n: int, steps: int, exact: bool = False) -> dict:
     """One study of ``n`` participants of ``model`` against n x cells clone trials in a batch of the same size.
+    exact: the decoder without its fast mode (``decoder.fast = false``): every trial evaluates the decoder at its own
+    belief each step, so that no two trials share work and the ratio is the population's own cost.
 
     Returns
     -------
     dict
         ``model``, ``participants``, ``cells``, ``batch`` (trials in each batch), ``steps``, ``study_cpu_s``,
         ``trial_cpu_s`` (a clone trial's CPU in the batch of the same size), ``ratio`` (the study's CPU over
-        n x cells clone trials'), and the linearisations the fast decoder evaluated in each batch
+        n x cells clone trials'), ``exact``, and the linearisations the fast decoder evaluated in each batch
         (``study_decoder_points``, ``clone_decoder_points``; None where none runs): clones of a cell walk one path
         and share them, distinct participants each walk their own.
     """
     from rhi.master.decoders.cache import ensure_checkpoints
 
-    clones = configuration.load(model_name=model, overrides={"experiment.steps": steps, "experiment.decoders": ["conv"],
-                                                             "experiment.trials": n})
+    overrides = {"experiment.steps": steps, "experiment.decoders": ["conv"], "experiment.trials": n}
+    clones = configuration.load(model_name=model, overrides={**overrides, **({"decoder.fast": False} if exact else {})})
     study = configuration.merge(clones, {"population": population_of(model)})
     configuration.validate(study)
     checkpoint = ensure_checkpoints(clones, progress=False)[0]["conv"]
@@ -102,26 +104,30 @@ def study_cost(model: str, n: int, steps: int) -> dict:
     assert same == trials
     # the least CPU of each over the repeats: the run least disturbed by other work on the machine
     study_s, clone_s = (min(run[side][0] for run in runs) for side in (0, 1))
-    return {"model": model, "participants": n, "cells": trials // n, "batch": trials, "steps": steps,
+    return {"model": model, "exact": exact, "participants": n, "cells": trials // n, "batch": trials, "steps": steps,
             "study_cpu_s": study_s, "trial_cpu_s": clone_s / trials, "ratio": study_s / clone_s,
             "study_decoder_points": study_points, "clone_decoder_points": clone_points}
 
 
 def study_rows(steps: int, quick: bool = False) -> list[dict]:
-    """:func:`study_cost` of ``steps`` steps for each model of :data:`STUDY_POPULATIONS` and study size."""
+    """:func:`study_cost` of ``steps`` steps for each model of :data:`STUDY_POPULATIONS` and study size, then the
+    paper model's smallest study with the exact decoder (the fast decoder's clones share work that distinct
+    participants cannot: that row shows the population's cost without it)."""
     sizes = QUICK_STUDY_SIZES if quick else STUDY_SIZES
-    return [study_cost(model, n, steps) for model in STUDY_POPULATIONS for n in sizes]
+    return [*(study_cost(model, n, steps) for model in STUDY_POPULATIONS for n in sizes),
+            study_cost("paper", sizes[0], steps, exact=True)]
 
 
 def study_table(rows: list[dict]) -> str:
     """The study rows as text."""
     lines = [f"a study of n participants (a population, every cell in one lockstep batch, batched arm) against n "
              f"participants' trials as clones in a batch of the same size; CPU-s (bound: ratio <= {BOUND:g})",
-             f"{'model':10s} {'n':>4s} {'cells':>5s} {'batch':>6s} {'study s':>9s} {'n x trials s':>12s} {'ratio':>6s}"
+             f"{'model':12s} {'n':>4s} {'cells':>5s} {'batch':>6s} {'study s':>9s} {'n x trials s':>12s} {'ratio':>6s}"
              f"  decoder points (study, clones)"]
     for row in rows:
         points = ("-" if row["study_decoder_points"] is None
                   else f"{row['study_decoder_points']}, {row['clone_decoder_points']}")
-        lines.append(f"{row['model']:10s} {row['participants']:4d} {row['cells']:5d} {row['batch']:6d} "
+        model = f"{row['model']} exact" if row.get("exact") else row["model"]
+        lines.append(f"{model:12s} {row['participants']:4d} {row['cells']:5d} {row['batch']:6d} "
                      f"{row['study_cpu_s']:9.3f} {row['trial_cpu_s'] * row['batch']:12.3f} {row['ratio']:6.3f}  {points}")
     return "\n".join(lines)
