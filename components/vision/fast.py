@@ -147,22 +147,34 @@ def grouped_point_products(sensed, store, slots, residual):
     holding one trial). Each of bmm's G products is the (k, P) x (P, 2) matrix product F.linear makes of that point's
     trials, rows in the same order, so the bits are those of :func:`point_products` where the CPU's matrix library
     computes a product of a batch as it computes it alone; :class:`LinearisedDecoder` checks that on each group size
-    it meets. Parameters and returns as :func:`point_products`.
+    it meets. The residuals are gathered once, group after group, and their squared norms taken in one call (a fit's
+    batch of 400 distinct participants stands on points of about 15 sizes a step). Parameters and returns as
+    :func:`point_products`.
     """
     batch, pixels = sensed.shape
-    projected, squared = torch.empty(batch, 2), torch.empty(batch)
     order = np.argsort(slots, kind="stable")  # the trials of a point together, in their own order
     ordered = slots[order]
     starts = np.flatnonzero(np.concatenate(([True], ordered[1:] != ordered[:-1])))
     counts = np.diff(np.append(starts, batch))
-    for size in np.unique(counts):
-        first = starts[counts == size]
-        trials = torch.from_numpy(order[first[:, None] + np.arange(size)].ravel())
-        points = torch.from_numpy(ordered[first])
-        rows = torch.index_select(sensed, 0, trials, out=residual[:len(trials)]).view(len(first), size, pixels)
-        rows.sub_(store[points, 0][:, None, :])
-        projected.index_copy_(0, trials, torch.bmm(rows, store[points, 1:].transpose(1, 2)).view(-1, 2))
-        squared.index_copy_(0, trials, torch.linalg.vector_norm(rows, dim=2).square().view(-1))
+    # The points by their number of trials (then by slot), each point's trials together: one gather of every
+    # residual, one norm and one copy back, and per number k only the subtraction and the batched product.
+    by_size = np.argsort(counts, kind="stable")
+    sizes = counts[by_size]
+    offsets = np.cumsum(sizes) - sizes  # each point's first row among the gathered residuals
+    within = np.arange(batch) - np.repeat(offsets, sizes)
+    index = torch.from_numpy(order[np.repeat(starts[by_size], sizes) + within])
+    points = torch.from_numpy(ordered[starts[by_size]])
+    rows = torch.index_select(sensed, 0, index, out=residual[:batch])
+    products = torch.empty(batch, 2)
+    size_values, first_points, groups = np.unique(sizes, return_index=True, return_counts=True)
+    for size, first, count in zip(size_values.tolist(), first_points.tolist(), groups.tolist()):
+        row = int(offsets[first])
+        block, these = rows[row:row + count * size].view(count, size, pixels), points[first:first + count]
+        block.sub_(store[these, 0][:, None, :])
+        torch.bmm(block, store[these, 1:].transpose(1, 2), out=products[row:row + count * size].view(count, size, 2))
+    projected, squared = torch.empty(batch, 2), torch.empty(batch)
+    projected.index_copy_(0, index, products)
+    squared.index_copy_(0, index, torch.linalg.vector_norm(rows, dim=1).square())
     return projected, squared
 
 
