@@ -84,8 +84,12 @@ def test_an_exact_study_row_runs_the_decoder_without_its_fast_mode(monkeypatch):
 
     seen = []
     real = study_cost.batch_cpu
-    monkeypatch.setattr(study_cost, "batch_cpu", lambda config, checkpoint, with_population: (
-        seen.append(config["decoder"]["fast"]), real(config, checkpoint, with_population))[1])
+
+    def noting_the_mode(config, checkpoint, with_population):
+        seen.append(config["decoder"]["fast"])
+        return real(config, checkpoint, with_population)
+
+    monkeypatch.setattr(study_cost, "batch_cpu", noting_the_mode)
     row = study_cost.study_cost("paper", 2, 2, exact=True)
     assert row["exact"] and seen and not any(seen)
     assert row["study_decoder_points"] is None and row["clone_decoder_points"] is None  # nothing linearised

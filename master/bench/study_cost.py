@@ -93,7 +93,9 @@ def study_cost(model: str, n: int, steps: int, exact: bool = False) -> dict:
     from rhi.master.decoders.cache import ensure_checkpoints
 
     overrides = {"experiment.steps": steps, "experiment.decoders": ["conv"], "experiment.trials": n}
-    clones = configuration.load(model_name=model, overrides={**overrides, **({"decoder.fast": False} if exact else {})})
+    if exact:
+        overrides["decoder.fast"] = False
+    clones = configuration.load(model_name=model, overrides=overrides)
     study = configuration.merge(clones, {"population": population_of(model)})
     configuration.validate(study)
     checkpoint = ensure_checkpoints(clones, progress=False)[0]["conv"]

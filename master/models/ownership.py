@@ -46,9 +46,8 @@ DERIVED_FROM = {"brain.peripersonal_sd": "ownership.peripersonal_boundary"}
 # (docs/model.md, "The ownership model": why these ranges, and why the coupling prior joined the rates). Their
 # values in ownership.toml are the adopted joint points (point.csv) of the population fits shipped in FIT_FOLDERS
 # (relative to the project; the drift's on Rohde et al. 2011 and Kocur et al. 2022, the onset's on Kalckert &
-# Ehrsson 2017), their
-# population medians where they fit a [population]; a parameter no such fit has keeps the posterior median of the
-# individual fit in MEDIAN_FIT_FOLDER (fitted_values).
+# Ehrsson 2017), their population medians where they fit a [population]; a parameter no such fit has keeps the
+# posterior median of the individual fit in MEDIAN_FIT_FOLDER (fitted_values).
 FREE_PARAMETERS = {"ownership.switching_rate": ("log-uniform", 1.0 / 600.0, 1.0),
                    "ownership.realignment_rate": ("log-uniform", 1.0 / 600.0, 1.0),
                    "ownership.coupling_prior": ("uniform", 0.01, 0.99),

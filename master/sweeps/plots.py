@@ -9,7 +9,6 @@ import json
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-
 from rhi.master.outputs.figures import save, subplots
 
 if TYPE_CHECKING:

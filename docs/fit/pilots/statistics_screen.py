@@ -15,6 +15,7 @@ import numpy as np
 import torch
 
 from rhi.master.fit import inference, memory
+from rhi.master.fit.calibration import recovery
 from rhi.master.fit.data import read_data
 from rhi.master.fit.plan import read_plan
 from rhi.master.fit.priors import draw_participants
@@ -41,8 +42,8 @@ def screen(simulations: Path, data_path: str) -> tuple[list[str], int, np.ndarra
         scored[first:last] = True
         posterior = memory.train(plan, theta[valid & ~scored], x[valid & ~scored])
         rows = np.flatnonzero(valid & scored)
-        medians = np.stack([np.median(inference.sample(posterior, x[row], 200, 7 + int(row)), axis=0) for row in rows])
-        folds.append([np.corrcoef(theta[rows, d], medians[:, d])[0, 1] for d in range(theta.shape[1])])
+        samples = np.stack([inference.sample(posterior, x[row], 200, 7 + int(row)) for row in rows])
+        folds.append(recovery(samples, theta[rows])["correlation"])
     return [p.key for p in plan.parameters], x.shape[1], np.array(folds)
 
 
